@@ -1,0 +1,91 @@
+"""The action codec: policy actions -> (v, w) velocity commands, clamped to the limits.
+
+Continuous actions are (a_v, a_w) in [-1, 1] scaled linearly to [-v_max, v_max] m/s and
+[-w_max, w_max] rad/s (values outside [-1, 1] are clamped). Discrete actions index a named set:
+forward (0.15 m/s), left (0.1 m/s, +0.2 rad/s), right (0.1 m/s, -0.2 rad/s), and optionally
+backward (-0.15 m/s) and stop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from pipeline.errors import ActionError
+
+ActionKind = Literal["continuous", "discrete"]
+DiscreteName = Literal["forward", "left", "right", "backward", "stop"]
+
+DISCRETE_COMMANDS: dict[str, tuple[float, float]] = {
+    "forward": (0.15, 0.0),
+    "left": (0.1, 0.2),
+    "right": (0.1, -0.2),
+    "backward": (-0.15, 0.0),
+    "stop": (0.0, 0.0),
+}
+
+
+@dataclass(frozen=True)
+class ActionCodec:
+    """Decodes policy actions of `kind` into (v m/s, w rad/s) within the limits."""
+
+    kind: ActionKind
+    v_max_mps: float
+    w_max_radps: float
+    discrete_set: tuple[str, ...] = ("forward", "left", "right")
+
+    def __post_init__(self) -> None:
+        unknown = [n for n in self.discrete_set if n not in DISCRETE_COMMANDS]
+        if unknown:
+            raise ActionError(f"unknown discrete action(s) {unknown}; allowed: {', '.join(DISCRETE_COMMANDS)}")
+
+    @property
+    def n_discrete(self) -> int:
+        return len(self.discrete_set)
+
+    @property
+    def table(self) -> np.ndarray:
+        """(n_discrete, 2) (v, w) of each discrete action, clamped to the limits."""
+        t = np.array([DISCRETE_COMMANDS[n] for n in self.discrete_set], dtype=np.float64)
+        return self.clamp(t)
+
+    @property
+    def action_size(self) -> int:
+        """Length of one robot's action vector (1 index for discrete)."""
+        return 2 if self.kind == "continuous" else 1
+
+    def clamp(self, cmd: np.ndarray) -> np.ndarray:
+        """(..., 2) (v, w) clamped to +-v_max, +-w_max."""
+        c = np.asarray(cmd, dtype=np.float64)
+        return np.stack([np.clip(c[..., 0], -self.v_max_mps, self.v_max_mps),
+                         np.clip(c[..., 1], -self.w_max_radps, self.w_max_radps)], axis=-1)
+
+    def decode(self, actions: np.ndarray) -> np.ndarray:
+        """(n_robots, 2) (v, w) from (n_robots, 2) continuous or (n_robots,) discrete actions."""
+        a = np.asarray(actions)
+        if self.kind == "continuous":
+            a = a.astype(np.float64)
+            if a.ndim != 2 or a.shape[1] != 2:
+                raise ActionError(f"continuous actions must have shape (n_robots, 2), got {a.shape}")
+            if not np.isfinite(a).all():
+                raise ActionError(f"continuous actions must be finite, got {a.tolist()}")
+            a = np.clip(a, -1.0, 1.0)
+            return np.stack([a[:, 0] * self.v_max_mps, a[:, 1] * self.w_max_radps], axis=1)
+        idx = a.reshape(-1)
+        if not np.issubdtype(idx.dtype, np.integer):
+            if not np.all(np.isfinite(idx)) or not np.all(idx == np.round(idx)):
+                raise ActionError(f"discrete actions must be integers, got {idx.tolist()}")
+            idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_discrete):
+            raise ActionError(f"discrete actions must lie in [0, {self.n_discrete - 1}] "
+                              f"({', '.join(self.discrete_set)}), got {idx.tolist()}")
+        return self.table[idx]
+
+    def encode(self, cmd: np.ndarray) -> np.ndarray:
+        """Inverse of decode for continuous actions: (n, 2) (v, w) -> (n, 2) in [-1, 1]."""
+        if self.kind != "continuous":
+            raise ActionError("encode is defined for continuous actions only")
+        c = self.clamp(cmd)
+        return np.stack([c[:, 0] / self.v_max_mps, c[:, 1] / self.w_max_radps], axis=1)

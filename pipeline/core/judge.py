@@ -1,0 +1,152 @@
+"""The episode judge: goal, collision and timeout decisions and the reward with its terms.
+
+One judge serves sim, twin and robots. It prefers a ground-truth pose (sim truth, the twin's
+ground_truth topic, motion capture) and the known map; without ground truth it falls back to
+odometry for the goal and to the lidar for collisions (closest valid range below the robot
+radius plus a margin).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.core.scenario import Scenario, box_clearance
+
+REWARD_TERMS: tuple[str, ...] = ("progress", "goal", "team", "collision", "step")
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Named reward weights: progress per metre toward the own goal, bonuses and penalties."""
+
+    progress_per_m: float = 1.0
+    goal: float = 1.0
+    team: float = 10.0
+    collision: float = -1.0
+    step: float = 0.0
+
+
+@dataclass(frozen=True)
+class JudgeStep:
+    """The judgement of one control step; arrays are (n_robots,)."""
+
+    reward: np.ndarray
+    terms: dict[str, np.ndarray]
+    reached: np.ndarray
+    collided: np.ndarray
+    done: np.ndarray
+    active: np.ndarray
+    truncated: bool
+    team_success: bool
+    events: list[tuple[int, str]] = field(default_factory=list)
+
+    def robot_terms(self, i: int) -> dict[str, float]:
+        """Robot i's reward terms as floats; they sum exactly to float(reward[i])."""
+        return {name: float(v[i]) for name, v in self.terms.items()}
+
+
+class EpisodeJudge:
+    """Judges each control step of an episode against a scenario's goals and map."""
+
+    def __init__(self, scenario: Scenario, weights: RewardWeights, max_steps: int,
+                 collision_margin_m: float = 0.02) -> None:
+        self.scenario = scenario
+        self.weights = weights
+        self.max_steps = max_steps
+        self.margin_m = collision_margin_m
+        self.goals = scenario.goals
+        self.half_goal_m = scenario.goal_size_m / 2
+        self.radius_m = scenario.robot.radius_m
+        n = scenario.n_robots
+        self.reached = np.zeros(n, dtype=bool)
+        self.collided = np.zeros(n, dtype=bool)
+        self.steps = 0
+        self.team_success = False
+        self._prev_dist = np.zeros(n)
+
+    @property
+    def done(self) -> np.ndarray:
+        """(n_robots,) robots whose episode is over (at goal or collided)."""
+        return self.reached | self.collided
+
+    def reset(self, pose: np.ndarray) -> None:
+        """Start an episode at `pose` (n_robots, 3) (truth if known, else odometry)."""
+        self.reached[:] = False
+        self.collided[:] = False
+        self.steps = 0
+        self.team_success = False
+        self._prev_dist = self.goal_distance(pose)
+
+    def goal_distance(self, pose: np.ndarray) -> np.ndarray:
+        """(n_robots,) distance (m) from each robot to its goal centre."""
+        d = np.asarray(pose)[:, :2] - self.goals
+        return np.asarray(np.hypot(d[:, 0], d[:, 1]))
+
+    def in_goal(self, pose: np.ndarray) -> np.ndarray:
+        """(n_robots,) robot centres inside their own goal squares."""
+        d = np.abs(np.asarray(pose)[:, :2] - self.goals)
+        return np.asarray((d[:, 0] <= self.half_goal_m) & (d[:, 1] <= self.half_goal_m))
+
+    def clearance(self, pose: np.ndarray) -> np.ndarray:
+        """(n_robots,) free distance (m) between each robot's body and the nearest wall, box or robot."""
+        xy = np.asarray(pose)[:, :2]
+        room = self.scenario.room
+        walls = np.minimum.reduce([xy[:, 0] - room.x_min_m, room.x_max_m - xy[:, 0],
+                                   xy[:, 1] - room.y_min_m, room.y_max_m - xy[:, 1]])
+        gap = walls - self.radius_m
+        for box in self.scenario.obstacles:
+            gap = np.minimum(gap, box_clearance(box, xy) - self.radius_m)
+        if len(xy) > 1:
+            diff = xy[:, None, :] - xy[None, :, :]
+            dist = np.hypot(diff[..., 0], diff[..., 1]) - 2 * self.radius_m
+            np.fill_diagonal(dist, np.inf)
+            gap = np.minimum(gap, dist.min(axis=1))
+        return np.asarray(gap)
+
+    def step(self, odom_pose: np.ndarray, truth_pose: np.ndarray | None = None,
+             ranges: np.ndarray | None = None) -> JudgeStep:
+        """Judge the step that just ended.
+
+        odom_pose, truth_pose: (n_robots, 3) x, y (m), yaw (rad); ranges: (n_robots, n_beams) m,
+        used for collisions only when no truth pose is given.
+        """
+        active = ~self.done
+        pose = truth_pose if truth_pose is not None else odom_pose
+        self.steps += 1
+        if truth_pose is not None:
+            hit = self.clearance(truth_pose) < self.margin_m
+        elif ranges is not None:
+            hit = np.asarray(ranges).min(axis=1) < self.radius_m + self.margin_m
+        else:
+            hit = np.zeros_like(active)
+        arrived = self.in_goal(pose)
+        new_collided = active & hit
+        new_reached = active & arrived & ~hit
+        dist = self.goal_distance(pose)
+        w = self.weights
+        zeros = np.zeros(len(active))
+        terms = {
+            "progress": np.where(active, w.progress_per_m * (self._prev_dist - dist), 0.0),
+            "goal": np.where(new_reached, w.goal, 0.0),
+            "team": zeros.copy(),
+            "collision": np.where(new_collided, w.collision, 0.0),
+            "step": np.where(active, w.step, 0.0),
+        }
+        self._prev_dist = np.where(active, dist, self._prev_dist)
+        self.reached |= new_reached
+        self.collided |= new_collided
+        events = [(int(i), "collision") for i in np.flatnonzero(new_collided)]
+        events += [(int(i), "goal") for i in np.flatnonzero(new_reached)]
+        if not self.team_success and self.reached.all():
+            self.team_success = True
+            terms["team"] = np.full(len(active), w.team)
+            events.append((-1, "success"))
+        truncated = bool(self.steps >= self.max_steps and not self.done.all())
+        if truncated:
+            events += [(int(i), "timeout") for i in np.flatnonzero(~self.done)]
+        reward = terms["progress"] + terms["goal"] + terms["team"] + terms["collision"] + terms["step"]
+        return JudgeStep(reward=reward, terms=terms, reached=self.reached.copy(), collided=self.collided.copy(),
+                         done=self.done, active=active, truncated=truncated,
+                         team_success=self.team_success, events=events)

@@ -1,0 +1,95 @@
+"""Observation layouts: named, sliced vectors built the same way in sim, on the twin and on robots.
+
+``paper``: x, y (odometry, m) then N ranges (m): 17 values for 15 beams, as the original.
+``rich``: x, y, cos(yaw), sin(yaw) (odometry), the own goal's centre in the robot frame
+(forward, left, m), then N ranges (m). Shared networks need it: it tells robots apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+LayoutName = Literal["paper", "rich"]
+LAYOUTS: tuple[LayoutName, ...] = ("paper", "rich")
+
+_FIELDS: dict[str, tuple[tuple[str, int], ...]] = {
+    "paper": (("position", 2),),
+    "rich": (("position", 2), ("heading", 2), ("goal_in_robot", 2)),
+}
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """A named observation layout for `n_beams` lidar ranges."""
+
+    name: LayoutName
+    n_beams: int
+
+    def __post_init__(self) -> None:
+        if self.name not in _FIELDS:
+            raise ValueError(f"unknown observation layout {self.name!r}; allowed: {', '.join(LAYOUTS)}")
+
+    @property
+    def fields(self) -> tuple[tuple[str, int], ...]:
+        """(name, size) pairs in vector order."""
+        return (*_FIELDS[self.name], ("ranges", self.n_beams))
+
+    @property
+    def size(self) -> int:
+        return sum(n for _, n in self.fields)
+
+    @property
+    def slices(self) -> dict[str, slice]:
+        """Field name -> slice of the observation vector."""
+        out, start = {}, 0
+        for name, n in self.fields:
+            out[name] = slice(start, start + n)
+            start += n
+        return out
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """One name per element, e.g. ('x_m', 'y_m', 'range_0_m', ...)."""
+        per_field = {
+            "position": ("x_m", "y_m"),
+            "heading": ("cos_yaw", "sin_yaw"),
+            "goal_in_robot": ("goal_forward_m", "goal_left_m"),
+            "ranges": tuple(f"range_{k}_m" for k in range(self.n_beams)),
+        }
+        return tuple(n for name, _ in self.fields for n in per_field[name])
+
+    def bounds(self, x_lim_m: tuple[float, float], y_lim_m: tuple[float, float], range_min_m: float,
+               range_max_m: float, margin_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) float32 vectors of the observation space for a room's limits."""
+        span = float(np.hypot(x_lim_m[1] - x_lim_m[0], y_lim_m[1] - y_lim_m[0])) + 2 * margin_m
+        per_field = {
+            "position": ([x_lim_m[0] - margin_m, y_lim_m[0] - margin_m], [x_lim_m[1] + margin_m, y_lim_m[1] + margin_m]),
+            "heading": ([-1.0, -1.0], [1.0, 1.0]),
+            "goal_in_robot": ([-span, -span], [span, span]),
+            "ranges": ([range_min_m] * self.n_beams, [range_max_m] * self.n_beams),
+        }
+        low = np.concatenate([per_field[n][0] for n, _ in self.fields]).astype(np.float32)
+        high = np.concatenate([per_field[n][1] for n, _ in self.fields]).astype(np.float32)
+        return low, high
+
+    def build(self, odom_pose: np.ndarray, ranges: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        """Observations (n_robots, size) float32.
+
+        odom_pose: (n_robots, 3) x, y (m), yaw (rad) from odometry.
+        ranges: (n_robots, n_beams) reduced lidar ranges (m).
+        goals: (n_robots, 2) goal centres (m).
+        """
+        pose = np.asarray(odom_pose, dtype=np.float64)
+        r = np.asarray(ranges, dtype=np.float64)
+        if r.shape != (pose.shape[0], self.n_beams):
+            raise ValueError(f"ranges have shape {r.shape}, the layout needs ({pose.shape[0]}, {self.n_beams})")
+        parts = [pose[:, :2]]
+        if self.name == "rich":
+            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            d = np.asarray(goals, dtype=np.float64) - pose[:, :2]
+            parts += [np.stack([c, s], axis=1), np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)]
+        parts.append(r)
+        return np.concatenate(parts, axis=1).astype(np.float32)

@@ -1,0 +1,207 @@
+"""Scenarios as data: the room, the robots' starts and goals, and the obstacles.
+
+A scenario is a YAML file (bundled ones live in ``pipeline/core/scenarios/``); users add rooms,
+robots or obstacles by writing a new file, no code. Both worlds read the same map: the
+simulator builds its MuJoCo model from it, the episode judge checks goals and collisions
+against it, on the twin and on robots alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from pipeline.errors import ConfigError, ConfigProblem, ScenarioError
+from pipeline.settings import from_mapping, read_yaml, setting
+
+
+@dataclass(frozen=True)
+class Room:
+    """Axis-aligned room; walls stand on its edges (metres)."""
+
+    x_min_m: float = setting()
+    x_max_m: float = setting()
+    y_min_m: float = setting()
+    y_max_m: float = setting()
+    wall_thickness_m: float = setting(0.1, gt=0.0)
+    wall_height_m: float = setting(0.5, gt=0.0)
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad = []
+        if not self.x_max_m > self.x_min_m:
+            bad.append(("x_max_m", self.x_max_m, f"a value > x_min_m ({self.x_min_m})"))
+        if not self.y_max_m > self.y_min_m:
+            bad.append(("y_max_m", self.y_max_m, f"a value > y_min_m ({self.y_min_m})"))
+        return bad
+
+
+@dataclass(frozen=True)
+class RobotShape:
+    """The robot body, shared by every robot of a scenario (SPARK by default)."""
+
+    radius_m: float = setting(0.165, gt=0.0)
+    height_m: float = setting(0.2, gt=0.0)
+    mass_kg: float = setting(5.0, gt=0.0)
+    wheel_separation_m: float = setting(0.281, gt=0.0)
+    wheel_diameter_m: float = setting(0.068, gt=0.0)
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    x_m: float = setting()
+    y_m: float = setting()
+    yaw_rad: float = setting(0.0)
+
+
+@dataclass(frozen=True)
+class Point2D:
+    x_m: float = setting()
+    y_m: float = setting()
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Where a robot starts and the centre of its goal square."""
+
+    start: Pose2D = setting()
+    goal: Point2D = setting()
+
+
+@dataclass(frozen=True)
+class Box:
+    """An obstacle: a box centred at (x, y) with full sizes along its own axes."""
+
+    kind: Literal["box"] = setting()
+    x_m: float = setting()
+    y_m: float = setting()
+    size_x_m: float = setting(gt=0.0)
+    size_y_m: float = setting(gt=0.0)
+    height_m: float = setting(0.4, gt=0.0)
+    yaw_rad: float = setting(0.0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A room, its robots (named robot_1..N in order) and obstacles."""
+
+    name: str = setting()
+    room: Room = setting()
+    robot: RobotShape = setting()
+    robots: tuple[RobotSpec, ...] = setting(min_len=1)
+    goal_size_m: float = setting(0.4, gt=0.0)
+    obstacles: tuple[Box, ...] = setting(())
+
+    @property
+    def n_robots(self) -> int:
+        return len(self.robots)
+
+    @property
+    def robot_names(self) -> tuple[str, ...]:
+        return tuple(f"robot_{i + 1}" for i in range(self.n_robots))
+
+    @cached_property
+    def starts(self) -> np.ndarray:
+        """(n_robots, 3) start poses x, y (m), yaw (rad)."""
+        return np.array([[r.start.x_m, r.start.y_m, r.start.yaw_rad] for r in self.robots])
+
+    @cached_property
+    def goals(self) -> np.ndarray:
+        """(n_robots, 2) goal square centres (m)."""
+        return np.array([[r.goal.x_m, r.goal.y_m] for r in self.robots])
+
+    @property
+    def diagonal_m(self) -> float:
+        return math.hypot(self.room.x_max_m - self.room.x_min_m, self.room.y_max_m - self.room.y_min_m)
+
+    def with_robots(self, n: int) -> Scenario:
+        """The same scenario with only its first `n` robots."""
+        if not 1 <= n <= self.n_robots:
+            raise ScenarioError(self.name, f"n_robots = {n}: this scenario defines 1 to {self.n_robots} robots")
+        return dataclasses.replace(self, robots=self.robots[:n])
+
+    def validate(self) -> None:
+        """Raise ScenarioError for geometry that cannot be simulated."""
+        r = self.robot.radius_m
+        room = self.room
+        half = self.goal_size_m / 2
+        for name, spec in zip(self.robot_names, self.robots, strict=True):
+            s, g = spec.start, spec.goal
+            if not (room.x_min_m + r <= s.x_m <= room.x_max_m - r and room.y_min_m + r <= s.y_m <= room.y_max_m - r):
+                raise ScenarioError(self.name, f"{name} starts at ({s.x_m}, {s.y_m}), outside the room or inside a wall "
+                                    f"(allowed: x in [{room.x_min_m + r}, {room.x_max_m - r}], y in [{room.y_min_m + r}, {room.y_max_m - r}])")
+            if not (room.x_min_m <= g.x_m - half and g.x_m + half <= room.x_max_m
+                    and room.y_min_m <= g.y_m - half and g.y_m + half <= room.y_max_m):
+                raise ScenarioError(self.name, f"the goal of {name} at ({g.x_m}, {g.y_m}) does not lie inside the room "
+                                    f"x in [{room.x_min_m}, {room.x_max_m}], y in [{room.y_min_m}, {room.y_max_m}]")
+            for k, box in enumerate(self.obstacles):
+                if box_clearance(box, np.array([[s.x_m, s.y_m]]))[0] < r:
+                    raise ScenarioError(self.name, f"{name} starts at ({s.x_m}, {s.y_m}), inside or touching obstacle {k} "
+                                        f"(box at ({box.x_m}, {box.y_m}))")
+        starts = self.starts[:, :2]
+        for i in range(self.n_robots):
+            for j in range(i + 1, self.n_robots):
+                d = float(np.hypot(*(starts[i] - starts[j])))
+                if d < 2 * r:
+                    raise ScenarioError(self.name, f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
+                                        f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap")
+        for k, box in enumerate(self.obstacles):
+            corners = box_corners(box)
+            if (corners[:, 0].min() < room.x_min_m or corners[:, 0].max() > room.x_max_m
+                    or corners[:, 1].min() < room.y_min_m or corners[:, 1].max() > room.y_max_m):
+                raise ScenarioError(self.name, f"obstacle {k} at ({box.x_m}, {box.y_m}) reaches outside the room")
+
+
+def box_corners(box: Box) -> np.ndarray:
+    """(4, 2) corners of a box in the world frame (m)."""
+    c, s = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
+    hx, hy = box.size_x_m / 2, box.size_y_m / 2
+    local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
+    return local @ np.array([[c, s], [-s, c]]) + np.array([box.x_m, box.y_m])
+
+
+def box_clearance(box: Box, points: np.ndarray) -> np.ndarray:
+    """Distance (m) from each of `points` (n, 2) to the box surface; 0 inside."""
+    c, s = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
+    d = points - np.array([box.x_m, box.y_m])
+    local = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+    excess = np.abs(local) - np.array([box.size_x_m / 2, box.size_y_m / 2])
+    return np.asarray(np.hypot(*np.maximum(excess, 0.0).T))
+
+
+def bundled_scenarios() -> tuple[str, ...]:
+    """Names of the scenarios shipped with the package."""
+    folder = resources.files("pipeline.core") / "scenarios"
+    return tuple(sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml")))
+
+
+def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | None = None) -> Scenario:
+    """A validated scenario from a bundled name, a YAML path, a mapping or a Scenario.
+
+    `n_robots` keeps the first n robots of the scenario.
+    """
+    if isinstance(spec, Scenario):
+        scenario = spec
+    elif isinstance(spec, dict):
+        scenario = from_mapping(Scenario, spec, "<scenario mapping>")
+    else:
+        text = str(spec)
+        if text in bundled_scenarios():
+            ref = resources.files("pipeline.core") / "scenarios" / f"{text}.yaml"
+            with resources.as_file(ref) as path:
+                scenario = from_mapping(Scenario, read_yaml(path), str(path))
+        elif text.endswith((".yaml", ".yml")) or Path(text).exists():
+            scenario = from_mapping(Scenario, read_yaml(text), text)
+        else:
+            raise ConfigError("<scenario>", [ConfigProblem("scenario", text, "a bundled scenario ("
+                              + ", ".join(bundled_scenarios()) + ") or the path of a scenario YAML file")])
+    if n_robots is not None:
+        scenario = scenario.with_robots(n_robots)
+    scenario.validate()
+    return scenario

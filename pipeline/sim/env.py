@@ -1,0 +1,178 @@
+"""Multi-robot navigation in MuJoCo: an array-level core and its PettingZoo ParallelEnv.
+
+Per control step: actions are decoded by core's action codec (robots that are done get zero
+velocity), MuJoCo advances one control period, the simulated lidar produces a LaserScan-shaped
+scan that core reduces to the policy's beams, core's judge decides goal/collision/timeout and
+the reward, and core's layout builds the observations. Nothing of the MDP is computed here.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+
+from pipeline.config import WorldConfig
+from pipeline.core.judge import EpisodeJudge, JudgeStep
+from pipeline.core.scan import reduce_scan
+from pipeline.core.scenario import Scenario
+from pipeline.sim.world import SimWorld
+
+
+@dataclass(frozen=True)
+class SimStep:
+    """One control step of the array-level sim: obs (n_robots, obs_size) float32, the judgement."""
+
+    obs: np.ndarray
+    judge: JudgeStep
+
+
+class MultiRobotSim:
+    """Array-level multi-robot episode: the one implementation every env view steps."""
+
+    def __init__(self, scenario: Scenario, world: WorldConfig) -> None:
+        self.scenario = scenario
+        self.world_config = world
+        self.world = SimWorld(scenario, world)
+        self.layout = world.layout()
+        self.codec = world.codec()
+        self.judge = EpisodeJudge(scenario, world.reward, world.max_steps, world.collision_margin_m)
+        self.n = scenario.n_robots
+        low, high = self.layout.bounds((scenario.room.x_min_m, scenario.room.x_max_m),
+                                       (scenario.room.y_min_m, scenario.room.y_max_m),
+                                       world.lidar.range_min_m, world.lidar.range_max_m)
+        self.obs_low, self.obs_high = low, high
+        self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))
+        self.ranges = np.zeros((self.n, world.lidar.beams))
+        self.obs = np.zeros((self.n, self.layout.size), dtype=np.float32)
+        self.last_cmd = np.zeros((self.n, 2))
+        self._seeded = False
+
+    def _observe(self) -> np.ndarray:
+        lidar = self.world_config.lidar
+        self.raw_scan = self.world.scan()
+        self.ranges = reduce_scan(self.raw_scan, self.world.scan_geometry, lidar.beams, lidar.range_min_m,
+                                  lidar.range_max_m, lidar.reduction)
+        obs = self.layout.build(self.world.odometry.pose, self.ranges, self.scenario.goals)
+        self.obs = np.clip(obs, self.obs_low, self.obs_high)
+        return self.obs
+
+    def reset(self, seed: int | None = None) -> np.ndarray:
+        """Start an episode; returns observations (n_robots, obs_size)."""
+        if seed is None and not self._seeded:
+            seed = int(np.random.SeedSequence().generate_state(1)[0])
+        if seed is not None:
+            self._seeded = True
+        self.world.reset(seed)
+        self.judge.reset(self.world.truth)
+        self.last_cmd = np.zeros((self.n, 2))
+        return self._observe().copy()
+
+    def step(self, actions: np.ndarray) -> SimStep:
+        """Advance one control period with policy actions for every robot (done robots are ignored)."""
+        cmd = self.codec.decode(actions)
+        cmd[self.judge.done] = 0.0
+        self.last_cmd = cmd
+        self.world.step(cmd)
+        obs = self._observe()
+        judged = self.judge.step(self.world.odometry.pose, self.world.truth, self.ranges)
+        return SimStep(obs=obs.copy(), judge=judged)
+
+
+class MultiRobotEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
+    """PettingZoo ParallelEnv: agents robot_1..N navigating to their goal squares.
+
+    A robot leaves `agents` when it reaches its goal or collides (it then stands still); all leave
+    at the step limit. Each info holds the reward terms (they sum exactly to the reward), the
+    robot's flags and its ground-truth and odometry poses.
+    """
+
+    metadata = {"name": "mrl_navigation_v0", "render_modes": ["rgb_array"], "render_fps": 10,
+                "is_parallelizable": True}
+
+    def __init__(self, scenario: Scenario, world: WorldConfig, render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode {render_mode!r} is not supported; allowed: None, 'rgb_array'")
+        self.render_mode = render_mode
+        self.sim = MultiRobotSim(scenario, world)
+        self.possible_agents = list(scenario.robot_names)
+        self.agents: list[str] = []
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        self._obs_space = gymnasium.spaces.Box(self.sim.obs_low, self.sim.obs_high, dtype=np.float32)
+        if self.sim.codec.kind == "continuous":
+            self._act_space: gymnasium.Space[Any] = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        else:
+            self._act_space = gymnasium.spaces.Discrete(self.sim.codec.n_discrete)
+        self._idle = self.sim.codec.encode(np.zeros((1, 2)))[0] if self.sim.codec.kind == "continuous" else None
+
+    @functools.lru_cache(maxsize=None)  # noqa: B019 - one space object per agent, as PettingZoo requires
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self._obs_space
+
+    @functools.lru_cache(maxsize=None)  # noqa: B019
+    def action_space(self, agent: str) -> gymnasium.Space[Any]:
+        return self._act_space
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        obs = self.sim.reset(seed)
+        self.agents = list(self.possible_agents)
+        infos = {a: self._info(i) for a, i in self._index.items()}
+        return {a: obs[i] for a, i in self._index.items()}, infos
+
+    def _info(self, i: int, judged: JudgeStep | None = None) -> dict[str, Any]:
+        info: dict[str, Any] = {"truth_pose": self.sim.world.truth[i].copy(),
+                                "odom_pose": self.sim.world.odometry.pose[i].copy()}
+        if judged is not None:
+            info["terms"] = judged.robot_terms(i)
+            info["reached"] = bool(judged.reached[i])
+            info["collided"] = bool(judged.collided[i])
+            info["team_success"] = judged.team_success
+            info["events"] = [e for r, e in judged.events if r in (i, -1)]
+        return info
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, float], dict[str, bool],
+                                                     dict[str, bool], dict[str, dict[str, Any]]]:
+        if not self.agents:
+            raise RuntimeError("step() called after every agent is done; call reset()")
+        unknown = set(actions) - set(self.possible_agents)
+        if unknown:
+            raise KeyError(f"actions for unknown agents {sorted(unknown)}; agents are {self.possible_agents}")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise KeyError(f"no action for live agents {missing}; every agent in env.agents needs one")
+        codec = self.sim.codec
+        if codec.kind == "continuous":
+            batch = np.tile(self._idle, (self.sim.n, 1))
+        else:
+            batch = np.zeros(self.sim.n, dtype=np.int64)
+        for a, act in actions.items():
+            batch[self._index[a]] = act
+        result = self.sim.step(batch)
+        judged = result.judge
+        live = self.agents
+        obs = {a: result.obs[self._index[a]] for a in live}
+        rewards = {a: float(judged.reward[self._index[a]]) for a in live}
+        terms = {a: bool(judged.done[self._index[a]]) for a in live}
+        truncs = {a: judged.truncated for a in live}
+        infos = {a: self._info(self._index[a], judged) for a in live}
+        self.agents = [a for a in live if not (terms[a] or truncs[a])]
+        return obs, rewards, terms, truncs, infos
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            return None
+        from pipeline.sim.render import render_top_down
+
+        return render_top_down(self.sim)
+
+    def state(self) -> np.ndarray:
+        """The joint observation (n_robots * obs_size,)."""
+        return self.sim.obs.reshape(-1).copy()
+
+    def close(self) -> None:
+        pass
