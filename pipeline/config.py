@@ -65,7 +65,8 @@ class ActionConfig:
     v_max_mps: float = setting(0.4, gt=0.0, le=5.0)
     w_max_radps: float = setting(0.2, gt=0.0, le=10.0)
     discrete_set: tuple[Literal["forward", "left", "right", "backward", "stop"], ...] = setting(
-        ("forward", "left", "right"), min_len=2)
+        ("forward", "left", "right"), min_len=2
+    )
 
     def codec(self) -> ActionCodec:
         return ActionCodec(self.kind, self.v_max_mps, self.w_max_radps, tuple(self.discrete_set))
@@ -91,8 +92,13 @@ class WorldConfig:
     def check(self) -> list[tuple[str, object, str]]:
         ratio = self.control_period_s / self.physics_timestep_s
         if abs(ratio - round(ratio)) > 1e-9 * ratio:
-            return [("physics_timestep_s", self.physics_timestep_s,
-                     f"a value that divides control_period_s ({self.control_period_s}) evenly")]
+            return [
+                (
+                    "physics_timestep_s",
+                    self.physics_timestep_s,
+                    f"a value that divides control_period_s ({self.control_period_s}) evenly",
+                )
+            ]
         return []
 
     @property
@@ -134,8 +140,9 @@ def load_params(path: str | Path = "params.yaml") -> Params:
     return from_mapping(Params, read_yaml(path), str(path))
 
 
-def world_config(overrides: dict[str, Any] | None = None, base: WorldConfig | None = None,
-                 source: str = "<overrides>") -> WorldConfig:
+def world_config(
+    overrides: dict[str, Any] | None = None, base: WorldConfig | None = None, source: str = "<overrides>"
+) -> WorldConfig:
     """A WorldConfig from `base` (defaults if None) with nested `overrides` merged in and validated."""
     data = to_mapping(base if base is not None else WorldConfig())
     return from_mapping(WorldConfig, merge(data, overrides or {}), source)

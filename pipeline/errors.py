@@ -26,7 +26,7 @@ class ConfigError(MrlError):
 class ConfigProblem:
     """One bad key or value: where, what was found, what is allowed."""
 
-    __slots__ = ("key", "value", "allowed")
+    __slots__ = ("allowed", "key", "value")
 
     def __init__(self, key: str, value: object, allowed: str) -> None:
         self.key = key

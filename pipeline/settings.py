@@ -52,9 +52,7 @@ def _describe(tp: Any) -> str:
         return "null"
     if dataclasses.is_dataclass(tp):
         return "a mapping with keys " + ", ".join(f.name for f in dataclasses.fields(tp))
-    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(
-        tp, str(tp)
-    )
+    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(tp, str(tp))
 
 
 def _bounds_text(meta: Mapping[str, Any]) -> str:
@@ -101,9 +99,7 @@ class _Converter:
             min_len = meta.get("min_len")
             if min_len is not None and len(value) < min_len:
                 self.fail(key, value, f"a list with at least {min_len} item(s)")
-            return tuple(
-                self.convert(item_tp, item, f"{key}[{i}]", meta) for i, item in enumerate(value)
-            )
+            return tuple(self.convert(item_tp, item, f"{key}[{i}]", meta) for i, item in enumerate(value))
         if tp is bool:
             if not isinstance(value, bool):
                 self.fail(key, value, "true or false")

@@ -30,9 +30,11 @@ def main(params_path: str = "params.yaml") -> int:
     write_metrics(out / "metrics.json", metrics)
     write_episodes(out / "episodes.csv", results)
     write_paths_picture(out / "paths.png", scenario, results)
-    print(f"scripted_eval: robot success {metrics['scripted/robot_success']:.3f} "
-          f"[{metrics['scripted/robot_success_ci_low']:.3f}, {metrics['scripted/robot_success_ci_high']:.3f}], "
-          f"team success {metrics['scripted/team_success']:.3f} over {cfg.episodes} episodes -> {out}")
+    print(
+        f"scripted_eval: robot success {metrics['scripted/robot_success']:.3f} "
+        f"[{metrics['scripted/robot_success_ci_low']:.3f}, {metrics['scripted/robot_success_ci_high']:.3f}], "
+        f"team success {metrics['scripted/team_success']:.3f} over {cfg.episodes} episodes -> {out}"
+    )
     return 0
 
 

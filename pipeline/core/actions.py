@@ -59,8 +59,13 @@ class ActionCodec:
     def clamp(self, cmd: np.ndarray) -> np.ndarray:
         """(..., 2) (v, w) clamped to +-v_max, +-w_max."""
         c = np.asarray(cmd, dtype=np.float64)
-        return np.stack([np.clip(c[..., 0], -self.v_max_mps, self.v_max_mps),
-                         np.clip(c[..., 1], -self.w_max_radps, self.w_max_radps)], axis=-1)
+        return np.stack(
+            [
+                np.clip(c[..., 0], -self.v_max_mps, self.v_max_mps),
+                np.clip(c[..., 1], -self.w_max_radps, self.w_max_radps),
+            ],
+            axis=-1,
+        )
 
     def decode(self, actions: np.ndarray) -> np.ndarray:
         """(n_robots, 2) (v, w) from (n_robots, 2) continuous or (n_robots,) discrete actions."""
@@ -79,9 +84,11 @@ class ActionCodec:
                 raise ActionError(f"discrete actions must be integers, got {idx.tolist()}")
             idx = idx.astype(np.int64)
         if idx.size and (idx.min() < 0 or idx.max() >= self.n_discrete):
-            raise ActionError(f"discrete actions must lie in [0, {self.n_discrete - 1}] "
-                              f"({', '.join(self.discrete_set)}), got {idx.tolist()}")
-        return self.table[idx]
+            raise ActionError(
+                f"discrete actions must lie in [0, {self.n_discrete - 1}] "
+                f"({', '.join(self.discrete_set)}), got {idx.tolist()}"
+            )
+        return np.asarray(self.table[idx])
 
     def encode(self, cmd: np.ndarray) -> np.ndarray:
         """Inverse of decode for continuous actions: (n, 2) (v, w) -> (n, 2) in [-1, 1]."""

@@ -50,8 +50,9 @@ class JudgeStep:
 class EpisodeJudge:
     """Judges each control step of an episode against a scenario's goals and map."""
 
-    def __init__(self, scenario: Scenario, weights: RewardWeights, max_steps: int,
-                 collision_margin_m: float = 0.02) -> None:
+    def __init__(
+        self, scenario: Scenario, weights: RewardWeights, max_steps: int, collision_margin_m: float = 0.02
+    ) -> None:
         self.scenario = scenario
         self.weights = weights
         self.max_steps = max_steps
@@ -93,8 +94,9 @@ class EpisodeJudge:
         """(n_robots,) free distance (m) between each robot's body and the nearest wall, box or robot."""
         xy = np.asarray(pose)[:, :2]
         room = self.scenario.room
-        walls = np.minimum.reduce([xy[:, 0] - room.x_min_m, room.x_max_m - xy[:, 0],
-                                   xy[:, 1] - room.y_min_m, room.y_max_m - xy[:, 1]])
+        walls = np.minimum.reduce(
+            [xy[:, 0] - room.x_min_m, room.x_max_m - xy[:, 0], xy[:, 1] - room.y_min_m, room.y_max_m - xy[:, 1]]
+        )
         gap = walls - self.radius_m
         for box in self.scenario.obstacles:
             gap = np.minimum(gap, box_clearance(box, xy) - self.radius_m)
@@ -105,8 +107,9 @@ class EpisodeJudge:
             gap = np.minimum(gap, dist.min(axis=1))
         return np.asarray(gap)
 
-    def step(self, odom_pose: np.ndarray, truth_pose: np.ndarray | None = None,
-             ranges: np.ndarray | None = None) -> JudgeStep:
+    def step(
+        self, odom_pose: np.ndarray, truth_pose: np.ndarray | None = None, ranges: np.ndarray | None = None
+    ) -> JudgeStep:
         """Judge the step that just ended.
 
         odom_pose, truth_pose: (n_robots, 3) x, y (m), yaw (rad); ranges: (n_robots, n_beams) m,
@@ -147,6 +150,14 @@ class EpisodeJudge:
         if truncated:
             events += [(int(i), "timeout") for i in np.flatnonzero(~self.done)]
         reward = terms["progress"] + terms["goal"] + terms["team"] + terms["collision"] + terms["step"]
-        return JudgeStep(reward=reward, terms=terms, reached=self.reached.copy(), collided=self.collided.copy(),
-                         done=self.done, active=active, truncated=truncated,
-                         team_success=self.team_success, events=events)
+        return JudgeStep(
+            reward=reward,
+            terms=terms,
+            reached=self.reached.copy(),
+            collided=self.collided.copy(),
+            done=self.done,
+            active=active,
+            truncated=truncated,
+            team_success=self.team_success,
+            events=events,
+        )

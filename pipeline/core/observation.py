@@ -61,12 +61,21 @@ class ObservationLayout:
         }
         return tuple(n for name, _ in self.fields for n in per_field[name])
 
-    def bounds(self, x_lim_m: tuple[float, float], y_lim_m: tuple[float, float], range_min_m: float,
-               range_max_m: float, margin_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    def bounds(
+        self,
+        x_lim_m: tuple[float, float],
+        y_lim_m: tuple[float, float],
+        range_min_m: float,
+        range_max_m: float,
+        margin_m: float = 1.0,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) float32 vectors of the observation space for a room's limits."""
         span = float(np.hypot(x_lim_m[1] - x_lim_m[0], y_lim_m[1] - y_lim_m[0])) + 2 * margin_m
         per_field = {
-            "position": ([x_lim_m[0] - margin_m, y_lim_m[0] - margin_m], [x_lim_m[1] + margin_m, y_lim_m[1] + margin_m]),
+            "position": (
+                [x_lim_m[0] - margin_m, y_lim_m[0] - margin_m],
+                [x_lim_m[1] + margin_m, y_lim_m[1] + margin_m],
+            ),
             "heading": ([-1.0, -1.0], [1.0, 1.0]),
             "goal_in_robot": ([-span, -span], [span, span]),
             "ranges": ([range_min_m] * self.n_beams, [range_max_m] * self.n_beams),
@@ -90,6 +99,9 @@ class ObservationLayout:
         if self.name == "rich":
             c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
             d = np.asarray(goals, dtype=np.float64) - pose[:, :2]
-            parts += [np.stack([c, s], axis=1), np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)]
+            parts += [
+                np.stack([c, s], axis=1),
+                np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1),
+            ]
         parts.append(r)
         return np.concatenate(parts, axis=1).astype(np.float32)

@@ -7,7 +7,8 @@ policy's range_min); NaN is an erroneous reading and carries no information.
 
 The policy's beam k points at angle ``2 pi k / N`` in the robot frame (k = 0 straight ahead,
 counter-clockwise). ``pick`` takes the source beam nearest to that angle; ``sector_min``
-takes the nearest valid return among all source beams within +-pi/N of it (the safe choice
+takes the nearest valid return among the source beams closer in angle to it than to any other
+policy beam (and within +-pi/N of it) (the safe choice
 for collision avoidance with sparse beams). A target with no valid source reading reports
 range_max (nothing seen).
 """
@@ -40,13 +41,17 @@ class ScanGeometry:
         if self.n_beams < 1:
             raise ScanError(f"a scan needs at least one beam, got {self.n_beams}")
         if not (math.isfinite(self.angle_min_rad) and math.isfinite(self.angle_increment_rad)):
-            raise ScanError(f"scan angles must be finite, got angle_min={self.angle_min_rad}, "
-                            f"angle_increment={self.angle_increment_rad}")
+            raise ScanError(
+                f"scan angles must be finite, got angle_min={self.angle_min_rad}, "
+                f"angle_increment={self.angle_increment_rad}"
+            )
         if self.angle_increment_rad == 0.0 and self.n_beams > 1:
             raise ScanError("angle_increment is 0 with more than one beam")
         if not (0.0 <= self.range_min_m < self.range_max_m):
-            raise ScanError(f"scan range limits must satisfy 0 <= range_min < range_max, got "
-                            f"range_min={self.range_min_m}, range_max={self.range_max_m}")
+            raise ScanError(
+                f"scan range limits must satisfy 0 <= range_min < range_max, got "
+                f"range_min={self.range_min_m}, range_max={self.range_max_m}"
+            )
 
 
 @lru_cache(maxsize=64)
@@ -58,8 +63,12 @@ def _plan(n_src: int, angle_min: float, inc: float, n_out: int, method: Reductio
     diff = (src_angles[None, :] - out_angles[:, None] + np.pi) % (2 * np.pi) - np.pi
     if method == "pick":
         return (np.argmin(np.abs(diff), axis=1),)
-    half = np.pi / n_out
-    member = (diff >= -half) & (diff < half)  # (n_out, n_src)
+    # each source beam belongs to the sector of its nearest policy beam (ties: the lower index),
+    # provided it lies within half a sector of it (a partial field of view leaves sectors empty)
+    nearest = np.argmin(np.abs(diff), axis=0)
+    within = np.abs(diff[nearest, np.arange(n_src)]) <= np.pi / n_out + 1e-12
+    member = np.zeros((n_out, n_src), dtype=bool)
+    member[nearest[within], np.flatnonzero(within)] = True
     return (member,)
 
 
@@ -88,8 +97,9 @@ def reduce_scan(
     clean = np.where(np.isneginf(clean), range_min_m, clean)
     # +inf and nan both mean "nothing seen within range" for a min: +inf keeps that meaning
     clean = np.where(np.isnan(clean), np.inf, clean)
-    (table,) = _plan(geometry.n_beams, float(geometry.angle_min_rad), float(geometry.angle_increment_rad),
-                     n_beams, method)
+    (table,) = _plan(
+        geometry.n_beams, float(geometry.angle_min_rad), float(geometry.angle_increment_rad), n_beams, method
+    )
     if method == "pick":
         out = clean[..., table]
     elif method == "sector_min":

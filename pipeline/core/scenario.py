@@ -34,7 +34,7 @@ class Room:
     wall_height_m: float = setting(0.5, gt=0.0)
 
     def check(self) -> list[tuple[str, object, str]]:
-        bad = []
+        bad: list[tuple[str, object, str]] = []
         if not self.x_max_m > self.x_min_m:
             bad.append(("x_max_m", self.x_max_m, f"a value > x_min_m ({self.x_min_m})"))
         if not self.y_max_m > self.y_min_m:
@@ -134,27 +134,48 @@ class Scenario:
         for name, spec in zip(self.robot_names, self.robots, strict=True):
             s, g = spec.start, spec.goal
             if not (room.x_min_m + r <= s.x_m <= room.x_max_m - r and room.y_min_m + r <= s.y_m <= room.y_max_m - r):
-                raise ScenarioError(self.name, f"{name} starts at ({s.x_m}, {s.y_m}), outside the room or inside a wall "
-                                    f"(allowed: x in [{room.x_min_m + r}, {room.x_max_m - r}], y in [{room.y_min_m + r}, {room.y_max_m - r}])")
-            if not (room.x_min_m <= g.x_m - half and g.x_m + half <= room.x_max_m
-                    and room.y_min_m <= g.y_m - half and g.y_m + half <= room.y_max_m):
-                raise ScenarioError(self.name, f"the goal of {name} at ({g.x_m}, {g.y_m}) does not lie inside the room "
-                                    f"x in [{room.x_min_m}, {room.x_max_m}], y in [{room.y_min_m}, {room.y_max_m}]")
+                raise ScenarioError(
+                    self.name,
+                    f"{name} starts at ({s.x_m}, {s.y_m}), outside the room or inside a wall "
+                    f"(allowed: x in [{room.x_min_m + r}, {room.x_max_m - r}], "
+                    f"y in [{room.y_min_m + r}, {room.y_max_m - r}])",
+                )
+            if not (
+                room.x_min_m <= g.x_m - half
+                and g.x_m + half <= room.x_max_m
+                and room.y_min_m <= g.y_m - half
+                and g.y_m + half <= room.y_max_m
+            ):
+                raise ScenarioError(
+                    self.name,
+                    f"the goal of {name} at ({g.x_m}, {g.y_m}) does not lie inside the room "
+                    f"x in [{room.x_min_m}, {room.x_max_m}], y in [{room.y_min_m}, {room.y_max_m}]",
+                )
             for k, box in enumerate(self.obstacles):
                 if box_clearance(box, np.array([[s.x_m, s.y_m]]))[0] < r:
-                    raise ScenarioError(self.name, f"{name} starts at ({s.x_m}, {s.y_m}), inside or touching obstacle {k} "
-                                        f"(box at ({box.x_m}, {box.y_m}))")
+                    raise ScenarioError(
+                        self.name,
+                        f"{name} starts at ({s.x_m}, {s.y_m}), inside or touching obstacle {k} "
+                        f"(box at ({box.x_m}, {box.y_m}))",
+                    )
         starts = self.starts[:, :2]
         for i in range(self.n_robots):
             for j in range(i + 1, self.n_robots):
                 d = float(np.hypot(*(starts[i] - starts[j])))
                 if d < 2 * r:
-                    raise ScenarioError(self.name, f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
-                                        f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap")
+                    raise ScenarioError(
+                        self.name,
+                        f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
+                        f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap",
+                    )
         for k, box in enumerate(self.obstacles):
             corners = box_corners(box)
-            if (corners[:, 0].min() < room.x_min_m or corners[:, 0].max() > room.x_max_m
-                    or corners[:, 1].min() < room.y_min_m or corners[:, 1].max() > room.y_max_m):
+            if (
+                corners[:, 0].min() < room.x_min_m
+                or corners[:, 0].max() > room.x_max_m
+                or corners[:, 1].min() < room.y_min_m
+                or corners[:, 1].max() > room.y_max_m
+            ):
                 raise ScenarioError(self.name, f"obstacle {k} at ({box.x_m}, {box.y_m}) reaches outside the room")
 
 
@@ -163,7 +184,7 @@ def box_corners(box: Box) -> np.ndarray:
     c, s = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
     hx, hy = box.size_x_m / 2, box.size_y_m / 2
     local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
-    return local @ np.array([[c, s], [-s, c]]) + np.array([box.x_m, box.y_m])
+    return np.asarray(local @ np.array([[c, s], [-s, c]]) + np.array([box.x_m, box.y_m]))
 
 
 def box_clearance(box: Box, points: np.ndarray) -> np.ndarray:
@@ -199,8 +220,18 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
         elif text.endswith((".yaml", ".yml")) or Path(text).exists():
             scenario = from_mapping(Scenario, read_yaml(text), text)
         else:
-            raise ConfigError("<scenario>", [ConfigProblem("scenario", text, "a bundled scenario ("
-                              + ", ".join(bundled_scenarios()) + ") or the path of a scenario YAML file")])
+            raise ConfigError(
+                "<scenario>",
+                [
+                    ConfigProblem(
+                        "scenario",
+                        text,
+                        "a bundled scenario ("
+                        + ", ".join(bundled_scenarios())
+                        + ") or the path of a scenario YAML file",
+                    )
+                ],
+            )
     if n_robots is not None:
         scenario = scenario.with_robots(n_robots)
     scenario.validate()

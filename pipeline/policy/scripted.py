@@ -18,11 +18,13 @@ from pipeline.core.observation import ObservationLayout
 class GoToGoalController:
     """Steers each robot toward its goal, bending away from lidar returns closer than `influence_m`."""
 
-    def __init__(self, layout: ObservationLayout, codec: ActionCodec, influence_m: float = 0.7,
-                 heading_gain: float = 1.5) -> None:
+    def __init__(
+        self, layout: ObservationLayout, codec: ActionCodec, influence_m: float = 0.7, heading_gain: float = 1.5
+    ) -> None:
         if layout.name != "rich":
-            raise ValueError(f"the scripted controller needs the 'rich' observation layout (heading and goal), "
-                             f"got {layout.name!r}")
+            raise ValueError(
+                f"the scripted controller needs the 'rich' observation layout (heading and goal), got {layout.name!r}"
+            )
         self.layout = layout
         self.codec = codec
         self.influence_m = influence_m
@@ -57,6 +59,8 @@ class GoToGoalController:
             return self.codec.encode(cmd)
         table = self.codec.table
         # nearest discrete command, comparing turn rate first, then speed
-        cost = (np.abs(table[None, :, 1] - cmd[:, None, 1]) / self.codec.w_max_radps
-                + 0.5 * np.abs(table[None, :, 0] - cmd[:, None, 0]) / self.codec.v_max_mps)
+        cost = (
+            np.abs(table[None, :, 1] - cmd[:, None, 1]) / self.codec.w_max_radps
+            + 0.5 * np.abs(table[None, :, 0] - cmd[:, None, 0]) / self.codec.v_max_mps
+        )
         return np.asarray(cost.argmin(axis=1))

@@ -11,8 +11,9 @@ from pipeline.sim.env import MultiRobotEnv, MultiRobotSim
 from pipeline.sim.views import JointEnv, RobotEnv, TeammatePolicy
 
 
-def make_world(scenario: str | Path | Scenario | None = None, world: WorldConfig | None = None,
-               **overrides: Any) -> tuple[Scenario, WorldConfig]:
+def make_world(
+    scenario: str | Path | Scenario | None = None, world: WorldConfig | None = None, **overrides: Any
+) -> tuple[Scenario, WorldConfig]:
     """Resolve a scenario and a validated WorldConfig from `world` (or defaults) plus overrides.
 
     Overrides are WorldConfig keys; nested sections take mappings, e.g.
@@ -27,29 +28,48 @@ def make_world(scenario: str | Path | Scenario | None = None, world: WorldConfig
     return resolved, cfg
 
 
-def parallel_env(scenario: str | Path | Scenario | None = None, world: WorldConfig | None = None,
-                 render_mode: str | None = None, **overrides: Any) -> MultiRobotEnv:
+def parallel_env(
+    scenario: str | Path | Scenario | None = None,
+    world: WorldConfig | None = None,
+    render_mode: str | None = None,
+    **overrides: Any,
+) -> MultiRobotEnv:
     """The PettingZoo ParallelEnv for `scenario` (a bundled name, a YAML path or a Scenario)."""
     resolved, cfg = make_world(scenario, world, **overrides)
     return MultiRobotEnv(resolved, cfg, render_mode=render_mode)
 
 
-
-
-def joint_env(scenario: str | Path | Scenario | None = None, world: WorldConfig | None = None,
-              render_mode: str | None = None, **overrides: Any) -> JointEnv:
+def joint_env(
+    scenario: str | Path | Scenario | None = None,
+    world: WorldConfig | None = None,
+    render_mode: str | None = None,
+    **overrides: Any,
+) -> JointEnv:
     """The robots as one Gymnasium agent (centralized control)."""
     resolved, cfg = make_world(scenario, world, **overrides)
     return JointEnv(resolved, cfg, render_mode=render_mode)
 
 
-def robot_env(scenario: str | Path | Scenario | None = None, world: WorldConfig | None = None, robot: int = 0,
-              teammates: TeammatePolicy | None = None, render_mode: str | None = None,
-              **overrides: Any) -> RobotEnv:
+def robot_env(
+    scenario: str | Path | Scenario | None = None,
+    world: WorldConfig | None = None,
+    robot: int = 0,
+    teammates: TeammatePolicy | None = None,
+    render_mode: str | None = None,
+    **overrides: Any,
+) -> RobotEnv:
     """One robot as a Gymnasium agent; teammates follow `teammates` or stand still."""
     resolved, cfg = make_world(scenario, world, **overrides)
     return RobotEnv(resolved, cfg, robot=robot, teammates=teammates, render_mode=render_mode)
 
 
-__all__ = ["JointEnv", "MultiRobotEnv", "MultiRobotSim", "RobotEnv", "joint_env", "make_world", "parallel_env",
-           "robot_env"]
+__all__ = [
+    "JointEnv",
+    "MultiRobotEnv",
+    "MultiRobotSim",
+    "RobotEnv",
+    "joint_env",
+    "make_world",
+    "parallel_env",
+    "robot_env",
+]

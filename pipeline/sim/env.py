@@ -42,9 +42,12 @@ class MultiRobotSim:
         self.codec = world.codec()
         self.judge = EpisodeJudge(scenario, world.reward, world.max_steps, world.collision_margin_m)
         self.n = scenario.n_robots
-        low, high = self.layout.bounds((scenario.room.x_min_m, scenario.room.x_max_m),
-                                       (scenario.room.y_min_m, scenario.room.y_max_m),
-                                       world.lidar.range_min_m, world.lidar.range_max_m)
+        low, high = self.layout.bounds(
+            (scenario.room.x_min_m, scenario.room.x_max_m),
+            (scenario.room.y_min_m, scenario.room.y_max_m),
+            world.lidar.range_min_m,
+            world.lidar.range_max_m,
+        )
         self.obs_low, self.obs_high = low, high
         self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))
         self.ranges = np.zeros((self.n, world.lidar.beams))
@@ -55,8 +58,9 @@ class MultiRobotSim:
     def _observe(self) -> np.ndarray:
         lidar = self.world_config.lidar
         self.raw_scan = self.world.scan()
-        self.ranges = reduce_scan(self.raw_scan, self.world.scan_geometry, lidar.beams, lidar.range_min_m,
-                                  lidar.range_max_m, lidar.reduction)
+        self.ranges = reduce_scan(
+            self.raw_scan, self.world.scan_geometry, lidar.beams, lidar.range_min_m, lidar.range_max_m, lidar.reduction
+        )
         obs = self.layout.build(self.world.odometry.pose, self.ranges, self.scenario.goals)
         self.obs = np.clip(obs, self.obs_low, self.obs_high)
         return self.obs
@@ -91,8 +95,7 @@ class MultiRobotEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     robot's flags and its ground-truth and odometry poses.
     """
 
-    metadata = {"name": "mrl_navigation_v0", "render_modes": ["rgb_array"], "render_fps": 10,
-                "is_parallelizable": True}
+    metadata = {"name": "mrl_navigation_v0", "render_modes": ["rgb_array"], "render_fps": 10, "is_parallelizable": True}
 
     def __init__(self, scenario: Scenario, world: WorldConfig, render_mode: str | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
@@ -107,26 +110,28 @@ class MultiRobotEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             self._act_space: gymnasium.Space[Any] = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         else:
             self._act_space = gymnasium.spaces.Discrete(self.sim.codec.n_discrete)
-        self._idle = self.sim.codec.encode(np.zeros((1, 2)))[0] if self.sim.codec.kind == "continuous" else None
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019 - one space object per agent, as PettingZoo requires
+    @functools.cache  # noqa: B019 - one space object per agent, as PettingZoo requires
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
         return self._obs_space
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019
+    @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> gymnasium.Space[Any]:
         return self._act_space
 
-    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
         obs = self.sim.reset(seed)
         self.agents = list(self.possible_agents)
         infos = {a: self._info(i) for a, i in self._index.items()}
         return {a: obs[i] for a, i in self._index.items()}, infos
 
     def _info(self, i: int, judged: JudgeStep | None = None) -> dict[str, Any]:
-        info: dict[str, Any] = {"truth_pose": self.sim.world.truth[i].copy(),
-                                "odom_pose": self.sim.world.odometry.pose[i].copy()}
+        info: dict[str, Any] = {
+            "truth_pose": self.sim.world.truth[i].copy(),
+            "odom_pose": self.sim.world.odometry.pose[i].copy(),
+        }
         if judged is not None:
             info["terms"] = judged.robot_terms(i)
             info["reached"] = bool(judged.reached[i])
@@ -135,8 +140,9 @@ class MultiRobotEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             info["events"] = [e for r, e in judged.events if r in (i, -1)]
         return info
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, float], dict[str, bool],
-                                                     dict[str, bool], dict[str, dict[str, Any]]]:
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
         if not self.agents:
             raise RuntimeError("step() called after every agent is done; call reset()")
         unknown = set(actions) - set(self.possible_agents)
@@ -147,7 +153,7 @@ class MultiRobotEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             raise KeyError(f"no action for live agents {missing}; every agent in env.agents needs one")
         codec = self.sim.codec
         if codec.kind == "continuous":
-            batch = np.tile(self._idle, (self.sim.n, 1))
+            batch: np.ndarray = np.zeros((self.sim.n, 2))  # (0, 0) is zero velocity
         else:
             batch = np.zeros(self.sim.n, dtype=np.int64)
         for a, act in actions.items():

@@ -31,7 +31,7 @@ class EpisodeResult:
 
     @property
     def success(self) -> np.ndarray:
-        return self.reached & ~self.collided
+        return np.asarray(self.reached & ~self.collided)
 
 
 def run_episode(sim: MultiRobotSim, policy: Policy, seed: int, episode: int = 0) -> EpisodeResult:
@@ -51,14 +51,22 @@ def run_episode(sim: MultiRobotSim, policy: Policy, seed: int, episode: int = 0)
             break
     traj = np.array(poses)
     steps_xy = np.diff(traj[:, :, :2], axis=0)
-    return EpisodeResult(episode=episode, seed=seed, steps=sim.judge.steps, reached=judged.reached.copy(),
-                         collided=judged.collided.copy(), time_to_goal_s=arrival,
-                         path_length_m=np.hypot(steps_xy[..., 0], steps_xy[..., 1]).sum(axis=0),
-                         team_success=judged.team_success, trajectory=traj)
+    return EpisodeResult(
+        episode=episode,
+        seed=seed,
+        steps=sim.judge.steps,
+        reached=judged.reached.copy(),
+        collided=judged.collided.copy(),
+        time_to_goal_s=arrival,
+        path_length_m=np.hypot(steps_xy[..., 0], steps_xy[..., 1]).sum(axis=0),
+        team_success=judged.team_success,
+        trajectory=traj,
+    )
 
 
-def evaluate(sim: MultiRobotSim, policy: Policy, episodes: int, seed: int, progress: bool = True
-             ) -> list[EpisodeResult]:
+def evaluate(
+    sim: MultiRobotSim, policy: Policy, episodes: int, seed: int, progress: bool = True
+) -> list[EpisodeResult]:
     """`episodes` episodes with seeds seed, seed+1, ...; shows a progress bar when `progress`."""
     results = []
     bar = tqdm(range(episodes), desc="eval", unit="ep", disable=not progress)

@@ -26,8 +26,7 @@ GROUP_STATIC, GROUP_ROBOT, GROUP_LIDAR_ONLY = 0, 1, 3
 LATERAL_TIME_CONSTANT_S = 0.01
 MAX_FORCE_N = 60.0
 MAX_TORQUE_NM = 6.0
-ROBOT_RGBA = ("0.85 0.2 0.2 1", "0.2 0.45 0.85 1", "0.2 0.7 0.3 1", "0.85 0.6 0.1 1", "0.6 0.3 0.8 1",
-              "0.1 0.7 0.7 1")
+ROBOT_RGBA = ("0.85 0.2 0.2 1", "0.2 0.45 0.85 1", "0.2 0.7 0.3 1", "0.85 0.6 0.1 1", "0.6 0.3 0.8 1", "0.1 0.7 0.7 1")
 
 
 @dataclass(frozen=True)
@@ -40,7 +39,8 @@ class ModelIndex:
     ctrl: np.ndarray  # (n_robots, 3) forward, lateral, yaw actuators
 
 
-def robot_mjcf(i: int, name: str, scenario: Scenario, world: WorldConfig) -> str:
+def robot_mjcf(i: int, name: str, scenario: Scenario, world: WorldConfig) -> tuple[str, str]:
+    """MJCF of one robot: its body and its three actuators."""
     shape = scenario.robot
     r, h = shape.radius_m, shape.height_m
     tau = world.actuation.time_constant_s
@@ -49,9 +49,12 @@ def robot_mjcf(i: int, name: str, scenario: Scenario, world: WorldConfig) -> str
     seen = world.lidar.robot_radius_seen_m
     lidar_geom = ""
     if seen > 0:
-        lidar_geom = (f'<geom name="{name}_seen" type="cylinder" size="{max(seen, r)} {h / 2}" contype="0" '
-                      f'conaffinity="0" group="{GROUP_LIDAR_ONLY}" rgba="1 1 1 0.1" mass="0"/>')
-    return f"""
+        lidar_geom = (
+            f'<geom name="{name}_seen" type="cylinder" size="{max(seen, r)} {h / 2}" contype="0" '
+            f'conaffinity="0" group="{GROUP_LIDAR_ONLY}" rgba="1 1 1 0.1" mass="0"/>'
+        )
+    return (
+        f"""
     <body name="{name}" pos="0 0 {h / 2}">
       <joint name="{name}_x" type="slide" axis="1 0 0"/>
       <joint name="{name}_y" type="slide" axis="0 1 0"/>
@@ -60,14 +63,16 @@ def robot_mjcf(i: int, name: str, scenario: Scenario, world: WorldConfig) -> str
             rgba="{rgba}" contype="1" conaffinity="1" friction="0.3 0.005 0.0001"/>
       {lidar_geom}
       <site name="{name}_base" pos="0 0 0"/>
-    </body>""", f"""
+    </body>""",
+        f"""
     <velocity name="{name}_v" site="{name}_base" gear="1 0 0 0 0 0" kv="{shape.mass_kg / tau}"
               forcelimited="true" forcerange="{-MAX_FORCE_N} {MAX_FORCE_N}"/>
     <velocity name="{name}_lateral" site="{name}_base" gear="0 1 0 0 0 0"
               kv="{shape.mass_kg / LATERAL_TIME_CONSTANT_S}" forcelimited="true"
               forcerange="{-MAX_FORCE_N} {MAX_FORCE_N}"/>
     <velocity name="{name}_w" site="{name}_base" gear="0 0 0 0 0 1" kv="{inertia_z / tau}"
-              forcelimited="true" forcerange="{-MAX_TORQUE_NM} {MAX_TORQUE_NM}"/>"""
+              forcelimited="true" forcerange="{-MAX_TORQUE_NM} {MAX_TORQUE_NM}"/>""",
+    )
 
 
 def scenario_mjcf(scenario: Scenario, world: WorldConfig) -> str:
@@ -82,25 +87,30 @@ def scenario_mjcf(scenario: Scenario, world: WorldConfig) -> str:
         ("wall_west", room.x_min_m - t / 2, cy, t / 2, ly),
         ("wall_east", room.x_max_m + t / 2, cy, t / 2, ly),
     ]
-    static = [f'<geom name="{n}" type="box" pos="{x} {y} {hh}" size="{sx} {sy} {hh}" group="{GROUP_STATIC}" '
-              f'rgba="0.5 0.5 0.5 1"/>' for n, x, y, sx, sy in walls]
+    static = [
+        f'<geom name="{n}" type="box" pos="{x} {y} {hh}" size="{sx} {sy} {hh}" group="{GROUP_STATIC}" '
+        f'rgba="0.5 0.5 0.5 1"/>'
+        for n, x, y, sx, sy in walls
+    ]
     for k, box in enumerate(scenario.obstacles):
         static.append(
             f'<geom name="box_{k}" type="box" pos="{box.x_m} {box.y_m} {box.height_m / 2}" '
             f'euler="0 0 {box.yaw_rad}" size="{box.size_x_m / 2} {box.size_y_m / 2} {box.height_m / 2}" '
-            f'group="{GROUP_STATIC}" rgba="0.9 0.5 0.1 1"/>')
-    bodies, actuators = zip(*(robot_mjcf(i, n, scenario, world) for i, n in enumerate(scenario.robot_names)),
-                            strict=True)
+            f'group="{GROUP_STATIC}" rgba="0.9 0.5 0.1 1"/>'
+        )
+    bodies, actuators = zip(
+        *(robot_mjcf(i, n, scenario, world) for i, n in enumerate(scenario.robot_names)), strict=True
+    )
     return f"""<mujoco model="{scenario.name}">
   <compiler angle="radian"/>
   <option timestep="{world.physics_timestep_s}" integrator="implicitfast" gravity="0 0 0">
     <flag gravity="disable"/>
   </option>
   <worldbody>
-    {''.join(static)}
-    {''.join(bodies)}
+    {"".join(static)}
+    {"".join(bodies)}
   </worldbody>
-  <actuator>{''.join(actuators)}
+  <actuator>{"".join(actuators)}
   </actuator>
 </mujoco>"""
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def noisy_ranges(true_m: np.ndarray, rng: np.random.Generator, sigma_m: float, dropout_prob: float,
-                 bias_m: float) -> np.ndarray:
+def noisy_ranges(
+    true_m: np.ndarray, rng: np.random.Generator, sigma_m: float, dropout_prob: float, bias_m: float
+) -> np.ndarray:
     """Measured ranges (same shape) from true ones (m); +inf (no return) stays +inf.
 
     Adds `bias_m` and zero-mean Gaussian noise of `sigma_m`; each beam drops out (reads +inf)
@@ -53,10 +54,11 @@ class OdometryDrift:
         forward = forward * (1 + self._scale)
         left = left * (1 + self._scale)
         dyaw_odom = dyaw * (1 + self._yaw_scale) + self._yaw_per_m * dist
+        # the displacement is expressed in the frame of the previous pose: rotate it by the
+        # previous odometry heading
         yaw = self.pose[:, 2]
-        mid = yaw + dyaw_odom / 2
-        cm, sm = np.cos(mid), np.sin(mid)
-        self.pose[:, 0] += cm * forward - sm * left
-        self.pose[:, 1] += sm * forward + cm * left
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        self.pose[:, 0] += cy * forward - sy * left
+        self.pose[:, 1] += sy * forward + cy * left
         self.pose[:, 2] = np.angle(np.exp(1j * (yaw + dyaw_odom)))
         return self.pose.copy()

@@ -27,14 +27,37 @@ def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="", encoding="utf-8") as f:
         out = csv.writer(f)
-        out.writerow(["episode", "seed", "robot", "success", "reached", "collided", "time_to_goal_s",
-                      "path_length_m", "steps", "team_success"])
+        out.writerow(
+            [
+                "episode",
+                "seed",
+                "robot",
+                "success",
+                "reached",
+                "collided",
+                "time_to_goal_s",
+                "path_length_m",
+                "steps",
+                "team_success",
+            ]
+        )
         for r in results:
             for i in range(len(r.reached)):
                 t = r.time_to_goal_s[i]
-                out.writerow([r.episode, r.seed, f"robot_{i + 1}", int(r.success[i]), int(r.reached[i]),
-                              int(r.collided[i]), "" if np.isnan(t) else f"{t:.3f}", f"{r.path_length_m[i]:.4f}",
-                              r.steps, int(r.team_success)])
+                out.writerow(
+                    [
+                        r.episode,
+                        r.seed,
+                        f"robot_{i + 1}",
+                        int(r.success[i]),
+                        int(r.reached[i]),
+                        int(r.collided[i]),
+                        "" if np.isnan(t) else f"{t:.3f}",
+                        f"{r.path_length_m[i]:.4f}",
+                        r.steps,
+                        int(r.team_success),
+                    ]
+                )
 
 
 def write_paths_picture(path: Path, scenario: Scenario, results: list[EpisodeResult], count: int = 4) -> None:

@@ -6,6 +6,7 @@ hits, at `px_per_m` pixels per metre. Image rows run from the room's north (top)
 
 from __future__ import annotations
 
+import itertools
 import math
 from functools import lru_cache
 from typing import TYPE_CHECKING
@@ -17,8 +18,9 @@ from pipeline.core.scenario import Scenario, box_corners
 if TYPE_CHECKING:
     from pipeline.sim.env import MultiRobotSim
 
-ROBOT_COLOURS = np.array([[217, 51, 51], [51, 115, 217], [51, 179, 77], [217, 153, 26], [153, 77, 204],
-                          [26, 179, 179]], dtype=np.uint8)
+ROBOT_COLOURS = np.array(
+    [[217, 51, 51], [51, 115, 217], [51, 179, 77], [217, 153, 26], [153, 77, 204], [26, 179, 179]], dtype=np.uint8
+)
 FLOOR, WALL, BOX, RAY = (235, 235, 235), (90, 90, 90), (230, 128, 26), (250, 200, 60)
 
 
@@ -30,8 +32,8 @@ class TopDownRenderer:
         self.scale = px_per_m
         room = scenario.room
         self.margin = margin_px
-        self.width = int(math.ceil((room.x_max_m - room.x_min_m) * px_per_m)) + 2 * margin_px
-        self.height = int(math.ceil((room.y_max_m - room.y_min_m) * px_per_m)) + 2 * margin_px
+        self.width = math.ceil((room.x_max_m - room.x_min_m) * px_per_m) + 2 * margin_px
+        self.height = math.ceil((room.y_max_m - room.y_min_m) * px_per_m) + 2 * margin_px
         cols, rows = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
         self._world_x = room.x_min_m + (cols - margin_px) / px_per_m
         self._world_y = room.y_max_m - (rows - margin_px) / px_per_m
@@ -97,14 +99,13 @@ class TopDownRenderer:
             self._line(img, centres[i], self.to_pixels(nose[None])[0], (0, 0, 0))
         return img
 
-
     def render_paths(self, trajectories: np.ndarray) -> np.ndarray:
         """The background with each robot's path (steps, n_robots, 3) and its final pose drawn."""
         img = self.render(trajectories[-1])
         for i in range(trajectories.shape[1]):
             colour = ROBOT_COLOURS[i % len(ROBOT_COLOURS)]
             pix = self.to_pixels(trajectories[:, i, :2])
-            for a, b in zip(pix[:-1], pix[1:], strict=True):
+            for a, b in itertools.pairwise(pix):
                 self._line(img, a, b, colour)
         return img
 

@@ -29,8 +29,12 @@ TeammatePolicy = Callable[[np.ndarray], np.ndarray]
 def _info(sim: MultiRobotSim, judged: Any = None) -> dict[str, Any]:
     info: dict[str, Any] = {"truth_pose": sim.world.truth.copy(), "odom_pose": sim.world.odometry.pose.copy()}
     if judged is not None:
-        info.update(terms={k: v.copy() for k, v in judged.terms.items()}, reached=judged.reached.copy(),
-                    collided=judged.collided.copy(), team_success=judged.team_success)
+        info.update(
+            terms={k: v.copy() for k, v in judged.terms.items()},
+            reached=judged.reached.copy(),
+            collided=judged.collided.copy(),
+            team_success=judged.team_success,
+        )
     return info
 
 
@@ -43,13 +47,14 @@ class JointEnv(gymnasium.Env[np.ndarray, Any]):
         self.sim = MultiRobotSim(scenario, world)
         self.render_mode = render_mode
         n = self.sim.n
-        self.observation_space = gymnasium.spaces.Box(np.tile(self.sim.obs_low, n), np.tile(self.sim.obs_high, n),
-                                                      dtype=np.float32)
+        self.observation_space = gymnasium.spaces.Box(
+            np.tile(self.sim.obs_low, n), np.tile(self.sim.obs_high, n), dtype=np.float32
+        )
         codec = self.sim.codec
         if codec.kind == "continuous":
             self.action_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(2 * n,), dtype=np.float32)
         else:
-            self.action_space = gymnasium.spaces.Discrete(codec.n_discrete ** n)
+            self.action_space = gymnasium.spaces.Discrete(codec.n_discrete**n)
         self._joint = self.sim.obs.copy()
 
     def split_action(self, action: Any) -> np.ndarray:
@@ -61,8 +66,9 @@ class JointEnv(gymnasium.Env[np.ndarray, Any]):
         digits = [(index // k ** (n - 1 - i)) % k for i in range(n)]
         return np.array(digits, dtype=np.int64)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self._joint = self.sim.reset(seed)
         return self._joint.reshape(-1).copy(), _info(self.sim)
@@ -73,10 +79,15 @@ class JointEnv(gymnasium.Env[np.ndarray, Any]):
         active = judged.active
         self._joint[active] = result.obs[active]
         reward = float(judged.reward.sum())
-        return (self._joint.reshape(-1).copy(), reward, bool(judged.done.all()), judged.truncated,
-                _info(self.sim, judged))
+        return (
+            self._joint.reshape(-1).copy(),
+            reward,
+            bool(judged.done.all()),
+            judged.truncated,
+            _info(self.sim, judged),
+        )
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
             return None
         from pipeline.sim.render import render_top_down
@@ -89,8 +100,14 @@ class RobotEnv(gymnasium.Env[np.ndarray, Any]):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, scenario: Scenario, world: WorldConfig, robot: int = 0,
-                 teammates: TeammatePolicy | None = None, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        world: WorldConfig,
+        robot: int = 0,
+        teammates: TeammatePolicy | None = None,
+        render_mode: str | None = None,
+    ) -> None:
         self.sim = MultiRobotSim(scenario, world)
         if not 0 <= robot < self.sim.n:
             raise ValueError(f"robot index {robot} out of range: the scenario has {self.sim.n} robots")
@@ -101,16 +118,19 @@ class RobotEnv(gymnasium.Env[np.ndarray, Any]):
         codec = self.sim.codec
         if codec.kind == "continuous":
             self.action_space: gymnasium.Space[Any] = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-            self._still = np.zeros((self.sim.n, 2))
+            self._still: np.ndarray = np.zeros((self.sim.n, 2))
         else:
             self.action_space = gymnasium.spaces.Discrete(codec.n_discrete)
             if "stop" not in codec.discrete_set and teammates is None:
-                raise ValueError("discrete teammates cannot stand still without a 'stop' action: "
-                                 "add 'stop' to actions.discrete_set or pass a teammates policy")
+                raise ValueError(
+                    "discrete teammates cannot stand still without a 'stop' action: "
+                    "add 'stop' to actions.discrete_set or pass a teammates policy"
+                )
             self._still = np.full(self.sim.n, codec.discrete_set.index("stop") if "stop" in codec.discrete_set else 0)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         return self.sim.reset(seed)[self.robot].copy(), _info(self.sim)
 
@@ -124,7 +144,7 @@ class RobotEnv(gymnasium.Env[np.ndarray, Any]):
         info["robot_terms"] = judged.robot_terms(i)
         return (result.obs[i].copy(), float(judged.reward[i]), bool(judged.done[i]), judged.truncated, info)
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
             return None
         from pipeline.sim.render import render_top_down

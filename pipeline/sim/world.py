@@ -34,8 +34,9 @@ class SimWorld:
         self.data = mujoco.MjData(self.model)
         self.n = scenario.n_robots
         lidar = world.lidar
-        self.scan_geometry = ScanGeometry(lidar.sim_beams, 0.0, 2 * math.pi / lidar.sim_beams,
-                                          lidar.range_min_m, lidar.range_max_m)
+        self.scan_geometry = ScanGeometry(
+            lidar.sim_beams, 0.0, 2 * math.pi / lidar.sim_beams, lidar.range_min_m, lidar.range_max_m
+        )
         self._dirs = lidar_directions(lidar.sim_beams)
         self._vec = np.zeros(lidar.sim_beams * 3)
         self._pnt = np.zeros(3)
@@ -119,9 +120,20 @@ class SimWorld:
             vec[:, 0] = c * self._dirs[:, 0] - s * self._dirs[:, 1]
             vec[:, 1] = s * self._dirs[:, 0] + c * self._dirs[:, 1]
             self._pnt[:] = (x, y, lidar.height_m)
-            mujoco.mj_multiRay(self.model, self.data, self._pnt, self._vec, self._geomgroup, 1,
-                               int(self.index.body[i]), self._geomid, self._dist, None, lidar.sim_beams,
-                               lidar.range_max_m)
+            mujoco.mj_multiRay(
+                self.model,
+                self.data,
+                self._pnt,
+                self._vec,
+                self._geomgroup,
+                1,
+                int(self.index.body[i]),
+                self._geomid,
+                self._dist,
+                None,
+                lidar.sim_beams,
+                lidar.range_max_m,
+            )
             out[i] = self._dist
         out[(out < 0) | (out > self.world.lidar.range_max_m)] = np.inf
         return out
