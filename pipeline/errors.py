@@ -66,3 +66,21 @@ class ScanError(MrlError):
 
 class ActionError(MrlError):
     """An action does not fit the action codec (wrong shape, index out of range, NaN)."""
+
+
+class SchemaError(MrlError):
+    """A message definition in schemas/ is missing, malformed or disagrees with ROS 2 Jazzy."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
+
+
+class MessageError(MrlError):
+    """A message cannot be built, encoded or decoded; names the message type or topic."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        self.where = where
+        self.problem = problem
+        super().__init__(f"{where}: {problem}")

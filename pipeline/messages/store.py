@@ -1,0 +1,107 @@
+"""The message store: definitions, ROS 2 type hashes and CDR for every type the pipeline records or sends."""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.base import TypesysError
+
+from pipeline.errors import MessageError, SchemaError
+
+SCHEMAS_DIR = Path(__file__).resolve().parents[2] / "schemas"
+"""The ``schemas/`` folder of the repository: ``<package>/msg/<Name>.msg`` files."""
+
+
+def schema_files(folder: Path = SCHEMAS_DIR) -> dict[str, Path]:
+    """Type names (``pkg/msg/Name``) -> their .msg files under `folder`."""
+    if not folder.is_dir():
+        raise SchemaError(str(folder), "the schemas folder does not exist (run from a checkout of the repository)")
+    out = {}
+    for path in sorted(folder.rglob("*.msg")):
+        rel = path.relative_to(folder).with_suffix("")
+        if len(rel.parts) != 3 or rel.parts[1] != "msg":
+            raise SchemaError(str(path), "a schema file must live at <package>/msg/<Name>.msg")
+        out["/".join(rel.parts)] = path
+    return out
+
+
+class MessageStore:
+    """ROS 2 Jazzy standard types plus the definitions in ``schemas/``, checked against each other.
+
+    Messages are the store's generated dataclasses (``store.new(typename, **fields)``); numpy
+    arrays stand for ``float32[]`` and similar sequences.
+    """
+
+    def __init__(self, folder: Path = SCHEMAS_DIR) -> None:
+        self.folder = folder
+        self._ts = get_typestore(Stores.ROS2_JAZZY)
+        self.files = schema_files(folder)
+        for typename, path in self.files.items():
+            try:
+                defs = get_types_from_msg(path.read_text(encoding="utf-8"), typename)
+            except Exception as exc:  # rosbags raises several parser errors
+                raise SchemaError(str(path), f"not a valid ROS 2 message definition: {exc}") from exc
+            try:
+                self._ts.register(defs)
+            except TypesysError as exc:
+                raise SchemaError(str(path), f"disagrees with the ROS 2 Jazzy definition of {typename}: {exc}") from exc
+
+    @property
+    def typenames(self) -> tuple[str, ...]:
+        """Every type defined in ``schemas/``."""
+        return tuple(self.files)
+
+    def has(self, typename: str) -> bool:
+        return typename in self._ts.types
+
+    def cls(self, typename: str) -> Any:
+        """The message class of `typename`."""
+        try:
+            return self._ts.types[typename]
+        except KeyError:
+            known = ", ".join(self.typenames)
+            raise MessageError(typename, f"unknown message type; schemas/ defines {known}") from None
+
+    def new(self, typename: str, **fields: Any) -> Any:
+        """A message of `typename` from its fields."""
+        return self.cls(typename)(**fields)
+
+    def msgdef(self, typename: str) -> str:
+        """The ``ros2msg`` schema text of `typename` with its dependencies, as rosbag2 stores it."""
+        self.cls(typename)
+        return str(self._ts.generate_msgdef(typename, ros_version=2)[0])
+
+    def rihs01(self, typename: str) -> str:
+        """The ROS 2 type hash (``RIHS01_<sha256 hex>``) that Jazzy announces for `typename`."""
+        self.cls(typename)
+        return str(self._ts.hash_rihs01(typename))
+
+    @staticmethod
+    def dds_type_name(typename: str) -> str:
+        """The DDS type name ROS 2 uses: ``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_``."""
+        pkg, kind, name = typename.split("/")
+        return f"{pkg}::{kind}::dds_::{name}_"
+
+    def serialize(self, msg: Any, typename: str) -> bytes:
+        """Little-endian plain CDR (XCDR1, with the 4-byte encapsulation header) of `msg`."""
+        try:
+            return bytes(self._ts.serialize_cdr(msg, typename))
+        except Exception as exc:  # wrong field types surface as assorted struct/attribute errors
+            raise MessageError(typename, f"cannot serialize {type(msg).__name__}: {exc}") from exc
+
+    def deserialize(self, data: bytes | memoryview, typename: str) -> Any:
+        """The message of `typename` encoded in CDR `data`; malformed bytes raise MessageError."""
+        self.cls(typename)
+        try:
+            return self._ts.deserialize_cdr(bytes(data), typename)
+        except Exception as exc:  # truncated or garbled buffers surface as struct/index errors
+            raise MessageError(typename, f"malformed CDR ({len(data)} bytes): {exc}") from exc
+
+
+@cache
+def message_store() -> MessageStore:
+    """The process-wide store built from the repository's ``schemas/``."""
+    return MessageStore()
