@@ -16,6 +16,7 @@ from pipeline.core.actions import ActionCodec, ActionKind
 from pipeline.core.judge import RewardWeights
 from pipeline.core.observation import LayoutName, ObservationLayout
 from pipeline.core.scan import Reduction
+from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.settings import from_mapping, merge, read_yaml, setting, to_mapping
 
 
@@ -118,6 +119,124 @@ class WorldConfig:
         return self.actions.codec()
 
 
+Algorithm = Literal["sac", "dqn", "ppo"]
+Mode = Literal["independent", "shared", "centralized"]
+
+
+@dataclass(frozen=True)
+class SacConfig:
+    """SAC settings (continuous actions)."""
+
+    tau: float = setting(0.005, gt=0.0, le=1.0)
+    ent_coef: float = setting(0.0, ge=0.0, le=10.0)
+    """Entropy coefficient; 0 learns it automatically toward the target entropy."""
+    target_entropy_scale: float = setting(1.0, gt=0.0, le=10.0)
+    """Target entropy is -scale * action dimensions (SAC's default is scale 1)."""
+
+
+@dataclass(frozen=True)
+class DqnConfig:
+    """DQN settings (discrete actions): dueling head, prioritized replay, double-Q target."""
+
+    dueling: bool = setting(True)
+    prioritized: bool = setting(True)
+    double_q: bool = setting(True)
+    per_alpha: float = setting(0.6, ge=0.0, le=1.0)
+    per_beta0: float = setting(0.4, ge=0.0, le=1.0)
+    per_epsilon: float = setting(1e-6, gt=0.0, le=1.0)
+    exploration_fraction: float = setting(0.3, gt=0.0, le=1.0)
+    exploration_initial_eps: float = setting(1.0, ge=0.0, le=1.0)
+    exploration_final_eps: float = setting(0.05, ge=0.0, le=1.0)
+    target_update_interval: int = setting(2000, ge=1)
+    """Transitions between copies of the online network into the target network."""
+    max_grad_norm: float = setting(10.0, gt=0.0)
+
+
+@dataclass(frozen=True)
+class PpoConfig:
+    """PPO settings (either action kind)."""
+
+    n_steps: int = setting(256, ge=2, le=100_000)
+    """World steps per rollout (each stream contributes n_steps samples)."""
+    n_epochs: int = setting(10, ge=1, le=100)
+    minibatch_size: int = setting(256, ge=2)
+    gae_lambda: float = setting(0.95, ge=0.0, le=1.0)
+    clip_range: float = setting(0.2, gt=0.0, le=1.0)
+    ent_coef: float = setting(0.0, ge=0.0, le=1.0)
+    vf_coef: float = setting(0.5, gt=0.0, le=10.0)
+    max_grad_norm: float = setting(0.5, gt=0.0)
+
+
+@dataclass(frozen=True)
+class ConvergenceConfig:
+    """The convergence criterion: every robot's success over the last `window_episodes` >= `success_threshold`."""
+
+    window_episodes: int = setting(20, ge=1, le=10_000)
+    success_threshold: float = setting(0.8, gt=0.0, le=1.0)
+    stop: bool = setting(False)
+    """Stop training at convergence (else train the whole budget)."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The `train` stage: algorithm, multi-agent mode, budget and hyperparameters."""
+
+    algorithm: Algorithm = setting("sac")
+    mode: Mode = setting("independent")
+    total_steps: int = setting(200_000, ge=1, le=100_000_000)
+    """World control steps summed over the parallel worlds."""
+    n_envs: int = setting(4, ge=1, le=256)
+    """Parallel worlds stepped in lockstep."""
+    seed: int = setting(0, ge=0)
+    net_arch: tuple[int, ...] = setting((256, 256), min_len=1)
+    learning_rate: float = setting(3e-4, gt=0.0, le=1.0)
+    gamma: float = setting(0.99, gt=0.0, le=1.0)
+    batch_size: int = setting(256, ge=1)
+    buffer_size: int = setting(300_000, ge=1)
+    learning_starts: int = setting(5_000, ge=0)
+    """Transitions per learner collected with random actions before updates start (off-policy)."""
+    updates_per_transition: float = setting(0.5, gt=0.0, le=64.0)
+    """Gradient steps per stored transition (off-policy)."""
+    train_every_steps: int = setting(4, ge=1)
+    """World steps between update rounds (off-policy)."""
+    checkpoint_every_episodes: int = setting(100, ge=1)
+    torch_threads: int = setting(1, ge=1, le=64)
+    sac: SacConfig = setting(SacConfig())
+    dqn: DqnConfig = setting(DqnConfig())
+    ppo: PpoConfig = setting(PpoConfig())
+    convergence: ConvergenceConfig = setting(ConvergenceConfig())
+    out_dir: str = setting("models")
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad: list[tuple[str, object, str]] = []
+        if any(width < 1 for width in self.net_arch):
+            bad.append(("net_arch", list(self.net_arch), "layer widths >= 1"))
+        return bad
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    """The `export` stage: ONNX policy files from the trained weights."""
+
+    golden_observations: int = setting(64, ge=1, le=100_000)
+    """Observations (drawn from the simulated world) on which ONNX must equal torch."""
+    tolerance: float = setting(1e-5, gt=0.0, le=1e-2)
+    """Largest allowed |ONNX - torch| on continuous actions."""
+    opset: int = setting(17, ge=13, le=23)
+    out_dir: str = setting("models")
+
+
+@dataclass(frozen=True)
+class EvalSimConfig:
+    """The `eval_sim` stage: episodes of the exported policy in the simulated world, recorded to MCAP."""
+
+    episodes: int = setting(200, ge=1, le=1_000_000)
+    seed: int = setting(10_000, ge=0)
+    record: bool = setting(True)
+    chunk_size_bytes: int = setting(1_048_576, ge=1024)
+    out_dir: str = setting("logs/sim")
+
+
 @dataclass(frozen=True)
 class ScriptedEvalConfig:
     """The `scripted_eval` stage: episodes of the scripted controller in the simulated world."""
@@ -128,11 +247,27 @@ class ScriptedEvalConfig:
 
 
 @dataclass(frozen=True)
+class CalibrateConfig:
+    """The `calibrate` stage: estimate the simulator's noise and actuation from a deployment recording."""
+
+    round: Literal["nominal"] = setting("nominal")
+    """The round whose deployment recording is calibrated from."""
+    out_dir: str = setting("logs/calibration")
+
+
+@dataclass(frozen=True)
 class Params:
     """All of params.yaml."""
 
     world: WorldConfig = setting()
     scripted_eval: ScriptedEvalConfig = setting()
+    train: TrainConfig = setting()
+    export: ExportConfig = setting()
+    eval_sim: EvalSimConfig = setting()
+    calibrate: CalibrateConfig = setting()
+
+    def check(self) -> list[tuple[str, object, str]]:
+        return check_training_fits_world(self.train, self.world)
 
 
 def load_params(path: str | Path = "params.yaml") -> Params:
@@ -146,3 +281,52 @@ def world_config(
     """A WorldConfig from `base` (defaults if None) with nested `overrides` merged in and validated."""
     data = to_mapping(base if base is not None else WorldConfig())
     return from_mapping(WorldConfig, merge(data, overrides or {}), source)
+
+
+def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tuple[str, object, str]]:
+    """Problems (dotted key, value, allowed) where the algorithm or mode does not fit the world."""
+    bad: list[tuple[str, object, str]] = []
+    kind = world.actions.kind
+    if train.algorithm == "sac" and kind != "continuous":
+        bad.append(("world.actions.kind", kind, "'continuous' for train.algorithm 'sac'"))
+    if train.algorithm == "dqn" and kind != "discrete":
+        bad.append(("world.actions.kind", kind, "'discrete' for train.algorithm 'dqn'"))
+    if train.mode == "shared" and world.observation == "paper":
+        bad.append(
+            (
+                "world.observation",
+                world.observation,
+                "'rich' for train.mode 'shared' (one network must tell robots apart by their goal)",
+            )
+        )
+    return bad
+
+
+def round_world(params: Params, round_name: str, source: str = "params.yaml") -> WorldConfig:
+    """The simulated world of a round of the loop: `nominal` is params.yaml's world; `calibrated`
+    adds the calibration file's estimates on top of it."""
+    if round_name == "nominal":
+        return params.world
+    if round_name == "calibrated":
+        return calibrated_world(params.world, Path(params.calibrate.out_dir) / CALIBRATION_FILE)
+    raise ConfigError(source, [ConfigProblem("--round", round_name, "one of 'nominal', 'calibrated'")])
+
+
+CALIBRATION_FILE = "calibration.yaml"
+
+
+def calibrated_world(base: WorldConfig, path: Path) -> WorldConfig:
+    """`base` with the ``world`` overrides of a calibration file (written by the calibrate stage)."""
+    data = read_yaml(path)
+    if not isinstance(data, dict) or not isinstance(data.get("world"), dict):
+        raise ConfigError(
+            str(path),
+            [
+                ConfigProblem(
+                    "world",
+                    data if not isinstance(data, dict) else data.get("world"),
+                    "a mapping of world settings (the calibrate stage writes it)",
+                )
+            ],
+        )
+    return world_config(data["world"], base=base, source=str(path))

@@ -84,3 +84,41 @@ class MessageError(MrlError):
         self.where = where
         self.problem = problem
         super().__init__(f"{where}: {problem}")
+
+
+class CheckpointError(MrlError):
+    """A training checkpoint is missing, corrupt or inconsistent; names the file."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
+
+
+class TrainingInterrupted(MrlError):
+    """Training stopped on a signal; the last checkpoint was written."""
+
+    interrupted = True
+
+    def __init__(self, checkpoint: str, steps: int) -> None:
+        self.checkpoint = checkpoint
+        self.steps = steps
+        super().__init__(f"training interrupted after {steps} world steps; checkpoint kept at {checkpoint}")
+
+
+class PolicyError(MrlError):
+    """An exported policy (or the weights it is built from) is missing, corrupt or malformed; names the file."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        self.where = where
+        self.problem = problem
+        super().__init__(f"{where}: {problem}")
+
+
+class PolicyMismatch(MrlError):
+    """A policy does not fit the world or fleet it is asked to drive; says what differs."""
+
+    def __init__(self, policy: str, problems: list[str]) -> None:
+        self.policy = policy
+        self.problems = problems
+        super().__init__(f"policy {policy} does not fit: " + "; ".join(problems))

@@ -69,6 +69,11 @@ class MessageStore:
         """A message of `typename` from its fields."""
         return self.cls(typename)(**fields)
 
+    def field_definitions(self, typename: str) -> list[tuple[str, Any]]:
+        """The fields of `typename` (constants excluded) as rosbags describes them: (name, (node type, detail))."""
+        self.cls(typename)
+        return list(self._ts.fielddefs[typename][1])
+
     def msgdef(self, typename: str) -> str:
         """The ``ros2msg`` schema text of `typename` with its dependencies, as rosbag2 stores it."""
         self.cls(typename)

@@ -41,16 +41,15 @@ class QosProfile:
 
     def rosbag2_yaml(self) -> str:
         """The ``offered_qos_profiles`` text rosbag2 (Jazzy, metadata version 9) stores per channel."""
-        zero = {"sec": 0, "nsec": 0}
         profile = {
             "history": "keep_last",
             "depth": self.depth,
             "reliability": self.reliability,
             "durability": self.durability,
-            "deadline": zero,
-            "lifespan": zero,
+            "deadline": {"sec": 0, "nsec": 0},
+            "lifespan": {"sec": 0, "nsec": 0},
             "liveliness": "automatic",
-            "liveliness_lease_duration": zero,
+            "liveliness_lease_duration": {"sec": 0, "nsec": 0},
             "avoid_ros_namespace_conventions": False,
         }
         return str(yaml.safe_dump([profile], sort_keys=False))

@@ -18,7 +18,7 @@ from pettingzoo import ParallelEnv
 
 from pipeline.config import WorldConfig
 from pipeline.core.judge import EpisodeJudge, JudgeStep
-from pipeline.core.scan import reduce_scan
+from pipeline.core.observe import ObservationBuilder
 from pipeline.core.scenario import Scenario
 from pipeline.sim.world import SimWorld
 
@@ -40,15 +40,12 @@ class MultiRobotSim:
         self.world = SimWorld(scenario, world)
         self.layout = world.layout()
         self.codec = world.codec()
+        self.observer = ObservationBuilder(
+            scenario, self.layout, world.lidar.range_min_m, world.lidar.range_max_m, world.lidar.reduction
+        )
         self.judge = EpisodeJudge(scenario, world.reward, world.max_steps, world.collision_margin_m)
         self.n = scenario.n_robots
-        low, high = self.layout.bounds(
-            (scenario.room.x_min_m, scenario.room.x_max_m),
-            (scenario.room.y_min_m, scenario.room.y_max_m),
-            world.lidar.range_min_m,
-            world.lidar.range_max_m,
-        )
-        self.obs_low, self.obs_high = low, high
+        self.obs_low, self.obs_high = self.observer.low, self.observer.high
         self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))
         self.ranges = np.zeros((self.n, world.lidar.beams))
         self.obs = np.zeros((self.n, self.layout.size), dtype=np.float32)
@@ -56,13 +53,9 @@ class MultiRobotSim:
         self._seeded = False
 
     def _observe(self) -> np.ndarray:
-        lidar = self.world_config.lidar
         self.raw_scan = self.world.scan()
-        self.ranges = reduce_scan(
-            self.raw_scan, self.world.scan_geometry, lidar.beams, lidar.range_min_m, lidar.range_max_m, lidar.reduction
-        )
-        obs = self.layout.build(self.world.odometry.pose, self.ranges, self.scenario.goals)
-        self.obs = np.clip(obs, self.obs_low, self.obs_high)
+        observed = self.observer.build(self.raw_scan, self.world.scan_geometry, self.world.odometry.pose)
+        self.ranges, self.obs = observed.ranges, observed.obs
         return self.obs
 
     def reset(self, seed: int | None = None) -> np.ndarray:

@@ -1,0 +1,331 @@
+"""Learners: stable-baselines3 algorithms driven by the lockstep multi-robot loop.
+
+SB3's ``learn()`` steps one VecEnv per model; here several models act in the same worlds at the
+same time and a robot may finish before its world does. So the training loop owns the worlds
+and each learner wraps one SB3 model through a small subclass that exposes SB3's own steps
+(store a transition, advance the schedules, run gradient steps, consume a rollout) as public
+methods. Only transitions of robots that were active at the start of a step are learned from.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import gymnasium
+import numpy as np
+import torch as th
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.utils import obs_as_tensor
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn
+
+from pipeline.config import TrainConfig
+from pipeline.learn.dqn import PerDQN
+from pipeline.learn.modes import StreamBatch
+
+
+class SpacesVecEnv(VecEnv):
+    """A VecEnv that only carries spaces: SB3 models are built on it, the training loop steps the worlds."""
+
+    def __init__(self, observation_space: gymnasium.Space[Any], action_space: gymnasium.Space[Any], n: int) -> None:
+        super().__init__(n, observation_space, action_space)
+
+    def reset(self) -> Any:
+        shape = (self.num_envs, *(self.observation_space.shape or ()))
+        return np.zeros(shape, dtype=np.float32)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        raise RuntimeError("this VecEnv carries spaces only; the multi-robot training loop steps the worlds")
+
+    def step_wait(self) -> VecEnvStepReturn:
+        raise RuntimeError("this VecEnv carries spaces only; the multi-robot training loop steps the worlds")
+
+    def close(self) -> None:
+        pass
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [None] * self.num_envs
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        pass
+
+    def env_method(self, method_name: str, *args: Any, indices: Any = None, **kwargs: Any) -> list[Any]:
+        return [None] * self.num_envs
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gymnasium.Wrapper[Any, Any, Any, Any]], indices: Any = None
+    ) -> list[bool]:
+        return [False] * self.num_envs
+
+
+class _ExternalOffPolicy(OffPolicyAlgorithm):
+    """Public steps of an SB3 off-policy algorithm for a loop outside ``learn()`` (one transition at a time)."""
+
+    def begin(self, total_transitions: int) -> None:
+        self._setup_learn(total_transitions, callback=None, reset_num_timesteps=True)
+
+    def store(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        terminated: bool,
+        truncated: bool,
+    ) -> None:
+        """Add one transition to the replay buffer and advance SB3's per-step bookkeeping."""
+        done = np.array([terminated or truncated])
+        info = [{"TimeLimit.truncated": bool(truncated and not terminated)}]
+        assert self.replay_buffer is not None
+        self.replay_buffer.add(
+            obs[None], next_obs[None], np.asarray(action).reshape(1, -1), np.array([reward]), done, info
+        )
+        self.num_timesteps += 1
+        self._on_step()
+
+    def set_progress(self, fraction_done: float) -> None:
+        """Drive SB3's schedules (learning rate, exploration, PER beta) from the loop's progress in [0, 1]."""
+        self._current_progress_remaining = 1.0 - min(max(fraction_done, 0.0), 1.0)
+
+
+class LoopSAC(_ExternalOffPolicy, SAC):
+    """SAC whose transitions come from the multi-robot loop."""
+
+
+class LoopDQN(_ExternalOffPolicy, PerDQN):
+    """Dueling / prioritized / double DQN whose transitions come from the multi-robot loop."""
+
+
+class LoopPPO(PPO):
+    """PPO whose rollouts come from the multi-robot loop; masked samples carry no gradient."""
+
+    def begin(self, total_steps: int) -> None:
+        self._setup_learn(total_steps, callback=None, reset_num_timesteps=True)
+        self.rollout_buffer.reset()
+
+    def set_progress(self, fraction_done: float) -> None:
+        self._current_progress_remaining = 1.0 - min(max(fraction_done, 0.0), 1.0)
+
+    def train_on_rollout(self, last_values: th.Tensor, dones: np.ndarray, mask: np.ndarray) -> None:
+        """Finish the full rollout buffer, zero the advantages of `mask`ed samples (n_steps, n_envs), train."""
+        buf = self.rollout_buffer
+        buf.compute_returns_and_advantage(last_values=last_values, dones=dones)
+        buf.advantages[mask] = 0.0
+        buf.returns[mask] = buf.values[mask]
+        self.train()
+        buf.reset()
+
+
+class Learner(Protocol):
+    """What the training loop needs of a learner."""
+
+    model: BaseAlgorithm
+
+    def act(self, obs: np.ndarray) -> np.ndarray: ...
+
+    def observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None: ...
+
+    def update(self) -> None: ...
+
+    def set_progress(self, fraction_done: float) -> None: ...
+
+
+class OffPolicyLearner:
+    """SAC or DQN: random actions until `learning_starts` transitions, then the model's exploration."""
+
+    def __init__(self, model: LoopSAC | LoopDQN, cfg: TrainConfig, seed: int) -> None:
+        self.model = model
+        self.cfg = cfg
+        self.rng = np.random.default_rng(seed)
+        self._credit = 0.0
+        self._steps = 0
+        self.discrete = isinstance(model.action_space, gymnasium.spaces.Discrete)
+
+    def _random(self, n: int) -> np.ndarray:
+        space = self.model.action_space
+        if isinstance(space, gymnasium.spaces.Discrete):
+            return self.rng.integers(0, int(space.n), size=n)
+        assert isinstance(space, gymnasium.spaces.Box)
+        return self.rng.uniform(space.low, space.high, size=(n, *space.shape)).astype(np.float32)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        n = len(obs)
+        if self.model.num_timesteps < self.cfg.learning_starts:
+            return self._random(n)
+        if self.discrete:
+            greedy, _ = self.model.policy.predict(obs, deterministic=True)
+            explore = self.rng.random(n) < self.model.exploration_rate  # type: ignore[union-attr]
+            return np.where(explore, self._random(n), np.asarray(greedy).reshape(n))
+        action, _ = self.model.predict(obs, deterministic=False)
+        return np.asarray(action, dtype=np.float32)
+
+    def observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        for i in np.flatnonzero(batch.active):
+            self.model.store(
+                obs[i],
+                batch.next_obs[i],
+                actions[i],
+                float(batch.reward[i]),
+                bool(batch.terminated[i]),
+                bool(batch.truncated[i]),
+            )
+            if self.model.num_timesteps > self.cfg.learning_starts:
+                self._credit += self.cfg.updates_per_transition
+
+    def set_progress(self, fraction_done: float) -> None:
+        self.model.set_progress(fraction_done)
+
+    def update(self) -> None:
+        self._steps += 1
+        if self._steps % self.cfg.train_every_steps:
+            return
+        steps = int(self._credit)
+        if (
+            steps > 0
+            and self.model.replay_buffer is not None
+            and self.model.replay_buffer.size() >= self.cfg.batch_size
+        ):
+            self._credit -= steps
+            self.model.train(gradient_steps=steps, batch_size=self.cfg.batch_size)
+
+
+class OnPolicyLearner:
+    """PPO over `n_streams` streams; a robot inactive at the start of a step gives a masked sample."""
+
+    def __init__(self, model: LoopPPO, cfg: TrainConfig) -> None:
+        self.model = model
+        self.cfg = cfg
+        n = model.n_envs
+        self._starts = np.ones(n, dtype=bool)
+        self._values: th.Tensor | None = None
+        self._log_probs: th.Tensor | None = None
+        self._raw_actions = np.zeros(0)
+        self._mask = np.zeros((model.n_steps, n), dtype=bool)
+        self._last_next_obs = np.zeros(0)
+        self.discrete = isinstance(model.action_space, gymnasium.spaces.Discrete)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        policy = self.model.policy
+        with th.no_grad():
+            actions, values, log_probs = policy(obs_as_tensor(obs, self.model.device))
+        self._values, self._log_probs = values, log_probs
+        raw = actions.cpu().numpy()
+        self._raw_actions = raw
+        if self.discrete:
+            return np.asarray(raw).reshape(len(obs))
+        space = self.model.action_space
+        assert isinstance(space, gymnasium.spaces.Box)
+        return np.asarray(np.clip(raw, space.low, space.high), dtype=np.float32)
+
+    def observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        model = self.model
+        buf = model.rollout_buffer
+        rewards = batch.reward.astype(np.float32).copy()
+        bootstrap = batch.truncated & batch.active & ~batch.terminated
+        if bootstrap.any():
+            with th.no_grad():
+                values = model.policy.predict_values(obs_as_tensor(batch.next_obs[bootstrap], model.device))
+            rewards[bootstrap] += model.gamma * values.cpu().numpy().reshape(-1)
+        raw = self._raw_actions.reshape(len(obs), -1) if self.discrete else self._raw_actions
+        assert self._values is not None and self._log_probs is not None
+        self._mask[buf.pos] = ~batch.active
+        buf.add(obs, raw, rewards, self._starts, self._values, self._log_probs)
+        model.num_timesteps += len(obs)
+        self._starts = batch.terminated | batch.truncated | ~batch.active
+        self._last_next_obs = batch.next_obs
+
+    def set_progress(self, fraction_done: float) -> None:
+        self.model.set_progress(fraction_done)
+
+    def update(self) -> None:
+        model = self.model
+        if not model.rollout_buffer.full:
+            return
+        # the value of what the streams see next: the successor of the last step
+        with th.no_grad():
+            last_values = model.policy.predict_values(obs_as_tensor(self._last_next_obs, model.device))
+        model.train_on_rollout(last_values, self._starts, self._mask.copy())
+        self._mask[:] = False
+
+
+def _net_arch(cfg: TrainConfig) -> list[int]:
+    return list(cfg.net_arch)
+
+
+def build_learner(
+    cfg: TrainConfig,
+    observation_space: gymnasium.spaces.Box,
+    action_space: gymnasium.Space[Any],
+    n_streams: int,
+    seed: int,
+) -> OffPolicyLearner | OnPolicyLearner:
+    """A learner of `cfg.algorithm` for streams with these spaces."""
+    if cfg.algorithm == "ppo":
+        ppo = cfg.ppo
+        env = SpacesVecEnv(observation_space, action_space, n_streams)
+        model = LoopPPO(
+            "MlpPolicy",
+            env,
+            learning_rate=cfg.learning_rate,
+            n_steps=ppo.n_steps,
+            batch_size=min(ppo.minibatch_size, ppo.n_steps * n_streams),
+            n_epochs=ppo.n_epochs,
+            gamma=cfg.gamma,
+            gae_lambda=ppo.gae_lambda,
+            clip_range=ppo.clip_range,
+            ent_coef=ppo.ent_coef,
+            vf_coef=ppo.vf_coef,
+            max_grad_norm=ppo.max_grad_norm,
+            policy_kwargs={"net_arch": {"pi": _net_arch(cfg), "vf": _net_arch(cfg)}},
+            seed=seed,
+            device="cpu",
+            verbose=0,
+        )
+        model.begin(cfg.total_steps)
+        return OnPolicyLearner(model, cfg)
+    env = SpacesVecEnv(observation_space, action_space, 1)
+    common: dict[str, Any] = {
+        "learning_rate": cfg.learning_rate,
+        "buffer_size": cfg.buffer_size,
+        "learning_starts": 0,
+        "batch_size": cfg.batch_size,
+        "gamma": cfg.gamma,
+        "train_freq": 1,
+        "gradient_steps": 1,
+        "seed": seed,
+        "device": "cpu",
+        "verbose": 0,
+    }
+    off: LoopSAC | LoopDQN
+    if cfg.algorithm == "sac":
+        dims = int(np.prod(action_space.shape or (1,)))
+        off = LoopSAC(
+            "MlpPolicy",
+            env,
+            tau=cfg.sac.tau,
+            ent_coef="auto" if cfg.sac.ent_coef == 0.0 else cfg.sac.ent_coef,
+            target_entropy=-cfg.sac.target_entropy_scale * dims,
+            policy_kwargs={"net_arch": _net_arch(cfg)},
+            **common,
+        )
+    else:
+        d = cfg.dqn
+        off = LoopDQN(
+            "DuelingMlpPolicy" if d.dueling else "MlpPolicy",
+            env,
+            target_update_interval=d.target_update_interval,
+            exploration_fraction=d.exploration_fraction,
+            exploration_initial_eps=d.exploration_initial_eps,
+            exploration_final_eps=d.exploration_final_eps,
+            max_grad_norm=d.max_grad_norm,
+            prioritized=d.prioritized,
+            double_q=d.double_q,
+            per_alpha=d.per_alpha,
+            per_beta0=d.per_beta0,
+            per_epsilon=d.per_epsilon,
+            policy_kwargs={"net_arch": _net_arch(cfg)},
+            **common,
+        )
+    off.begin(cfg.total_steps)
+    return OffPolicyLearner(off, cfg, seed)

@@ -1,0 +1,165 @@
+"""The multi-robot training loop: parallel worlds, learners per mode, curves, convergence, checkpoints."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import stable_baselines3
+import torch as th
+from tqdm import tqdm
+
+from pipeline.config import TrainConfig, WorldConfig
+from pipeline.core.scenario import Scenario
+from pipeline.errors import TrainingInterrupted
+from pipeline.learn.checkpoint import save_checkpoint
+from pipeline.learn.learners import OffPolicyLearner, OnPolicyLearner, build_learner
+from pipeline.learn.modes import StreamMap
+from pipeline.learn.progress import ConvergenceTracker, LearningCurve
+from pipeline.learn.worlds import VecWorlds
+from pipeline.settings import to_mapping
+
+CHECKPOINT_DIR = "checkpoint"
+CURVE_FILE = "curve.csv"
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a training run produced and how it went."""
+
+    checkpoint: Path
+    curve: Path
+    world_steps: int
+    episodes: int
+    converged_at_episode: int | None
+    converged_at_steps: int | None
+    wall_s: float
+    digest: str
+    window_success: np.ndarray
+
+    def metrics(self) -> dict[str, float | None]:
+        """Flat ``train/...`` metrics for dvc."""
+        out: dict[str, float | None] = {
+            "train/world_steps": float(self.world_steps),
+            "train/episodes": float(self.episodes),
+            "train/converged_at_episode": None
+            if self.converged_at_episode is None
+            else float(self.converged_at_episode),
+            "train/converged_at_steps": None if self.converged_at_steps is None else float(self.converged_at_steps),
+            "train/wall_s": round(self.wall_s, 1),
+        }
+        for i, rate in enumerate(self.window_success):
+            out[f"train/robot_{i + 1}_success_window"] = float(rate)
+        return out
+
+
+def policy_kind(cfg: TrainConfig) -> str:
+    """The network the exporter rebuilds: sac_actor, ppo_actor, dqn or dqn_dueling."""
+    if cfg.algorithm == "sac":
+        return "sac_actor"
+    if cfg.algorithm == "ppo":
+        return "ppo_actor"
+    return "dqn_dueling" if cfg.dqn.dueling else "dqn"
+
+
+def train(
+    scenario: Scenario,
+    world: WorldConfig,
+    cfg: TrainConfig,
+    out_dir: Path,
+    progress: bool = True,
+    extra_meta: dict[str, Any] | None = None,
+) -> TrainResult:
+    """Train `cfg.algorithm` in `cfg.mode` on `scenario`; writes the checkpoint and the learning curve to `out_dir`.
+
+    On KeyboardInterrupt the current weights are checkpointed and TrainingInterrupted is raised.
+    """
+    th.set_num_threads(cfg.torch_threads)
+    start = time.perf_counter()
+    worlds = VecWorlds(scenario, world, cfg.n_envs, cfg.seed)
+    streams = StreamMap(cfg.mode, worlds)
+    learners: list[OffPolicyLearner | OnPolicyLearner] = [
+        build_learner(cfg, streams.observation_space, streams.action_space, streams.n_streams, cfg.seed + 7919 * i)
+        for i in range(streams.n_learners)
+    ]
+    tracker = ConvergenceTracker(scenario.n_robots, cfg.convergence.window_episodes, cfg.convergence.success_threshold)
+    curve = LearningCurve(out_dir / CURVE_FILE, scenario.robot_names)
+    ckpt_dir = out_dir / CHECKPOINT_DIR
+    layout = world.layout()
+    meta: dict[str, Any] = {
+        "algorithm": cfg.algorithm,
+        "mode": cfg.mode,
+        "policy_kind": policy_kind(cfg),
+        "net_arch": list(cfg.net_arch),
+        "robots": list(scenario.robot_names),
+        "observation": {"layout": layout.name, "n_beams": layout.n_beams, "size": layout.size},
+        "actions": to_mapping(world.actions),
+        "scenario": to_mapping(scenario),
+        "world": to_mapping(world),
+        "train": to_mapping(cfg),
+        "versions": {"stable_baselines3": stable_baselines3.__version__, "torch": th.__version__},
+        **(extra_meta or {}),
+    }
+    steps = 0
+    digest = ""
+
+    def checkpoint(interrupted: bool = False) -> str:
+        state = {
+            **meta,
+            "world_steps": steps,
+            "episodes": tracker.episodes,
+            "converged_at_episode": tracker.converged_at,
+            "interrupted": interrupted,
+        }
+        return save_checkpoint(ckpt_dir, state, [learner.model.policy.state_dict() for learner in learners])
+
+    converged_steps: int | None = None
+    bar = tqdm(total=cfg.total_steps, desc=f"train {cfg.algorithm}/{cfg.mode}", unit="step", disable=not progress)
+    try:
+        obs = worlds.reset()
+        while steps < cfg.total_steps:
+            per_learner = streams.learner_obs(obs)
+            actions = [learner.act(o) for learner, o in zip(learners, per_learner, strict=True)]
+            result = worlds.step(streams.world_actions(actions))
+            batches = streams.learner_batches(result)
+            steps += worlds.n_worlds
+            for learner, o, a, b in zip(learners, per_learner, actions, batches, strict=True):
+                learner.observe(o, a, b)
+                learner.set_progress(steps / cfg.total_steps)
+                learner.update()
+            for record in result.finished:
+                tracker.update(record.success)
+                curve.add(tracker.episodes, steps, record, float(tracker.rates().mean()))
+                if tracker.converged_at == tracker.episodes:
+                    converged_steps = steps
+                if tracker.episodes % cfg.checkpoint_every_episodes == 0:
+                    curve.flush()
+                    checkpoint()
+            if result.finished:
+                bar.set_postfix(episodes=tracker.episodes, success=f"{tracker.rates().mean():.2f}")
+            bar.update(worlds.n_worlds)
+            obs = result.obs
+            if cfg.convergence.stop and tracker.converged_at is not None:
+                break
+    except KeyboardInterrupt:
+        curve.close()
+        bar.close()
+        checkpoint(interrupted=True)
+        raise TrainingInterrupted(str(ckpt_dir), steps) from None
+    curve.close()
+    bar.close()
+    digest = checkpoint()
+    return TrainResult(
+        checkpoint=ckpt_dir,
+        curve=out_dir / CURVE_FILE,
+        world_steps=steps,
+        episodes=tracker.episodes,
+        converged_at_episode=tracker.converged_at,
+        converged_at_steps=converged_steps,
+        wall_s=time.perf_counter() - start,
+        digest=digest,
+        window_success=tracker.rates(),
+    )

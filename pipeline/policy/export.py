@@ -1,0 +1,238 @@
+"""Export: a training checkpoint (weights only) -> ONNX graph + JSON description + golden set.
+
+The exporter never unpickles: it reads the checkpoint's tensors with ``weights_only`` loading,
+builds the ONNX graph from them (:mod:`pipeline.policy.onnx_graph`), and checks it against the
+training library's own torch network rebuilt from the same weights on a golden set of
+observations. The golden set (observations and the torch actions) is written beside the policy,
+so any runtime can re-check the file it loaded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import onnx
+import onnxruntime
+import torch as th
+
+from pipeline.errors import PolicyError
+from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.modes import joint_to_robot_actions
+from pipeline.policy.networks import ActionNetwork, action_network
+from pipeline.policy.onnx_graph import INPUT, policy_graph
+
+FORMAT = "mrl-policy/1"
+ONNX_FILE = "policy.onnx"
+META_FILE = "policy.json"
+GOLDEN_FILE = "golden.json"
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    folder: Path
+    onnx_sha256: str
+    max_abs_diff: float
+    golden_samples: int
+    discrete_agreement: float
+
+
+def _torch_policy(
+    kind: str, weights: dict[str, th.Tensor], obs_size: int, action_space: gymnasium.Space[Any], net_arch: list[int]
+) -> Any:
+    """The training library's own network for `kind`, built from spaces and loaded with `weights` (strict)."""
+    obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
+
+    def lr(_: float) -> float:
+        return 0.0
+
+    policy: Any
+    if kind == "sac_actor":
+        from stable_baselines3.sac.policies import SACPolicy
+
+        policy = SACPolicy(obs_space, action_space, lr, net_arch=net_arch)  # type: ignore[arg-type]
+    elif kind == "ppo_actor":
+        from stable_baselines3.common.policies import ActorCriticPolicy
+
+        policy = ActorCriticPolicy(obs_space, action_space, lr, net_arch={"pi": net_arch, "vf": net_arch})
+    else:
+        from stable_baselines3.dqn.policies import DQNPolicy
+
+        from pipeline.learn.dqn import DuelingDQNPolicy
+
+        cls = DuelingDQNPolicy if kind == "dqn_dueling" else DQNPolicy
+        policy = cls(obs_space, action_space, lr, net_arch=net_arch)  # type: ignore[arg-type]
+    policy.load_state_dict(weights, strict=True)
+    policy.set_training_mode(False)
+    return policy
+
+
+def _torch_actions(policy: Any, obs: np.ndarray) -> np.ndarray:
+    with th.no_grad():
+        actions = policy._predict(th.as_tensor(obs, dtype=th.float32), deterministic=True)
+    return np.asarray(actions.cpu().numpy())
+
+
+def learner_spaces(meta: dict[str, Any]) -> tuple[int, gymnasium.Space[Any]]:
+    """(input size, action space) of each learner network of a checkpoint description."""
+    n = len(meta["robots"])
+    obs_size = int(meta["observation"]["size"])
+    actions = meta["actions"]
+    discrete = actions["kind"] == "discrete"
+    k = len(actions["discrete_set"])
+    if meta["mode"] == "centralized":
+        space: gymnasium.Space[Any] = (
+            gymnasium.spaces.Discrete(k**n) if discrete else gymnasium.spaces.Box(-1.0, 1.0, (2 * n,), np.float32)
+        )
+        return n * obs_size, space
+    space = gymnasium.spaces.Discrete(k) if discrete else gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    return obs_size, space
+
+
+def _reference_actions(nets: list[Any], meta: dict[str, Any], obs: np.ndarray) -> np.ndarray:
+    """Per-robot actions (samples, n_robots, 2) or (samples, n_robots) from the torch networks."""
+    mode, n = meta["mode"], len(meta["robots"])
+    discrete = meta["actions"]["kind"] == "discrete"
+    samples = len(obs)
+    if mode == "independent":
+        cols = [_torch_actions(nets[i], obs[:, i, :]) for i in range(n)]
+        return np.stack(cols, axis=1)
+    if mode == "shared":
+        flat = _torch_actions(nets[0], obs.reshape(samples * n, -1))
+        return flat.reshape(samples, n) if discrete else flat.reshape(samples, n, 2)
+    joint = _torch_actions(nets[0], obs.reshape(samples, -1))
+    if discrete:
+        return joint_to_robot_actions(joint.reshape(-1), len(meta["actions"]["discrete_set"]), n).reshape(samples, n)
+    return joint.reshape(samples, n, 2)
+
+
+def _check_sizes(networks: list[ActionNetwork], meta: dict[str, Any], where: str) -> None:
+    size, space = learner_spaces(meta)
+    want_out = int(space.n) if isinstance(space, gymnasium.spaces.Discrete) else int(np.prod(space.shape or (1,)))
+    for i, net in enumerate(networks):
+        if net.input_size != size or net.output_size != want_out:
+            raise PolicyError(
+                where,
+                f"network {i} maps {net.input_size} -> {net.output_size} values, but the recorded layout and "
+                f"action space need {size} -> {want_out}",
+            )
+
+
+def export_policy(
+    checkpoint_dir: Path, out_dir: Path, golden_obs: np.ndarray, tolerance: float = 1e-5, opset: int = 17
+) -> ExportResult:
+    """Export the checkpoint in `checkpoint_dir` to `out_dir`; `golden_obs` is (samples, n_robots, obs_size).
+
+    Raises PolicyError if the ONNX graph disagrees with the torch network beyond `tolerance`
+    (continuous) or picks another action where torch's best action is not a near-tie (discrete).
+    """
+    ckpt = load_checkpoint(checkpoint_dir)
+    meta = ckpt.meta
+    where = str(checkpoint_dir)
+    discrete = meta["actions"]["kind"] == "discrete"
+    n = len(meta["robots"])
+    obs_size = int(meta["observation"]["size"])
+    networks = [
+        action_network(meta["policy_kind"], {k: v.numpy() for k, v in w.items()}, discrete, f"{where}/learner_{i}.pt")
+        for i, w in enumerate(ckpt.weights)
+    ]
+    _check_sizes(networks, meta, where)
+    golden = np.asarray(golden_obs, dtype=np.float32)
+    if golden.ndim != 3 or golden.shape[1:] != (n, obs_size):
+        raise PolicyError(where, f"golden observations have shape {golden.shape}, need (samples, {n}, {obs_size})")
+    model = policy_graph(
+        networks,
+        meta["mode"],
+        n,
+        obs_size,
+        discrete,
+        len(meta["actions"]["discrete_set"]),
+        opset=opset,
+        doc=f"{meta['algorithm']} {meta['mode']} policy for {', '.join(meta['robots'])}",
+    )
+    data = model.SerializeToString()
+    session = onnxruntime.InferenceSession(data, providers=["CPUExecutionProvider"])
+    onnx_actions = np.stack([session.run(None, {INPUT: o})[0] for o in golden])
+    size, space = learner_spaces(meta)
+    torch_nets = [_torch_policy(meta["policy_kind"], w, size, space, list(meta["net_arch"])) for w in ckpt.weights]
+    torch_actions = _reference_actions(torch_nets, meta, golden)
+    if discrete:
+        agree = onnx_actions == torch_actions
+        if not agree.all():
+            raise PolicyError(
+                where, f"ONNX and torch pick different discrete actions on {int((~agree).sum())} golden rows"
+            )
+        max_diff, agreement = 0.0, 1.0
+    else:
+        max_diff = float(np.abs(onnx_actions - torch_actions).max())
+        agreement = float((np.abs(onnx_actions - torch_actions) <= tolerance).mean())
+        if max_diff > tolerance:
+            raise PolicyError(where, f"ONNX differs from torch by {max_diff:.3g} > tolerance {tolerance:g}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / ONNX_FILE).write_bytes(data)
+    sha = hashlib.sha256(data).hexdigest()
+    golden_doc = {
+        "observations": golden.tolist(),
+        "actions": torch_actions.tolist(),
+        "tolerance": tolerance,
+    }
+    (out_dir / GOLDEN_FILE).write_text(json.dumps(golden_doc) + "\n", encoding="utf-8")
+    description = {
+        "format": FORMAT,
+        "onnx": {"file": ONNX_FILE, "sha256": sha, "opset": opset, "input": INPUT, "output": "action"},
+        "golden": GOLDEN_FILE,
+        "algorithm": meta["algorithm"],
+        "mode": meta["mode"],
+        "policy_kind": meta["policy_kind"],
+        "robots": meta["robots"],
+        "observation": meta["observation"],
+        "actions": meta["actions"],
+        "scenario": meta["scenario"],
+        "noise": {k: meta["world"][k] for k in ("lidar", "odometry", "actuation")},
+        "control_period_s": meta["world"]["control_period_s"],
+        "max_steps": meta["world"]["max_steps"],
+        "training": {
+            "digest": meta["weights_sha256"],
+            "seed": meta["train"]["seed"],
+            "world_steps": meta["world_steps"],
+            "episodes": meta["episodes"],
+            "converged_at_episode": meta["converged_at_episode"],
+            "interrupted": meta["interrupted"],
+            "round": meta.get("round", ""),
+        },
+        "versions": {**meta["versions"], "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__},
+    }
+    (out_dir / META_FILE).write_text(json.dumps(description, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    return ExportResult(
+        folder=out_dir, onnx_sha256=sha, max_abs_diff=max_diff, golden_samples=len(golden), discrete_agreement=agreement
+    )
+
+
+def golden_observations(scenario: Any, world: Any, count: int, seed: int = 0) -> np.ndarray:
+    """(count, n_robots, obs_size) observations from simulated episodes under random actions.
+
+    Random driving spreads the set over the room: near walls, boxes and other robots as well as
+    at the starts.
+    """
+    from pipeline.sim.env import MultiRobotSim
+
+    sim = MultiRobotSim(scenario, world)
+    rng = np.random.default_rng(seed)
+    out = [sim.reset(seed)]
+    episode = 0
+    while len(out) < count:
+        if world.actions.kind == "continuous":
+            act: np.ndarray = rng.uniform(-1.0, 1.0, size=(scenario.n_robots, 2))
+        else:
+            act = rng.integers(0, sim.codec.n_discrete, size=scenario.n_robots)
+        step = sim.step(act)
+        out.append(step.obs)
+        if step.judge.done.all() or step.judge.truncated:
+            episode += 1
+            out.append(sim.reset(seed + episode))
+    return np.stack(out[:count]).astype(np.float32)

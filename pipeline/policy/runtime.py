@@ -1,0 +1,168 @@
+"""The policy runtime: an exported policy (ONNX + JSON) mapping observations to actions for every robot.
+
+It needs onnxruntime and numpy only: no training library, nothing unpickled. Sim evaluation,
+deployment and replay all act through it, with the observation layout and action codec it
+describes, so the same file gives the same actions everywhere.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime
+
+from pipeline.core.actions import ActionCodec
+from pipeline.core.observation import LAYOUTS, ObservationLayout
+from pipeline.errors import PolicyError, PolicyMismatch
+
+FORMAT = "mrl-policy/1"
+META_FILE = "policy.json"
+_REQUIRED = ("format", "onnx", "algorithm", "mode", "robots", "observation", "actions", "training")
+
+
+class PolicyRuntime:
+    """A loaded policy. `actions(obs)` for obs (n_robots, obs_size) float32 in robot order.
+
+    `folder` holds policy.json, policy.onnx and golden.json; loading checks the ONNX file's
+    digest and, unless `verify` is False, replays the golden set.
+    """
+
+    def __init__(self, folder: str | Path, verify: bool = True) -> None:
+        self.folder = Path(folder)
+        meta_path = self.folder / META_FILE if self.folder.is_dir() or not self.folder.suffix else self.folder
+        if meta_path.name != META_FILE:
+            self.folder = meta_path.parent
+        self.meta_path = meta_path
+        self.meta = self._read_meta(meta_path)
+        onnx_path = self.folder / self.meta["onnx"]["file"]
+        try:
+            data = onnx_path.read_bytes()
+        except OSError as exc:
+            raise PolicyError(
+                str(onnx_path), f"missing or unreadable ({exc.strerror}); export the policy first"
+            ) from exc
+        digest = hashlib.sha256(data).hexdigest()
+        if digest != self.meta["onnx"]["sha256"]:
+            raise PolicyError(str(onnx_path), "does not match the sha256 recorded in policy.json (corrupt or replaced)")
+        self.digest = digest
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = 1
+        options.inter_op_num_threads = 1
+        try:
+            self._session = onnxruntime.InferenceSession(data, options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types for invalid graphs
+            raise PolicyError(str(onnx_path), f"not a loadable ONNX graph ({exc})") from exc
+        self._input = self.meta["onnx"]["input"]
+        obs = self.meta["observation"]
+        self.robots: tuple[str, ...] = tuple(self.meta["robots"])
+        self.layout = ObservationLayout(obs["layout"], int(obs["n_beams"]))
+        a = self.meta["actions"]
+        self.codec = ActionCodec(a["kind"], float(a["v_max_mps"]), float(a["w_max_radps"]), tuple(a["discrete_set"]))
+        if self.layout.size != int(obs["size"]):
+            raise PolicyError(
+                str(meta_path), f"observation size {obs['size']} does not match layout {self.layout.name}"
+            )
+        if verify:
+            self.verify_golden()
+
+    @staticmethod
+    def _read_meta(path: Path) -> dict[str, Any]:
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise PolicyError(str(path), "missing: export the policy first (dvc repro export)") from None
+        except (OSError, json.JSONDecodeError) as exc:
+            raise PolicyError(str(path), f"unreadable or not JSON ({exc})") from exc
+        if not isinstance(meta, dict):
+            raise PolicyError(str(path), "not a policy description (expected a JSON object)")
+        missing = [k for k in _REQUIRED if k not in meta]
+        if missing:
+            raise PolicyError(str(path), f"lacks key(s) {', '.join(missing)}")
+        if meta["format"] != FORMAT:
+            raise PolicyError(str(path), f"format {meta['format']!r} is not supported; this runtime reads {FORMAT!r}")
+        if meta["observation"].get("layout") not in LAYOUTS:
+            raise PolicyError(str(path), f"unknown observation layout {meta['observation'].get('layout')!r}")
+        return meta
+
+    @property
+    def n_robots(self) -> int:
+        return len(self.robots)
+
+    @property
+    def name(self) -> str:
+        return f"{self.meta['algorithm']}/{self.meta['mode']} ({self.digest[:12]})"
+
+    def actions(self, obs: np.ndarray) -> np.ndarray:
+        """Policy outputs for the codec: (n_robots, 2) in [-1, 1] or (n_robots,) int64 indices."""
+        x = np.asarray(obs, dtype=np.float32)
+        if x.shape != (self.n_robots, self.layout.size):
+            raise PolicyMismatch(
+                self.name,
+                [f"observations have shape {x.shape}, the policy takes ({self.n_robots}, {self.layout.size})"],
+            )
+        return np.asarray(self._session.run(None, {self._input: x})[0])
+
+    def commands(self, obs: np.ndarray) -> np.ndarray:
+        """(n_robots, 2) velocity commands (v m/s, w rad/s) decoded and clamped by the policy's codec."""
+        return self.codec.decode(self.actions(obs))
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.actions(obs)
+
+    def verify_golden(self) -> int:
+        """Re-run the golden set stored with the policy; PolicyError if an action differs. Returns its size."""
+        path = self.folder / self.meta.get("golden", "golden.json")
+        try:
+            golden = json.loads(path.read_text(encoding="utf-8"))
+            obs = np.asarray(golden["observations"], dtype=np.float32)
+            expected = np.asarray(golden["actions"])
+            tol = float(golden["tolerance"])
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise PolicyError(str(path), f"missing or malformed golden set ({exc})") from exc
+        for k, o in enumerate(obs):
+            got = self.actions(o)
+            if self.codec.kind == "discrete":
+                bad = not np.array_equal(got, expected[k])
+            else:
+                bad = bool(np.abs(got - expected[k]).max() > tol)
+            if bad:
+                raise PolicyError(
+                    str(path),
+                    f"golden observation {k}: the ONNX graph gives {got.tolist()}, expected {expected[k].tolist()}",
+                )
+        return len(obs)
+
+    def check_fits(
+        self,
+        robots: Sequence[str],
+        layout: ObservationLayout,
+        action_kind: str | None = None,
+        limits: tuple[float, float] | None = None,
+    ) -> None:
+        """Refuse (PolicyMismatch) a world or fleet whose robots, layout, beam count or actions differ."""
+        problems = []
+        if tuple(robots) != self.robots:
+            problems.append(
+                f"it was trained for {self.n_robots} robot(s) {', '.join(self.robots)}, "
+                f"the fleet has {len(robots)}: {', '.join(robots)}"
+            )
+        if layout.name != self.layout.name:
+            problems.append(f"observation layout is {self.layout.name!r}, the world uses {layout.name!r}")
+        if layout.n_beams != self.layout.n_beams:
+            problems.append(f"it reads {self.layout.n_beams} lidar beams, the world gives {layout.n_beams}")
+        if action_kind is not None and action_kind != self.codec.kind:
+            problems.append(f"its actions are {self.codec.kind}, the world expects {action_kind}")
+        if limits is not None and (
+            limits[0] < self.codec.v_max_mps - 1e-9 or limits[1] < self.codec.w_max_radps - 1e-9
+        ):
+            problems.append(
+                f"it commands up to {self.codec.v_max_mps} m/s and {self.codec.w_max_radps} rad/s, "
+                f"beyond the limits {limits[0]} m/s and {limits[1]} rad/s"
+            )
+        if problems:
+            raise PolicyMismatch(self.name, problems)

@@ -1,0 +1,138 @@
+"""Fleet files: which robots, on which network, and whether they are real or the hardware twin.
+
+A fleet file is YAML (see ``pipeline/ros/fleets/twin.yaml``)::
+
+    target: twin            # twin: start the bundled hardware twin; robots: use the running graph
+    transport: dds          # dds (Cyclone DDS from Python) | rclpy (ROS 2 installed)
+    scenario: obstacles     # the map the robots drive in: bundled name or scenario YAML path
+    network: {domain_id: 0, loopback_only: true, peers: []}
+    robots:                 # in scenario order: the i-th entry drives the scenario's i-th robot
+      - {name: robot_1, namespace: robot_1, v_max_mps: 0.4, w_max_radps: 0.2}
+    twin: {profile: mild, time_scale: 1.0, seed: 0}
+    timing: {tick_period_s: 0.02, command_validity_s: 0.1, ...}
+
+Loading is strict like params.yaml: unknown, missing or out-of-range keys fail with the file and
+the dotted key named.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+from pipeline.errors import ConfigError, ConfigProblem
+from pipeline.messages.topics import TopicSpec, robot_topics
+from pipeline.ros.transport import NetworkSettings, NetworkSettingsError
+from pipeline.settings import from_mapping, read_yaml, setting
+
+_NAMESPACE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+@dataclass(frozen=True)
+class FleetRobot:
+    """One robot: its name in the pipeline, its ROS namespace, its velocity limits."""
+
+    name: str = setting()
+    namespace: str = setting()
+    v_max_mps: float = setting(0.4, gt=0.0, le=5.0)
+    w_max_radps: float = setting(0.2, gt=0.0, le=10.0)
+
+    def check(self) -> list[tuple[str, object, str]]:
+        if not _NAMESPACE.match(self.namespace):
+            return [("namespace", self.namespace, "a ROS namespace without leading slash, e.g. robot_1 or lab/robot_1")]
+        return []
+
+    def topics(self) -> dict[str, TopicSpec]:
+        return robot_topics(self.namespace)
+
+
+@dataclass(frozen=True)
+class FleetNetwork:
+    domain_id: int = setting(0, ge=0, le=232)
+    loopback_only: bool = setting(True)
+    peers: tuple[str, ...] = setting(())
+
+
+@dataclass(frozen=True)
+class TwinSettings:
+    """How the deploy stage starts the hardware twin (target: twin)."""
+
+    profile: str = setting("mild")
+    """A bundled reality profile (mild, harsh) or the path of a profile YAML file."""
+    time_scale: float = setting(1.0, gt=0.0, le=20.0)
+    """Simulated seconds per wall-clock second; above 1 the twin publishes /clock."""
+    seed: int = setting(0, ge=0)
+
+
+@dataclass(frozen=True)
+class FleetTiming:
+    """Deploy-side timing (seconds of the fleet's clock)."""
+
+    tick_period_s: float = setting(0.02, gt=0.0, le=1.0)
+    command_validity_s: float = setting(0.1, gt=0.0, le=5.0)
+    discovery_timeout_s: float = setting(20.0, gt=0.0, le=600.0)
+    reset_timeout_s: float = setting(20.0, gt=0.0, le=3600.0)
+    scan_stale_s: float = setting(0.5, gt=0.0, le=10.0)
+    odom_stale_s: float = setting(0.3, gt=0.0, le=10.0)
+    truth_stale_s: float = setting(0.3, gt=0.0, le=10.0)
+    """Ground truth staleness; used when use_ground_truth is true."""
+    use_ground_truth: bool = setting(True)
+    """Judge goals and collisions on /<ns>/ground_truth (motion capture or twin); else odometry and lidar."""
+
+
+@dataclass(frozen=True)
+class Fleet:
+    target: Literal["twin", "robots"] = setting()
+    transport: Literal["dds", "rclpy"] = setting("dds")
+    scenario: str = setting("obstacles")
+    network: FleetNetwork = setting(FleetNetwork())
+    robots: tuple[FleetRobot, ...] = setting(min_len=1)
+    twin: TwinSettings = setting(TwinSettings())
+    timing: FleetTiming = setting(FleetTiming())
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad: list[tuple[str, object, str]] = []
+        for field_name in ("name", "namespace"):
+            seen: set[str] = set()
+            for i, robot in enumerate(self.robots):
+                value = getattr(robot, field_name)
+                if value in seen:
+                    bad.append((f"robots[{i}].{field_name}", value, f"a {field_name} not used by another robot"))
+                seen.add(value)
+        if self.timing.command_validity_s < self.timing.tick_period_s:
+            bad.append(("timing.command_validity_s", self.timing.command_validity_s, "at least timing.tick_period_s"))
+        return bad
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(r.name for r in self.robots)
+
+    def network_settings(self, source: str = "<fleet>") -> NetworkSettings:
+        try:
+            return NetworkSettings(self.network.domain_id, self.network.loopback_only, self.network.peers)
+        except NetworkSettingsError as exc:
+            raise ConfigError(source, [ConfigProblem(f"network.{exc.setting}", exc.value, exc.allowed)]) from exc
+
+
+def bundled_fleets() -> tuple[str, ...]:
+    folder = resources.files("pipeline.ros") / "fleets"
+    return tuple(sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml")))
+
+
+def fleet_path(spec: str | Path) -> Path:
+    """The file of a bundled fleet name or a path."""
+    text = str(spec)
+    if text in bundled_fleets():
+        return Path(str(resources.files("pipeline.ros") / "fleets" / f"{text}.yaml"))
+    return Path(text)
+
+
+def load_fleet(spec: str | Path) -> Fleet:
+    """A validated fleet from a bundled name or a YAML path; ConfigError names the file and key."""
+    path = fleet_path(spec)
+    fleet = from_mapping(Fleet, read_yaml(path), str(path))
+    fleet.network_settings(str(path))
+    return fleet

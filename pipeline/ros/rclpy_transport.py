@@ -1,0 +1,301 @@
+"""The rclpy transport: the same interface over a ROS 2 installation (any RMW it is set up with).
+
+Importing this module never needs ROS 2; constructing :class:`RclpyTransport` where rclpy is not
+importable raises :class:`~pipeline.ros.transport.BackendUnavailableError`.
+
+Messages cross as CDR: a publisher sends ``message_store().serialize(msg)`` as a serialized
+message and a raw subscription hands its bytes to ``message_store().deserialize``, so no
+conversion to rclpy message objects happens; rclpy's message classes only supply the type
+support. ``mrl_msgs`` types therefore need the ``mrl_msgs`` package (the ``.msg`` files of
+``schemas/``) built in the sourced ROS 2 workspace.
+
+Discovery settings reach the RMW through the variables ROS 2 Jazzy reads when a context starts:
+``ROS_AUTOMATIC_DISCOVERY_RANGE`` (``LOCALHOST`` for ``loopback_only``, else ``SUBNET``) and
+``ROS_STATIC_PEERS``; they are set for the initialisation only and restored afterwards.
+Callbacks run on the transport's executor thread. :meth:`RclpyTransport.matched_count` counts
+matched endpoints minus this transport's own endpoints on the topic.
+"""
+
+from __future__ import annotations
+
+import importlib
+import itertools
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from pipeline.messages.store import message_store
+from pipeline.messages.topics import QosProfile, TopicSpec
+from pipeline.ros.transport import (
+    BackendUnavailableError,
+    MessageCallback,
+    NetworkSettings,
+    Publisher,
+    Subscription,
+    Transport,
+    TransportError,
+    check_topic,
+)
+
+log = logging.getLogger(__name__)
+
+_SPIN_S = 0.1  # the executor thread re-checks for shutdown at least this often
+_node_ids = itertools.count()
+
+
+def rclpy_available() -> bool:
+    """True when rclpy can be imported in this Python."""
+    try:
+        importlib.import_module("rclpy")
+    except ImportError:
+        return False
+    return True
+
+
+def _import_rclpy() -> Any:
+    try:
+        return importlib.import_module("rclpy")
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            "transport 'rclpy'",
+            f"rclpy is not importable in this Python ({exc}); source a ROS 2 Jazzy installation "
+            "(e.g. /opt/ros/jazzy/setup.bash) and run with its Python, or use the 'dds' transport, "
+            "which needs no ROS 2 installation",
+        ) from exc
+
+
+@contextmanager
+def _discovery_environment(settings: NetworkSettings) -> Iterator[None]:
+    """Sets the ROS 2 discovery variables of `settings` for the duration of the block."""
+    wanted = {
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST" if settings.loopback_only else "SUBNET",
+        "ROS_STATIC_PEERS": ";".join(settings.peers),
+    }
+    saved = {key: os.environ.get(key) for key in wanted}
+    os.environ.update(wanted)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _ros_qos(qos: QosProfile) -> Any:
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=qos.depth,
+        reliability=ReliabilityPolicy.RELIABLE if qos.reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL
+        if qos.durability == "transient_local"
+        else DurabilityPolicy.VOLATILE,
+    )
+
+
+def _message_class(spec: TopicSpec) -> Any:
+    from rosidl_runtime_py.utilities import get_message
+
+    try:
+        return get_message(spec.typename)
+    except (AttributeError, ModuleNotFoundError, ValueError) as exc:
+        package = spec.typename.split("/")[0]
+        raise TransportError(
+            f"topic {spec.name}",
+            f"message type {spec.typename} is not available in this ROS 2 environment ({exc}); "
+            f"build and source the {package} package (its .msg files are in schemas/{package}/msg)",
+        ) from exc
+
+
+class RclpyPublisher(Publisher):
+    """An rclpy publisher of one topic that sends the store's CDR."""
+
+    def __init__(self, transport: RclpyTransport, spec: TopicSpec, publisher: Any) -> None:
+        super().__init__(spec)
+        self._transport = transport
+        self._publisher: Any | None = publisher
+        self._msg_class = message_store().cls(spec.typename)
+
+    @property
+    def closed(self) -> bool:
+        return self._publisher is None
+
+    def publish(self, msg: Any) -> None:
+        publisher = self._publisher
+        if publisher is None:
+            raise TransportError(f"topic {self.spec.name}", "cannot publish: the publisher is closed")
+        if not isinstance(msg, self._msg_class):
+            raise TransportError(
+                f"topic {self.spec.name}", f"expected a {self.spec.typename} message, got {type(msg).__name__}"
+            )
+        data = message_store().serialize(msg, self.spec.typename)
+        try:
+            publisher.publish(data)
+        except Exception as exc:  # rclpy raises RCLError and assorted runtime errors
+            raise TransportError(f"topic {self.spec.name}", f"rclpy refused the message: {exc}") from exc
+
+    def close(self) -> None:
+        publisher, self._publisher = self._publisher, None
+        if publisher is not None:
+            self._transport._destroy(self, publisher)
+
+
+class RclpySubscription(Subscription):
+    """A raw rclpy subscription whose CDR the message store decodes."""
+
+    def __init__(self, transport: RclpyTransport, spec: TopicSpec, callback: MessageCallback) -> None:
+        super().__init__(spec, callback)
+        self._transport = transport
+        self.handle: Any | None = None
+        self.malformed = 0
+        """Messages whose CDR did not decode."""
+
+    @property
+    def closed(self) -> bool:
+        return self.handle is None
+
+    def on_message(self, data: bytes) -> None:
+        """Executor callback of the raw subscription."""
+        receive_time_ns = time.time_ns()
+        if self.handle is None:
+            return
+        try:
+            msg = message_store().deserialize(data, self.spec.typename)
+        except Exception as exc:
+            self.malformed += 1
+            log.warning("topic %s: cannot decode a message: %s", self.spec.name, exc)
+            return
+        self.received += 1
+        try:
+            self.callback(self.spec, msg, receive_time_ns)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("topic %s: subscription callback raised", self.spec.name)
+
+    def close(self) -> None:
+        handle, self.handle = self.handle, None
+        if handle is not None:
+            self._transport._destroy(self, handle)
+
+
+class RclpyTransport(Transport):
+    """One rclpy context and node in the domain of `settings`, spun by a background executor."""
+
+    def __init__(self, settings: NetworkSettings) -> None:
+        super().__init__(settings)
+        rclpy = _import_rclpy()
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        self._rclpy = rclpy
+        self._lock = threading.RLock()
+        self._closed = False
+        self._publishers: list[RclpyPublisher] = []
+        self._subscriptions: list[RclpySubscription] = []
+        self._context = Context()
+        try:
+            with _discovery_environment(settings):
+                rclpy.init(
+                    context=self._context,
+                    domain_id=settings.domain_id,
+                    signal_handler_options=SignalHandlerOptions.NO,
+                )
+            self._node = rclpy.create_node(f"mrl_transport_{os.getpid()}_{next(_node_ids)}", context=self._context)
+            self._executor = SingleThreadedExecutor(context=self._context)
+            self._executor.add_node(self._node)
+        except Exception as exc:
+            self._context.try_shutdown()
+            raise TransportError(f"ROS 2 domain {settings.domain_id}", f"rclpy cannot start: {exc}") from exc
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name=f"rclpy-spin-{settings.domain_id}", daemon=True)
+        self._thread.start()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def publisher(self, spec: TopicSpec) -> RclpyPublisher:
+        check_topic(spec)
+        with self._lock:
+            self._check_open(spec)
+            handle = self._node.create_publisher(_message_class(spec), spec.name, _ros_qos(spec.qos))
+            pub = RclpyPublisher(self, spec, handle)
+            self._publishers.append(pub)
+            return pub
+
+    def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> RclpySubscription:
+        check_topic(spec)
+        if not callable(callback):
+            raise TransportError(f"topic {spec.name}", f"the callback must be callable, got {type(callback).__name__}")
+        with self._lock:
+            self._check_open(spec)
+            sub = RclpySubscription(self, spec, callback)
+            sub.handle = self._node.create_subscription(
+                _message_class(spec), spec.name, sub.on_message, _ros_qos(spec.qos), raw=True
+            )
+            self._subscriptions.append(sub)
+            return sub
+
+    def matched_count(self, spec: TopicSpec) -> int:
+        with self._lock:
+            writers: list[Any] = [p._publisher for p in self._publishers if p.spec.name == spec.name and not p.closed]
+            readers: list[Any] = [s.handle for s in self._subscriptions if s.spec.name == spec.name and not s.closed]
+            if not writers and not readers:
+                raise TransportError(
+                    f"topic {spec.name}", "this transport has no publisher or subscription on it to match"
+                )
+            # every local endpoint also matches this transport's own endpoints of the other kind
+            remote_readers = max((int(w.get_subscription_count()) for w in writers), default=0) - len(readers)
+            remote_writers = max((int(r.get_publisher_count()) for r in readers), default=0) - len(writers)
+        return max(remote_readers, 0) + max(remote_writers, 0)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._stop.set()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5.0)
+        for sub in list(self._subscriptions):
+            sub.close()
+        for pub in list(self._publishers):
+            pub.close()
+        self._executor.shutdown()
+        self._node.destroy_node()
+        self._context.try_shutdown()
+
+    # internals
+
+    def _check_open(self, spec: TopicSpec) -> None:
+        if self._closed:
+            raise TransportError(f"topic {spec.name}", "the transport is closed")
+
+    def _destroy(self, endpoint: RclpyPublisher | RclpySubscription, handle: Any) -> None:
+        with self._lock:
+            if isinstance(endpoint, RclpyPublisher):
+                if endpoint in self._publishers:
+                    self._publishers.remove(endpoint)
+                self._node.destroy_publisher(handle)
+            else:
+                if endpoint in self._subscriptions:
+                    self._subscriptions.remove(endpoint)
+                self._node.destroy_subscription(handle)
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self._context.ok():
+            try:
+                self._executor.spin_once(timeout_sec=_SPIN_S)
+            except Exception:
+                if self._stop.is_set():
+                    return
+                log.exception("rclpy executor failed")
+                time.sleep(_SPIN_S)

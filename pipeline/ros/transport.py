@@ -1,0 +1,284 @@
+"""The network transport interface shared by the Cyclone DDS backend and the rclpy backend.
+
+A :class:`Transport` joins one ROS 2 domain and gives publishers and subscriptions for the
+topics of the contract (:class:`~pipeline.messages.topics.TopicSpec`). Messages are the message
+store's objects (``message_store().new(...)`` or the builders in ``pipeline.messages.convert``).
+
+Threading: ``publish`` may be called from any thread. Subscription callbacks run on a thread
+owned by the transport, one sample at a time and in arrival order per subscription; a callback
+that blocks holds up every subscription of its transport, so hand work to a queue. Exceptions
+raised by a callback are logged and counted (:attr:`Subscription.callback_errors`) and do not stop
+delivery. Times are integer nanoseconds since the Unix epoch (``time.time_ns()``).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any, Literal
+
+from pipeline.errors import MrlError
+from pipeline.messages.store import message_store
+from pipeline.messages.topics import TopicSpec
+
+BackendKind = Literal["dds", "rclpy"]
+BACKENDS: tuple[BackendKind, ...] = ("dds", "rclpy")
+
+MAX_DOMAIN_ID = 232
+"""Largest ROS 2 domain id (ports of higher ids overflow the RTPS port mapping on Linux)."""
+
+MessageCallback = Callable[[TopicSpec, Any, int], None]
+"""``callback(spec, msg, receive_time_ns)``: one valid sample of `spec` taken at `receive_time_ns`."""
+
+
+class TransportError(MrlError):
+    """The network transport cannot do what was asked; names the topic or setting involved."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        self.where = where
+        self.problem = problem
+        super().__init__(f"{where}: {problem}")
+
+
+class NetworkSettingsError(TransportError):
+    """A network setting has a value that is not allowed; names the setting and what is allowed."""
+
+    def __init__(self, setting: str, value: object, allowed: str) -> None:
+        self.setting = setting
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"network setting {setting} = {value!r}", allowed)
+
+
+class BackendUnavailableError(TransportError):
+    """The requested transport backend cannot run in this Python environment."""
+
+
+_HOSTNAME = re.compile(
+    r"^(?=.{1,253}$)[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
+)
+_PEER_FORM = "an IPv4 address or host name, optionally with :port (1..65535), e.g. '192.168.1.20' or 'robot-1.local'"
+
+
+@dataclass(frozen=True)
+class NetworkSettings:
+    """Where a transport looks for its peers.
+
+    `domain_id` is the ROS 2 domain (``ROS_DOMAIN_ID``), 0..232. With `loopback_only` the
+    transport uses the loopback interface only and finds peers on this host by unicast (like
+    ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``); `peers` are extra unicast discovery addresses
+    (like ``ROS_STATIC_PEERS``), which must themselves be loopback addresses when `loopback_only`.
+    """
+
+    domain_id: int = 0
+    loopback_only: bool = True
+    peers: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        if isinstance(self.domain_id, bool) or not isinstance(self.domain_id, int):
+            raise NetworkSettingsError("domain_id", self.domain_id, f"must be an integer in 0..{MAX_DOMAIN_ID}")
+        if not 0 <= self.domain_id <= MAX_DOMAIN_ID:
+            raise NetworkSettingsError("domain_id", self.domain_id, f"must be in 0..{MAX_DOMAIN_ID}")
+        if not isinstance(self.loopback_only, bool):
+            raise NetworkSettingsError("loopback_only", self.loopback_only, "must be true or false")
+        given: object = self.peers  # settings often come from parsed YAML
+        if isinstance(given, str) or not isinstance(given, Sequence):
+            raise NetworkSettingsError("peers", given, f"must be a list of addresses, each {_PEER_FORM}")
+        peers = tuple(given)
+        for i, peer in enumerate(peers):
+            host = _check_peer(f"peers[{i}]", peer)
+            if self.loopback_only and not _is_loopback(host):
+                raise NetworkSettingsError(
+                    f"peers[{i}]",
+                    peer,
+                    "is not a loopback address, which loopback_only = true cannot reach; "
+                    "set loopback_only to false to talk to other hosts",
+                )
+        object.__setattr__(self, "peers", peers)
+
+
+def _check_peer(setting: str, peer: object) -> str:
+    """The host part of a valid peer address; anything else raises NetworkSettingsError."""
+    if not isinstance(peer, str) or not peer.strip():
+        raise NetworkSettingsError(setting, peer, f"must be {_PEER_FORM}")
+    host, sep, port = peer.strip().rpartition(":")
+    if not sep:
+        host, port = port, ""
+    if sep and (not port.isdigit() or not 1 <= int(port) <= 65535):
+        raise NetworkSettingsError(setting, peer, f"has a bad port; must be {_PEER_FORM}")
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        if host.replace(".", "").isdigit() or not _HOSTNAME.match(host):
+            raise NetworkSettingsError(setting, peer, f"must be {_PEER_FORM}") from None
+        return host
+    if address.version != 4:
+        raise NetworkSettingsError(setting, peer, f"IPv6 peers are not supported; must be {_PEER_FORM}")
+    return host
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+_ROS_NAME = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
+
+
+def check_topic(spec: TopicSpec) -> None:
+    """Raises TransportError unless `spec` has a fully qualified ROS name, a known type and a usable QoS."""
+    if not isinstance(spec, TopicSpec):
+        raise TransportError(repr(spec), "expected a TopicSpec (see pipeline.messages.topics)")
+    if not _ROS_NAME.match(spec.name):
+        raise TransportError(
+            f"topic {spec.name!r}",
+            "must be a fully qualified ROS 2 name: '/' then tokens of letters, digits and '_' "
+            "separated by '/', no token starting with a digit",
+        )
+    store = message_store()
+    if not store.has(spec.typename):
+        raise TransportError(
+            f"topic {spec.name}", f"unknown message type {spec.typename!r}; known: {', '.join(store.typenames)}"
+        )
+    if spec.qos.reliability not in ("reliable", "best_effort"):
+        raise TransportError(
+            f"topic {spec.name}", f"reliability {spec.qos.reliability!r}: must be 'reliable' or 'best_effort'"
+        )
+    if spec.qos.durability not in ("volatile", "transient_local"):
+        raise TransportError(
+            f"topic {spec.name}", f"durability {spec.qos.durability!r}: must be 'volatile' or 'transient_local'"
+        )
+    if isinstance(spec.qos.depth, bool) or not isinstance(spec.qos.depth, int) or not 1 <= spec.qos.depth <= 2**31 - 1:
+        raise TransportError(f"topic {spec.name}", f"history depth {spec.qos.depth!r}: must be an integer >= 1")
+
+
+class Publisher(ABC):
+    """Sends messages of one topic. Obtained from :meth:`Transport.publisher`."""
+
+    def __init__(self, spec: TopicSpec) -> None:
+        self.spec = spec
+
+    @abstractmethod
+    def publish(self, msg: Any) -> None:
+        """Sends `msg`, a message of ``spec.typename``; a wrong type or a closed publisher raises TransportError."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Withdraws the publisher from the network; idempotent."""
+
+    @property
+    @abstractmethod
+    def closed(self) -> bool: ...
+
+    def __enter__(self) -> Publisher:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+class Subscription(ABC):
+    """Receives messages of one topic and hands each valid one to a callback (see the module notes)."""
+
+    def __init__(self, spec: TopicSpec, callback: MessageCallback) -> None:
+        self.spec = spec
+        self.callback = callback
+        self.received = 0
+        """Valid samples handed to the callback."""
+        self.dropped_invalid = 0
+        """Samples without valid data (e.g. the notice of a writer that vanished), never handed on."""
+        self.callback_errors = 0
+        """Callback calls that raised."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Stops delivery and withdraws the subscription from the network; idempotent."""
+
+    @property
+    @abstractmethod
+    def closed(self) -> bool: ...
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+class Transport(ABC):
+    """One participant in a ROS 2 domain; a context manager that closes itself."""
+
+    poll_interval_s = 0.01
+    """How often :meth:`wait_for_match` looks at the match count."""
+
+    def __init__(self, settings: NetworkSettings) -> None:
+        self.settings = settings
+
+    @abstractmethod
+    def publisher(self, spec: TopicSpec) -> Publisher:
+        """A publisher of `spec` with its QoS."""
+
+    @abstractmethod
+    def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> Subscription:
+        """Calls ``callback(spec, msg, receive_time_ns)`` on the transport's thread for every valid sample of `spec`."""
+
+    @abstractmethod
+    def matched_count(self, spec: TopicSpec) -> int:
+        """Remote endpoints (other participants' readers and writers) matched with this transport's endpoints on `spec`.
+
+        Raises TransportError when this transport has neither a publisher nor a subscription on `spec`.
+        """
+
+    @abstractmethod
+    def close(self) -> None:
+        """Closes every publisher and subscription and leaves the domain; idempotent."""
+
+    @property
+    @abstractmethod
+    def closed(self) -> bool: ...
+
+    def wait_for_match(self, spec: TopicSpec, count: int = 1, timeout_s: float = 5.0) -> bool:
+        """Waits until at least `count` remote endpoints match on `spec`; False after `timeout_s` seconds."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.matched_count(spec) >= count:
+                return True
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            time.sleep(min(self.poll_interval_s, remaining))
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def open_transport(kind: BackendKind = "dds", settings: NetworkSettings | None = None) -> Transport:
+    """A transport of backend `kind` ('dds': Cyclone DDS from Python; 'rclpy': a ROS 2 installation)."""
+    settings = settings if settings is not None else NetworkSettings()
+    if kind == "dds":
+        from pipeline.ros.dds import DdsTransport
+
+        return DdsTransport(settings)
+    if kind == "rclpy":
+        from pipeline.ros.rclpy_transport import RclpyTransport
+
+        return RclpyTransport(settings)
+    raise TransportError(f"transport kind {kind!r}", f"must be one of {', '.join(BACKENDS)}")

@@ -1,0 +1,178 @@
+"""Real training with tiny budgets, then export: every algorithm and mode, ONNX against the torch network."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.config import TrainConfig, world_config
+from pipeline.errors import CheckpointError, PolicyError, PolicyMismatch
+from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.trainer import train
+from pipeline.policy.export import export_policy
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.sim import make_world
+from pipeline.sim.env import MultiRobotSim
+
+pytestmark = pytest.mark.integration
+
+TINY = {
+    "total_steps": 240,
+    "n_envs": 2,
+    "net_arch": [16, 16],
+    "batch_size": 16,
+    "buffer_size": 2000,
+    "learning_starts": 40,
+    "updates_per_transition": 0.25,
+    "train_every_steps": 2,
+    "checkpoint_every_episodes": 1,
+    "ppo": {"n_steps": 16, "n_epochs": 2, "minibatch_size": 32},
+    "dqn": {"target_update_interval": 50},
+}
+
+
+def tiny_config(**overrides: object) -> TrainConfig:
+    return from_mapping(TrainConfig, merge(merge(to_mapping(TrainConfig()), TINY), overrides), "<test>")
+
+
+def world_for(algorithm: str, n_robots: int = 2, max_steps: int = 60):
+    kind = "discrete" if algorithm == "dqn" else "continuous"
+    return make_world(
+        world=world_config(
+            {
+                "scenario": "obstacles",
+                "n_robots": n_robots,
+                "observation": "rich",
+                "max_steps": max_steps,
+                "actions": {"kind": kind},
+            }
+        )
+    )
+
+
+def golden_from_sim(scenario, world, n: int = 12, seed: int = 3) -> np.ndarray:
+    sim = MultiRobotSim(scenario, world)
+    rng = np.random.default_rng(seed)
+    obs = [sim.reset(seed)]
+    for _ in range(n - 1):
+        if world.actions.kind == "continuous":
+            act = rng.uniform(-1, 1, size=(scenario.n_robots, 2))
+        else:
+            act = rng.integers(0, world.actions.codec().n_discrete, size=scenario.n_robots)
+        obs.append(sim.step(act).obs)
+    return np.stack(obs)
+
+
+CASES = [
+    ("sac", "independent"),
+    ("sac", "shared"),
+    ("sac", "centralized"),
+    ("dqn", "independent"),
+    ("dqn", "shared"),
+    ("dqn", "centralized"),
+    ("ppo", "independent"),
+    ("ppo", "shared"),
+    ("ppo", "centralized"),
+]
+
+
+@pytest.mark.parametrize(("algorithm", "mode"), CASES)
+def test_train_then_export_matches_torch(tmp_path: Path, algorithm: str, mode: str) -> None:
+    scenario, world = world_for(algorithm)
+    cfg = tiny_config(algorithm=algorithm, mode=mode)
+    result = train(scenario, world, cfg, tmp_path / "run", progress=False)
+    assert result.world_steps == cfg.total_steps
+    assert result.episodes >= 1
+    ckpt = load_checkpoint(result.checkpoint)
+    n_learners = scenario.n_robots if mode == "independent" else 1
+    assert ckpt.meta["n_learners"] == n_learners and len(ckpt.weights) == n_learners
+    curve = (tmp_path / "run" / "curve.csv").read_text().splitlines()
+    assert len(curve) == result.episodes + 1
+    golden = golden_from_sim(scenario, world)
+    exported = export_policy(result.checkpoint, tmp_path / "policy", golden, tolerance=1e-5)
+    assert exported.golden_samples == len(golden)
+    runtime = PolicyRuntime(tmp_path / "policy")
+    assert runtime.robots == scenario.robot_names
+    actions = runtime.actions(golden[0])
+    if algorithm == "dqn":
+        assert actions.shape == (scenario.n_robots,) and actions.dtype == np.int64
+    else:
+        assert actions.shape == (scenario.n_robots, 2) and np.all(np.abs(actions) <= 1.0)
+    commands = runtime.commands(golden[0])
+    assert commands.shape == (scenario.n_robots, 2)
+    runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
+
+
+def test_same_seed_same_weights_to_the_bit(tmp_path: Path) -> None:
+    scenario, world = world_for("sac")
+    cfg = tiny_config(algorithm="sac", mode="independent")
+    a = train(scenario, world, cfg, tmp_path / "a", progress=False)
+    b = train(scenario, world, cfg, tmp_path / "b", progress=False)
+    assert a.digest == b.digest
+    assert (tmp_path / "a" / "curve.csv").read_bytes() == (tmp_path / "b" / "curve.csv").read_bytes()
+    c = train(scenario, world, tiny_config(algorithm="sac", mode="independent", seed=1), tmp_path / "c", progress=False)
+    assert c.digest != a.digest
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object, object]:
+    root = tmp_path_factory.mktemp("exported")
+    scenario, world = world_for("sac")
+    result = train(scenario, world, tiny_config(algorithm="sac", mode="shared"), root / "run", progress=False)
+    export_policy(result.checkpoint, root / "policy", golden_from_sim(scenario, world))
+    return root, scenario, world
+
+
+def test_runtime_refuses_a_policy_for_another_fleet(exported) -> None:
+    root, scenario, world = exported
+    runtime = PolicyRuntime(root / "policy")
+    with pytest.raises(PolicyMismatch, match="trained for 2 robot"):
+        runtime.check_fits(("robot_1", "robot_2", "robot_3"), world.layout())
+    other = world_config({"lidar": {"beams": 30}}, base=world)
+    with pytest.raises(PolicyMismatch, match="reads 15 lidar beams, the world gives 30"):
+        runtime.check_fits(scenario.robot_names, other.layout())
+    with pytest.raises(PolicyMismatch, match="actions are continuous"):
+        runtime.check_fits(scenario.robot_names, world.layout(), "discrete")
+    with pytest.raises(PolicyMismatch, match="observations have shape"):
+        runtime.actions(np.zeros((3, 21), dtype=np.float32))
+
+
+def test_runtime_refuses_corrupt_or_replaced_files(exported, tmp_path: Path) -> None:
+    root, _, _ = exported
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(root / "policy", bad)
+    data = bytearray((bad / "policy.onnx").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (bad / "policy.onnx").write_bytes(bytes(data))
+    with pytest.raises(PolicyError, match="sha256"):
+        PolicyRuntime(bad)
+    shutil.copytree(root / "policy", tmp_path / "golden_off", dirs_exist_ok=True)
+    golden = json.loads((tmp_path / "golden_off" / "golden.json").read_text())
+    golden["actions"][0][0][0] += 0.5
+    (tmp_path / "golden_off" / "golden.json").write_text(json.dumps(golden))
+    with pytest.raises(PolicyError, match="golden observation 0"):
+        PolicyRuntime(tmp_path / "golden_off")
+    (tmp_path / "golden_off" / "policy.json").write_text("{not json")
+    with pytest.raises(PolicyError, match="not JSON"):
+        PolicyRuntime(tmp_path / "golden_off")
+    with pytest.raises(PolicyError, match="missing"):
+        PolicyRuntime(tmp_path / "nowhere")
+
+
+def test_export_refuses_missing_or_corrupt_checkpoints(exported, tmp_path: Path) -> None:
+    root, _, _ = exported
+    with pytest.raises(CheckpointError, match="missing"):
+        export_policy(tmp_path / "none", tmp_path / "out", np.zeros((1, 2, 21)))
+    import shutil
+
+    ckpt = tmp_path / "ckpt"
+    shutil.copytree(root / "run" / "checkpoint", ckpt)
+    (ckpt / "learner_0.pt").write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match=r"learner_0\.pt"):
+        export_policy(ckpt, tmp_path / "out", np.zeros((1, 2, 21)))
