@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from pipeline.core.actions import ActionCodec, ActionKind
-from pipeline.core.judge import RewardWeights
+from pipeline.core.judge import ProgressDistance, RewardWeights
 from pipeline.core.observation import LayoutName, ObservationLayout
 from pipeline.core.scan import Reduction
 from pipeline.errors import ConfigError, ConfigProblem
@@ -34,6 +34,8 @@ class LidarConfig:
     reduction: Reduction = setting("sector_min")
     robot_radius_seen_m: float = setting(0.0, ge=0.0, le=1.0)
     height_m: float = setting(0.1, gt=0.0)
+    mount_yaw_rad: float = setting(0.0, ge=-3.15, le=3.15)
+    """The simulated lidar's mounting yaw: beam k of sim_beams points at 2 pi k / sim_beams + mount_yaw_rad."""
 
     def check(self) -> list[tuple[str, object, str]]:
         if not self.range_max_m > self.range_min_m:
@@ -83,6 +85,8 @@ class WorldConfig:
     physics_timestep_s: float = setting(0.005, gt=0.0, le=0.05)
     max_steps: int = setting(350, ge=1, le=100_000)
     collision_margin_m: float = setting(0.02, ge=0.0, le=0.5)
+    progress_distance: ProgressDistance = setting("geodesic")
+    """Progress toward the goal is measured along the free path (geodesic) or in a straight line."""
     observation: LayoutName = setting("paper")
     lidar: LidarConfig = setting(LidarConfig())
     odometry: OdometryConfig = setting(OdometryConfig())
@@ -247,6 +251,22 @@ class ScriptedEvalConfig:
 
 
 @dataclass(frozen=True)
+class DeployConfig:
+    """The `deploy` stage: episodes of the round's exported policy on the fleet, recorded to MCAP."""
+
+    fleet: str = setting("twin")
+    """A bundled fleet (twin, spark_lab) or the path of a fleet YAML file."""
+    episodes: int = setting(50, ge=1, le=100_000)
+    seed: int = setting(20_000, ge=0)
+    time_scale: float = setting(0.0, ge=0.0, le=20.0)
+    """The twin's time scale; 0 keeps the fleet file's."""
+    profile: str = setting("", allow_empty=True)
+    """The twin's reality profile; empty keeps the fleet file's."""
+    chunk_size_bytes: int = setting(1_048_576, ge=1024)
+    out_dir: str = setting("logs/real")
+
+
+@dataclass(frozen=True)
 class CalibrateConfig:
     """The `calibrate` stage: estimate the simulator's noise and actuation from a deployment recording."""
 
@@ -264,6 +284,7 @@ class Params:
     train: TrainConfig = setting()
     export: ExportConfig = setting()
     eval_sim: EvalSimConfig = setting()
+    deploy: DeployConfig = setting()
     calibrate: CalibrateConfig = setting()
 
     def check(self) -> list[tuple[str, object, str]]:

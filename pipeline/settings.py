@@ -30,9 +30,13 @@ def setting(
     le: float | None = None,
     lt: float | None = None,
     min_len: int | None = None,
+    allow_empty: bool = False,
 ) -> Any:
-    """A dataclass field with numeric bounds (inclusive `ge`/`le`, exclusive `gt`/`lt`)."""
-    meta = {"ge": ge, "gt": gt, "le": le, "lt": lt, "min_len": min_len}
+    """A dataclass field with numeric bounds (inclusive `ge`/`le`, exclusive `gt`/`lt`).
+
+    Strings must be non-empty unless `allow_empty`.
+    """
+    meta = {"ge": ge, "gt": gt, "le": le, "lt": lt, "min_len": min_len, "allow_empty": allow_empty}
     if default is dataclasses.MISSING:
         return dataclasses.field(metadata=meta)
     if isinstance(default, (list, dict)):
@@ -118,7 +122,9 @@ class _Converter:
                 return None
             return self.bounded(float(value), key, meta)
         if tp is str:
-            if not isinstance(value, str) or not value:
+            if not isinstance(value, str):
+                self.fail(key, value, "a string")
+            elif not value and not meta.get("allow_empty"):
                 self.fail(key, value, "a non-empty string")
             return value
         raise TypeError(f"unsupported settings type {tp!r} at {key}")

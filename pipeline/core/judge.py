@@ -9,10 +9,15 @@ radius plus a margin).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Literal
 
 import numpy as np
 
+from pipeline.core.geodesic import DistanceField
 from pipeline.core.scenario import Scenario, box_clearance
+
+ProgressDistance = Literal["geodesic", "euclidean"]
 
 REWARD_TERMS: tuple[str, ...] = ("progress", "goal", "team", "collision", "step")
 
@@ -21,10 +26,10 @@ REWARD_TERMS: tuple[str, ...] = ("progress", "goal", "team", "collision", "step"
 class RewardWeights:
     """Named reward weights: progress per metre toward the own goal, bonuses and penalties."""
 
-    progress_per_m: float = 1.0
-    goal: float = 1.0
+    progress_per_m: float = 10.0
+    goal: float = 10.0
     team: float = 10.0
-    collision: float = -1.0
+    collision: float = -10.0
     step: float = 0.0
 
 
@@ -51,9 +56,17 @@ class EpisodeJudge:
     """Judges each control step of an episode against a scenario's goals and map."""
 
     def __init__(
-        self, scenario: Scenario, weights: RewardWeights, max_steps: int, collision_margin_m: float = 0.02
+        self,
+        scenario: Scenario,
+        weights: RewardWeights,
+        max_steps: int,
+        collision_margin_m: float = 0.02,
+        distance: ProgressDistance = "euclidean",
     ) -> None:
+        """`distance` measures progress toward the goal: straight-line, or along the free path ("geodesic")."""
         self.scenario = scenario
+        self.distance = distance
+        self._fields = _distance_fields(scenario) if distance == "geodesic" else ()
         self.weights = weights
         self.max_steps = max_steps
         self.margin_m = collision_margin_m
@@ -81,8 +94,11 @@ class EpisodeJudge:
         self._prev_dist = self.goal_distance(pose)
 
     def goal_distance(self, pose: np.ndarray) -> np.ndarray:
-        """(n_robots,) distance (m) from each robot to its goal centre."""
-        d = np.asarray(pose)[:, :2] - self.goals
+        """(n_robots,) distance (m) from each robot to its goal centre, straight or along the free path."""
+        xy = np.asarray(pose)[:, :2]
+        if self._fields:
+            return np.array([float(f(xy[i : i + 1])[0]) for i, f in enumerate(self._fields)])
+        d = xy - self.goals
         return np.asarray(np.hypot(d[:, 0], d[:, 1]))
 
     def in_goal(self, pose: np.ndarray) -> np.ndarray:
@@ -161,3 +177,9 @@ class EpisodeJudge:
             team_success=self.team_success,
             events=events,
         )
+
+
+@lru_cache(maxsize=16)
+def _distance_fields(scenario: Scenario) -> tuple[DistanceField, ...]:
+    """One free-path distance field per robot goal (cached: scenarios are immutable)."""
+    return tuple(DistanceField(scenario, goal) for goal in scenario.goals)

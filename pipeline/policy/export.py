@@ -196,6 +196,7 @@ def export_policy(
         "noise": {k: meta["world"][k] for k in ("lidar", "odometry", "actuation")},
         "control_period_s": meta["world"]["control_period_s"],
         "max_steps": meta["world"]["max_steps"],
+        "judge": {k: meta["world"][k] for k in ("reward", "max_steps", "collision_margin_m", "progress_distance")},
         "training": {
             "digest": meta["weights_sha256"],
             "seed": meta["train"]["seed"],

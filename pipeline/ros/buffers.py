@@ -68,6 +68,12 @@ class Command:
 
 Publish = Callable[[str, float, float], None]
 """Sends (robot, v m/s, w rad/s) to the robot's cmd_vel."""
+Sent = Callable[[str, float, float, int], None]
+"""Told (robot, v m/s, w rad/s, send time ns) after a tick's sends, e.g. to record them."""
+
+
+def _nothing_sent(robot: str, v: float, w: float, t_ns: int) -> None:
+    pass
 
 
 class EmitterBuffer:
@@ -82,6 +88,7 @@ class EmitterBuffer:
         validity_ns: int = 100_000_000,
         on_timing: TimingSink = _ignore,
         topics: Mapping[str, str] | None = None,
+        on_sent: Sent = _nothing_sent,
     ) -> None:
         if tick_period_ns <= 0 or validity_ns <= 0:
             raise ValueError("tick period and validity must be positive")
@@ -92,6 +99,7 @@ class EmitterBuffer:
         self.tick_period_ns = tick_period_ns
         self.validity_ns = validity_ns
         self.on_timing = on_timing
+        self.on_sent = on_sent
         self.topics = dict(topics or {r: f"/{r}/cmd_vel" for r in self.robots})
         self._queues: dict[str, deque[Command]] = {r: deque(maxlen=64) for r in self.robots}
         self._lock = threading.Lock()
@@ -138,21 +146,30 @@ class EmitterBuffer:
         )
 
     def tick(self, now_ns: int | None = None) -> dict[str, tuple[float, float]]:
-        """Send every robot's current command (zero when none is valid); returns what was sent."""
+        """Send every robot's current command (zero when none is valid); returns what was sent.
+
+        All sends of a tick go out back to back; their timing and recording follow afterwards.
+        """
         t = self.clock.now_ns() if now_ns is None else now_ns
         self.ticks += 1
         tick = self.ticks
         with self._lock:
             chosen = {r: self.current(r, t) for r in self.robots}
-        self.on_timing(TimingEvent("tick", "", "", t, tick=tick))
-        sent = {}
+        planned = []
         for robot in self.robots:
             cmd = chosen[robot]
             v, w = (0.0, 0.0) if cmd is None else self.clamp(robot, cmd.v_mps, cmd.w_radps)
+            planned.append((robot, v, w, 0 if cmd is None else cmd.stamp_ns))
+        times = []
+        for robot, v, w, _ in planned:
             self.publish(robot, v, w)
+            times.append(self.clock.now_ns())
+        self.on_timing(TimingEvent("tick", "", "", t, tick=tick))
+        sent = {}
+        for (robot, v, w, stamp), sent_ns in zip(planned, times, strict=True):
             self._seq += 1
-            stamp = 0 if cmd is None else cmd.stamp_ns
-            self.on_timing(TimingEvent("send", robot, self.topics[robot], self.clock.now_ns(), stamp, self._seq, tick))
+            self.on_timing(TimingEvent("send", robot, self.topics[robot], sent_ns, stamp, self._seq, tick))
+            self.on_sent(robot, v, w, sent_ns)
             sent[robot] = (v, w)
         self.last_sent = sent
         return sent

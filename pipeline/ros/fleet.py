@@ -86,10 +86,10 @@ class FleetTiming:
 @dataclass(frozen=True)
 class Fleet:
     target: Literal["twin", "robots"] = setting()
+    robots: tuple[FleetRobot, ...] = setting(min_len=1)
     transport: Literal["dds", "rclpy"] = setting("dds")
     scenario: str = setting("obstacles")
     network: FleetNetwork = setting(FleetNetwork())
-    robots: tuple[FleetRobot, ...] = setting(min_len=1)
     twin: TwinSettings = setting(TwinSettings())
     timing: FleetTiming = setting(FleetTiming())
 

@@ -43,7 +43,9 @@ class MultiRobotSim:
         self.observer = ObservationBuilder(
             scenario, self.layout, world.lidar.range_min_m, world.lidar.range_max_m, world.lidar.reduction
         )
-        self.judge = EpisodeJudge(scenario, world.reward, world.max_steps, world.collision_margin_m)
+        self.judge = EpisodeJudge(
+            scenario, world.reward, world.max_steps, world.collision_margin_m, world.progress_distance
+        )
         self.n = scenario.n_robots
         self.obs_low, self.obs_high = self.observer.low, self.observer.high
         self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))

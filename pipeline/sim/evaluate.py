@@ -3,45 +3,85 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.analysis.stats import wilson_interval
+from pipeline.config import EvalSimConfig, WorldConfig
+from pipeline.core.episode import EpisodeResult, summarize
+from pipeline.core.scenario import Scenario
+from pipeline.errors import MrlError
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record.session import SessionLog, dumps, session_metadata
+from pipeline.settings import to_mapping
 from pipeline.sim.env import MultiRobotSim
+
+NS_PER_S = 1_000_000_000
+EPISODE_GAP_NS = NS_PER_S
+"""Simulated time between two recorded episodes, so each starts on a fresh second."""
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """Maps observations (n_robots, obs_size) to actions for the action codec."""
 
 
-@dataclass(frozen=True)
-class EpisodeResult:
-    """One episode; per-robot arrays are (n_robots,)."""
+class EvaluationInterrupted(MrlError):
+    """Evaluation stopped on a signal; `results` holds the episodes finished before it."""
 
-    episode: int
-    seed: int
-    steps: int
-    reached: np.ndarray
-    collided: np.ndarray
-    time_to_goal_s: np.ndarray  # nan where the goal was not reached
-    path_length_m: np.ndarray
-    team_success: bool
-    trajectory: np.ndarray  # (steps + 1, n_robots, 3) ground-truth poses
+    interrupted = True
 
-    @property
-    def success(self) -> np.ndarray:
-        return np.asarray(self.reached & ~self.collided)
+    def __init__(self, results: list[EpisodeResult]) -> None:
+        self.results = results
+        super().__init__(f"evaluation interrupted after {len(results)} finished episode(s); the recording is kept")
 
 
-def run_episode(sim: MultiRobotSim, policy: Policy, seed: int, episode: int = 0) -> EpisodeResult:
-    """One episode of `policy` from reset(seed) to the end (all done or the step limit)."""
+def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
+    world = sim.world
+    for i, ns in enumerate(sim.scenario.robot_names):
+        log.scan(t_ns, ns, sim.raw_scan[i], world.scan_geometry)
+        log.odom(t_ns, ns, world.odometry.pose[i], (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1])))
+        log.ground_truth(t_ns, ns, world.truth[i])
+    log.tf(t_ns, world.odometry.pose)
+
+
+def run_episode(
+    sim: MultiRobotSim,
+    policy: Policy,
+    seed: int,
+    episode: int = 0,
+    log: SessionLog | None = None,
+    t0_ns: int = 0,
+    layout_name: str = "",
+) -> EpisodeResult:
+    """One episode of `policy` from reset(seed) to the end (all done or the step limit).
+
+    With `log`, every message of the session layout is recorded at simulated times from `t0_ns`.
+    """
     obs = sim.reset(seed)
     n = sim.n
+    names = sim.scenario.robot_names
+    period_ns = round(sim.world_config.control_period_s * NS_PER_S)
     poses = [sim.world.truth.copy()]
     arrival = np.full(n, np.nan)
+    step = 0
+    if log is not None:
+        log.event(t0_ns, episode, 0, "start", detail=f"seed={seed}")
+        _record_state(log, sim, t0_ns)
     while True:
-        result = sim.step(policy(obs))
+        t_ns = t0_ns + step * period_ns
+        actions = policy(obs)
+        result = sim.step(actions)
+        step += 1
+        if log is not None:
+            out = np.asarray(actions)
+            for i, ns in enumerate(names):
+                cmd = (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1]))
+                log.observation(t_ns, episode, step - 1, ns, layout_name, obs[i])
+                log.action(t_ns, episode, step - 1, ns, out[i], cmd)
+                log.cmd_vel(t_ns, ns, *cmd)
+            _record_state(log, sim, t_ns + period_ns)
+            for robot, event in result.judge.events:
+                log.event(t_ns + period_ns, episode, step, event, "" if robot < 0 else names[robot])
         obs = result.obs
         poses.append(sim.world.truth.copy())
         judged = result.judge
@@ -49,6 +89,9 @@ def run_episode(sim: MultiRobotSim, policy: Policy, seed: int, episode: int = 0)
         arrival[new] = sim.judge.steps * sim.world_config.control_period_s
         if judged.done.all() or judged.truncated:
             break
+    if log is not None:
+        outcome = "team_success" if judged.team_success else "incomplete"
+        log.event(t0_ns + step * period_ns, episode, step, "end", detail=outcome)
     traj = np.array(poses)
     steps_xy = np.diff(traj[:, :, :2], axis=0)
     return EpisodeResult(
@@ -65,39 +108,70 @@ def run_episode(sim: MultiRobotSim, policy: Policy, seed: int, episode: int = 0)
 
 
 def evaluate(
-    sim: MultiRobotSim, policy: Policy, episodes: int, seed: int, progress: bool = True
+    sim: MultiRobotSim,
+    policy: Policy,
+    episodes: int,
+    seed: int,
+    progress: bool = True,
+    log: SessionLog | None = None,
+    layout_name: str = "",
 ) -> list[EpisodeResult]:
-    """`episodes` episodes with seeds seed, seed+1, ...; shows a progress bar when `progress`."""
-    results = []
-    bar = tqdm(range(episodes), desc="eval", unit="ep", disable=not progress)
-    for k in bar:
-        results.append(run_episode(sim, policy, seed + k, k))
-        robot = np.mean([r.success.mean() for r in results])
-        bar.set_postfix(robot_success=f"{robot:.2f}")
+    """`episodes` episodes with seeds seed, seed+1, ...; shows a progress bar when `progress`.
+
+    On KeyboardInterrupt the episode under way is recorded as aborted and the episodes finished so
+    far are returned in the exception's `results` attribute (EvaluationInterrupted).
+    """
+    results: list[EpisodeResult] = []
+    bar = tqdm(range(episodes), desc="eval_sim", unit="ep", disable=not progress)
+    t0 = 0
+    period_ns = round(sim.world_config.control_period_s * NS_PER_S)
+    try:
+        for k in bar:
+            result = run_episode(sim, policy, seed + k, k, log, t0, layout_name)
+            results.append(result)
+            t0 += result.steps * period_ns + EPISODE_GAP_NS
+            robot = np.mean([r.success.mean() for r in results])
+            bar.set_postfix(robot_success=f"{robot:.3f}")
+    except KeyboardInterrupt:
+        if log is not None:
+            log.event(t0 + sim.judge.steps * period_ns, len(results), sim.judge.steps, "abort", detail="interrupted")
+        raise EvaluationInterrupted(results) from None
+    finally:
+        bar.close()
     return results
 
 
-def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, float]:
-    """Robot- and team-level success with 95 % Wilson intervals, collisions, time to goal."""
-    if not results:
-        raise ValueError("no episodes to summarise")
-    success = np.stack([r.success for r in results])
-    collided = np.stack([r.collided for r in results])
-    team = np.array([r.team_success for r in results])
-    times = np.concatenate([r.time_to_goal_s[r.success] for r in results])
-    robot_k, robot_n = int(success.sum()), int(success.size)
-    team_k, team_n = int(team.sum()), int(team.size)
-    out = {
-        "episodes": float(len(results)),
-        "robot_success": robot_k / robot_n,
-        "robot_success_ci_low": wilson_interval(robot_k, robot_n)[0],
-        "robot_success_ci_high": wilson_interval(robot_k, robot_n)[1],
-        "team_success": team_k / team_n,
-        "team_success_ci_low": wilson_interval(team_k, team_n)[0],
-        "team_success_ci_high": wilson_interval(team_k, team_n)[1],
-        "collision_rate": float(collided.mean()),
-        "mean_time_to_goal_s": float(times.mean()) if times.size else float("nan"),
-    }
-    for i in range(success.shape[1]):
-        out[f"robot_{i + 1}_success"] = float(success[:, i].mean())
-    return {f"{prefix}/{k}": v for k, v in out.items()}
+def evaluate_policy(
+    scenario: Scenario,
+    world: WorldConfig,
+    runtime: PolicyRuntime,
+    cfg: EvalSimConfig,
+    recording: Path,
+    params_text: str = "",
+    progress: bool = True,
+) -> tuple[list[EpisodeResult], dict[str, float]]:
+    """Evaluate an exported policy in the simulated world, recording the session to `recording`.
+
+    The policy is refused if it does not fit the world (robots, layout, beams, action kind). The
+    recording is opened (and its path checked) before any episode runs and closed on every exit.
+    """
+    runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
+    sim = MultiRobotSim(scenario, world)
+    log = None
+    if cfg.record:
+        session = session_metadata(
+            "sim", scenario.name, scenario.robot_names, world.control_period_s, runtime.meta, profile="sim"
+        )
+        documents = {
+            "params": params_text,
+            "scenario": dumps(to_mapping(scenario)),
+            "world": dumps(to_mapping(world)),
+            "policy": dumps(runtime.meta),
+        }
+        log = SessionLog(recording, scenario.robot_names, session, documents, chunk_size=cfg.chunk_size_bytes)
+    try:
+        results = evaluate(sim, runtime.actions, cfg.episodes, cfg.seed, progress, log, runtime.layout.name)
+    finally:
+        if log is not None:
+            log.close()
+    return results, summarize(results, prefix="eval")

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pipeline.core.episode import EpisodeResult
 from pipeline.core.scenario import Scenario
-from pipeline.sim.evaluate import EpisodeResult
 from pipeline.sim.render import TopDownRenderer
 
 

@@ -29,6 +29,7 @@ class SimWorld:
 
     def __init__(self, scenario: Scenario, world: WorldConfig) -> None:
         self.scenario = scenario
+        self.mount_yaw_rad = world.lidar.mount_yaw_rad
         self.world = world
         self.model, self.index = build_model(scenario, world)
         self.data = mujoco.MjData(self.model)
@@ -109,12 +110,20 @@ class SimWorld:
         self.truth = self.read_truth()
         self.odometry.update(prev, self.truth)
 
+    def body_velocity(self) -> np.ndarray:
+        """(n_robots, 2) true forward speed (m/s) and yaw rate (rad/s) in each robot's frame."""
+        qvel = self.data.qvel[self.index.qvel]
+        yaw = self.truth[:, 2]
+        forward = np.cos(yaw) * qvel[:, 0] + np.sin(yaw) * qvel[:, 1]
+        return np.stack([forward, qvel[:, 2]], axis=1)
+
     def true_ranges(self) -> np.ndarray:
         """(n_robots, sim_beams) exact ranges (m) to the nearest visible geom; +inf where none within range_max."""
         lidar = self.world.lidar
         out = np.empty((self.n, lidar.sim_beams))
         for i in range(self.n):
             x, y, yaw = self.truth[i]
+            yaw += self.mount_yaw_rad
             c, s = math.cos(yaw), math.sin(yaw)
             vec = self._vec.reshape(-1, 3)
             vec[:, 0] = c * self._dirs[:, 0] - s * self._dirs[:, 1]
@@ -139,6 +148,11 @@ class SimWorld:
         return out
 
     def scan(self) -> np.ndarray:
-        """(n_robots, sim_beams) measured ranges (m) with the configured noise; LaserScan-shaped."""
+        """(n_robots, sim_beams) measured ranges (m) with the configured noise; LaserScan-shaped.
+
+        Values are rounded to float32, as a LaserScan carries them, so a recorded scan rebuilds the
+        very observation the simulator gave the policy.
+        """
         lidar = self.world.lidar
-        return noisy_ranges(self.true_ranges(), self.rng, lidar.noise_sigma_m, lidar.dropout_prob, lidar.bias_m)
+        noisy = noisy_ranges(self.true_ranges(), self.rng, lidar.noise_sigma_m, lidar.dropout_prob, lidar.bias_m)
+        return noisy.astype(np.float32).astype(np.float64)

@@ -34,6 +34,6 @@ def test_params_sections_match_config_and_dvc_stages():
     assert set(params) == set(Params.__dataclass_fields__)
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
     for name, stage in stages.items():
-        section = stage.get("meta", {}).get("section", name)
-        assert section in params, f"stage {name} has no params section of its own name"
-        assert section in stage["params"]
+        body = stage.get("do", stage)  # foreach stages keep their definition under `do`
+        assert name in params, f"stage {name} has no params section of its own name"
+        assert name in body["params"], f"stage {name} does not depend on its params section"

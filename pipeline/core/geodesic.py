@@ -1,0 +1,98 @@
+"""Obstacle-aware distance to a goal: the length of the shortest free path through the known map.
+
+The reward's progress term measures progress along this path, so driving around a box toward the
+goal is progress while pushing straight at the box is not. The field is computed once per
+scenario and goal on a grid (8-connected Dijkstra over cells whose centre keeps the robot's
+radius clear of walls and boxes) and read with bilinear interpolation. Other robots move and
+are not part of the map.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from pipeline.core.scenario import Scenario, box_clearance
+
+
+class DistanceField:
+    """Shortest free-path distance (m) from any point of the room to one goal point."""
+
+    def __init__(self, scenario: Scenario, goal_xy: np.ndarray, resolution_m: float = 0.05) -> None:
+        room = scenario.room
+        self.resolution_m = resolution_m
+        self.x0, self.y0 = room.x_min_m, room.y_min_m
+        nx = math.ceil((room.x_max_m - room.x_min_m) / resolution_m) + 1
+        ny = math.ceil((room.y_max_m - room.y_min_m) / resolution_m) + 1
+        xs = self.x0 + resolution_m * np.arange(nx)
+        ys = self.y0 + resolution_m * np.arange(ny)
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        points = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        radius = scenario.robot.radius_m
+        clear = np.minimum.reduce(
+            [
+                points[:, 0] - room.x_min_m,
+                room.x_max_m - points[:, 0],
+                points[:, 1] - room.y_min_m,
+                room.y_max_m - points[:, 1],
+            ]
+        )
+        for box in scenario.obstacles:
+            clear = np.minimum(clear, box_clearance(box, points))
+        free = (clear >= radius).reshape(nx, ny)
+        goal = np.asarray(goal_xy, dtype=np.float64)
+        # the goal's cell and the free cells around it are sources at their straight-line distance
+        dist_to_goal = np.hypot(gx - goal[0], gy - goal[1])
+        source = free & (dist_to_goal <= max(2 * resolution_m, 1e-9))
+        if not source.any():
+            source = free & (dist_to_goal == dist_to_goal[free].min()) if free.any() else free
+        field = self._dijkstra(free, source, dist_to_goal)
+        # occupied cells take their nearest free cell's value plus the distance to it
+        if (~free).any() and free.any():
+            gap, (ix, iy) = ndimage.distance_transform_edt(~free, return_indices=True)
+            field = np.where(free, field, field[ix, iy] + gap * resolution_m)
+        self.values = field
+
+    def _dijkstra(self, free: np.ndarray, source: np.ndarray, straight: np.ndarray) -> np.ndarray:
+        nx, ny = free.shape
+        index = np.arange(nx * ny).reshape(nx, ny)
+        rows, cols, weights = [], [], []
+        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1), (2, 1), (1, 2), (2, -1), (1, -2)):
+            i0, i1 = max(0, -dx), nx - max(0, dx)
+            j0, j1 = max(0, -dy), ny - max(0, dy)
+            ok = free[i0:i1, j0:j1] & free[i0 + dx : i1 + dx, j0 + dy : j1 + dy]
+            rows.append(index[i0:i1, j0:j1][ok])
+            cols.append(index[i0 + dx : i1 + dx, j0 + dy : j1 + dy][ok])
+            weights.append(np.full(int(ok.sum()), self.resolution_m * math.hypot(dx, dy)))
+        # a virtual source node (index n) joined to every source cell by its straight-line distance
+        n = nx * ny
+        src = index[source]
+        rows.append(np.full(len(src), n))
+        cols.append(src)
+        weights.append(straight[source] + 1e-12)
+        r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+        graph = coo_matrix((w, (r, c)), shape=(n + 1, n + 1)).tocsr()
+        dist = dijkstra(graph, directed=False, indices=n)
+        out = dist[:n].reshape(nx, ny)
+        return np.where(np.isfinite(out), out, np.nan)
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """Distances (m) at points (n, 2), bilinearly interpolated; points outside the room are clamped."""
+        p = np.asarray(xy, dtype=np.float64)
+        nx, ny = self.values.shape
+        fx = np.clip((p[:, 0] - self.x0) / self.resolution_m, 0.0, nx - 1.000001)
+        fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
+        ix, iy = fx.astype(int), fy.astype(int)
+        tx, ty = fx - ix, fy - iy
+        v = self.values
+        out = (
+            v[ix, iy] * (1 - tx) * (1 - ty)
+            + v[ix + 1, iy] * tx * (1 - ty)
+            + v[ix, iy + 1] * (1 - tx) * ty
+            + v[ix + 1, iy + 1] * tx * ty
+        )
+        return np.asarray(out)

@@ -1,0 +1,168 @@
+"""The session layout: one MCAP per evaluation or deployment session, the same for sim and real.
+
+Per robot namespace ``ns``: ``/<ns>/scan``, ``/<ns>/odom``, ``/<ns>/ground_truth`` (as
+received, or as simulated) and ``/<ns>/cmd_vel`` (as sent). Fleet-wide: ``/tf`` (``map`` ->
+``<ns>/odom`` -> ``<ns>/base_link`` -> ``<ns>/laser``), ``/mrl/observation`` and
+``/mrl/action`` (one message per robot and control step), ``/mrl/episode`` (start, goal,
+collision, timeout, success, abort, end), ``/mrl/timing`` (deployments: every send, receive,
+emitter tick and control step), ``/clock`` when the fleet's time is scaled.
+
+Metadata records: ``session`` (world sim|real, scenario, robots, profile, policy digest and
+name, control period), ``params``, ``scenario``, ``policy`` (the exported policy's JSON) and
+``versions``. Log times are the session clock's nanoseconds: simulated time in sim (continuing
+across episodes), the deploy clock on the fleet. Header stamps are the sender's.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from pipeline.core.scan import ScanGeometry
+from pipeline.messages import convert as C
+from pipeline.messages import fleet_topics, message_store
+from pipeline.record.writer import DEFAULT_CHUNK_SIZE, McapRecorder, versions_metadata
+
+World = Literal["sim", "real"]
+SESSION_META = "session"
+_IDENTITY = np.zeros(3)
+
+
+def session_metadata(
+    world: World,
+    scenario: str,
+    robots: Sequence[str],
+    control_period_s: float,
+    policy: Mapping[str, Any] | None = None,
+    profile: str = "",
+    extra: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """The ``session`` metadata record (strings only, as MCAP requires)."""
+    out = {
+        "world": world,
+        "scenario": scenario,
+        "robots": ",".join(robots),
+        "control_period_s": repr(float(control_period_s)),
+        "profile": profile,
+        "policy_digest": "" if policy is None else str(policy.get("onnx", {}).get("sha256", "")),
+        "policy": "" if policy is None else f"{policy.get('algorithm', '')}/{policy.get('mode', '')}",
+        "training_digest": "" if policy is None else str(policy.get("training", {}).get("digest", "")),
+    }
+    out.update(extra or {})
+    return out
+
+
+class SessionLog:
+    """Writes one session in the shared layout; `robots` are the robots' namespaces in fleet order."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        robots: Sequence[str],
+        session: Mapping[str, str],
+        documents: Mapping[str, str] | None = None,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        overwrite: bool = True,
+    ) -> None:
+        self.robots = tuple(robots)
+        self.store = message_store()
+        self.topics = fleet_topics(self.robots)
+        metadata: dict[str, dict[str, str]] = {SESSION_META: dict(session), "versions": versions_metadata()}
+        for name, text in (documents or {}).items():
+            metadata[name] = {"text": text}
+        self.recorder = McapRecorder(
+            path, self.topics, self.store, chunk_size=chunk_size, metadata=metadata, overwrite=overwrite
+        )
+        self.path = self.recorder.path
+
+    # -- robots' topics --------------------------------------------------------------------
+
+    def scan(self, t_ns: int, ns: str, ranges: np.ndarray, geometry: ScanGeometry, stamp_ns: int | None = None) -> None:
+        stamp = t_ns if stamp_ns is None else stamp_ns
+        msg = C.laser_scan(stamp, f"{ns}/laser", ranges, geometry, store=self.store)
+        self.recorder.write(f"/{ns}/scan", msg, t_ns, stamp)
+
+    def odom(
+        self,
+        t_ns: int,
+        ns: str,
+        pose: np.ndarray,
+        velocity: tuple[float, float] = (0.0, 0.0),
+        stamp_ns: int | None = None,
+    ) -> None:
+        stamp = t_ns if stamp_ns is None else stamp_ns
+        self.recorder.write(f"/{ns}/odom", C.odometry(stamp, ns, pose, velocity, store=self.store), t_ns, stamp)
+
+    def ground_truth(self, t_ns: int, ns: str, pose: np.ndarray, stamp_ns: int | None = None) -> None:
+        stamp = t_ns if stamp_ns is None else stamp_ns
+        self.recorder.write(f"/{ns}/ground_truth", C.pose_stamped(stamp, "map", pose, store=self.store), t_ns, stamp)
+
+    def cmd_vel(self, t_ns: int, ns: str, v_mps: float, w_radps: float) -> None:
+        self.recorder.write(f"/{ns}/cmd_vel", C.twist(v_mps, w_radps, store=self.store), t_ns)
+
+    def raw(self, topic: str, data: bytes, t_ns: int, stamp_ns: int | None = None) -> None:
+        """A message exactly as it arrived (CDR), logged at local time `t_ns`."""
+        self.recorder.write_cdr(topic, data, t_ns, stamp_ns)
+
+    def message(self, topic: str, msg: Any, t_ns: int, stamp_ns: int | None = None) -> None:
+        """A received message object, logged at local time `t_ns`."""
+        self.recorder.write(topic, msg, t_ns, stamp_ns)
+
+    def tf(self, t_ns: int, odom_poses: np.ndarray, mount_yaw_rad: Sequence[float] | None = None) -> None:
+        """One /tf message: map -> ns/odom (identity), ns/odom -> ns/base_link (odometry), base_link -> laser."""
+        transforms: list[tuple[str, str, np.ndarray]] = []
+        for i, ns in enumerate(self.robots):
+            laser = _IDENTITY if mount_yaw_rad is None else np.array([0.0, 0.0, mount_yaw_rad[i]])
+            transforms += [
+                ("map", f"{ns}/odom", _IDENTITY),
+                (f"{ns}/odom", f"{ns}/base_link", odom_poses[i]),
+                (f"{ns}/base_link", f"{ns}/laser", laser),
+            ]
+        self.recorder.write("/tf", C.tf_message(t_ns, transforms, store=self.store), t_ns)
+
+    def clock(self, t_ns: int) -> None:
+        self.recorder.write("/clock", C.clock(t_ns, store=self.store), t_ns)
+
+    # -- the pipeline's own topics ---------------------------------------------------------
+
+    def observation(self, t_ns: int, episode: int, step: int, ns: str, layout: str, values: np.ndarray) -> None:
+        msg = C.observation(t_ns, episode, step, ns, layout, values, store=self.store)
+        self.recorder.write("/mrl/observation", msg, t_ns)
+
+    def action(
+        self, t_ns: int, episode: int, step: int, ns: str, output: np.ndarray, command: tuple[float, float]
+    ) -> None:
+        msg = C.action(t_ns, episode, step, ns, output, command, store=self.store)
+        self.recorder.write("/mrl/action", msg, t_ns)
+
+    def event(self, t_ns: int, episode: int, step: int, event: str, robot: str = "", detail: str = "") -> None:
+        msg = C.episode_event(t_ns, episode, step, event, robot, detail, store=self.store)
+        self.recorder.write("/mrl/episode", msg, t_ns)
+
+    def timing(self, t_ns: int, kind: str, robot: str, topic: str, source_stamp_ns: int, seq: int, tick: int) -> None:
+        msg = C.timing(t_ns, kind, robot, topic, source_stamp_ns, seq, tick, store=self.store)
+        self.recorder.write("/mrl/timing", msg, t_ns)
+
+    def add_metadata(self, name: str, mapping: Mapping[str, str]) -> None:
+        self.recorder.add_metadata(name, mapping)
+
+    def flush(self) -> None:
+        self.recorder.flush()
+
+    def close(self) -> None:
+        self.recorder.close()
+
+    def __enter__(self) -> SessionLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def dumps(data: Any) -> str:
+    """JSON text for a metadata document."""
+    return json.dumps(data, indent=1, sort_keys=True, default=str)

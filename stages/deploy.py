@@ -1,0 +1,53 @@
+"""dvc stage `deploy`: episodes of the round's exported policy on the fleet (the hardware twin by default),
+every message recorded to MCAP in the same layout as eval_sim."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from pipeline.cli import run_stage, stage_arguments
+from pipeline.config import load_params
+from pipeline.core.episode import summarize
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.ros.deployment import DeployRequest, deploy_policy
+from pipeline.ros.fleet import load_fleet
+from pipeline.sim.outputs import write_episodes, write_metrics
+
+
+def operator_reset(episode: int) -> None:
+    input(f"deploy: put every robot at its start pose for episode {episode}, then press Enter ")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = stage_arguments(__doc__ or "", argv)
+    params = load_params(args.params)
+    cfg = params.deploy
+    fleet = load_fleet(cfg.fleet)
+    runtime = PolicyRuntime(Path(params.export.out_dir) / args.round / "policy")
+    out = Path(cfg.out_dir) / args.round
+    request = DeployRequest(
+        episodes=cfg.episodes,
+        seed=cfg.seed,
+        recording=out / "session.mcap",
+        time_scale=cfg.time_scale,
+        profile=cfg.profile,
+        chunk_size_bytes=cfg.chunk_size_bytes,
+        params_text=Path(args.params).read_text(encoding="utf-8"),
+    )
+    results, profile = deploy_policy(runtime, fleet, cfg.fleet, request, confirm_reset=operator_reset)
+    metrics = summarize(results, prefix="real")
+    write_metrics(out / "metrics.json", metrics)
+    write_episodes(out / "episodes.csv", results)
+    print(
+        f"deploy: robot success {metrics['real/robot_success']:.3f} "
+        f"[{metrics['real/robot_success_ci_low']:.3f}, {metrics['real/robot_success_ci_high']:.3f}], "
+        f"team success {metrics['real/team_success']:.3f} over {len(results)} episodes on {fleet.target} "
+        f"({profile}) -> {out}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_stage("deploy", main))

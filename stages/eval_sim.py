@@ -1,0 +1,39 @@
+"""dvc stage `eval_sim`: episodes of the round's exported policy in its simulated world, recorded to MCAP."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from pipeline.cli import run_stage, stage_arguments
+from pipeline.config import load_params, round_world
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.sim import make_world
+from pipeline.sim.evaluate import evaluate_policy
+from pipeline.sim.outputs import write_episodes, write_metrics, write_paths_picture
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = stage_arguments(__doc__ or "", argv)
+    params = load_params(args.params)
+    scenario, world = make_world(world=round_world(params, args.round, args.params))
+    runtime = PolicyRuntime(Path(params.export.out_dir) / args.round / "policy")
+    cfg = params.eval_sim
+    out = Path(cfg.out_dir) / args.round
+    results, metrics = evaluate_policy(
+        scenario, world, runtime, cfg, out / "session.mcap", Path(args.params).read_text(encoding="utf-8")
+    )
+    write_metrics(out / "metrics.json", metrics)
+    write_episodes(out / "episodes.csv", results)
+    write_paths_picture(out / "paths.png", scenario, results)
+    print(
+        f"eval_sim: robot success {metrics['eval/robot_success']:.3f} "
+        f"[{metrics['eval/robot_success_ci_low']:.3f}, {metrics['eval/robot_success_ci_high']:.3f}], "
+        f"team success {metrics['eval/team_success']:.3f} over {len(results)} episodes -> {out}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_stage("eval_sim", main))

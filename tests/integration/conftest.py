@@ -1,0 +1,76 @@
+"""Shared fixtures of the integration tier: a tiny trained and exported policy, fleet files on loopback."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.config import TrainConfig, world_config
+from pipeline.learn.trainer import train
+from pipeline.policy.export import export_policy, golden_observations
+from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.sim import make_world
+
+TINY_TRAIN = {
+    "algorithm": "sac",
+    "mode": "shared",
+    "total_steps": 200,
+    "n_envs": 2,
+    "net_arch": [16, 16],
+    "batch_size": 16,
+    "buffer_size": 2000,
+    "learning_starts": 40,
+    "checkpoint_every_episodes": 5,
+}
+TINY_WORLD = {"scenario": "obstacles", "observation": "rich", "max_steps": 30}
+
+
+@pytest.fixture(scope="session")
+def tiny_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 3-robot SAC policy for the obstacles room (30-step episodes), exported; its folder."""
+    root = tmp_path_factory.mktemp("tiny_policy")
+    scenario, world = make_world(world=world_config(TINY_WORLD))
+    cfg = from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), TINY_TRAIN), "<test>")
+    result = train(scenario, world, cfg, root / "run", progress=False)
+    export_policy(result.checkpoint, root / "policy", golden_observations(scenario, world, 8))
+    return root / "policy"
+
+
+def free_domain_id() -> int:
+    """A DDS domain id unlikely to be used by another test run on this host."""
+    return 100 + (os.getpid() * 7 + int(np.random.default_rng().integers(0, 1000))) % 120
+
+
+def write_fleet(path: Path, **changes: object) -> Path:
+    """A twin fleet file on loopback with a fresh domain id and short timeouts; `changes` override top-level keys."""
+    fleet = {
+        "target": "twin",
+        "transport": "dds",
+        "scenario": "obstacles",
+        "network": {"domain_id": free_domain_id(), "loopback_only": True, "peers": []},
+        "robots": [
+            {"name": f"robot_{i}", "namespace": f"robot_{i}", "v_max_mps": 0.4, "w_max_radps": 0.2} for i in (1, 2, 3)
+        ],
+        "twin": {"profile": "mild", "time_scale": 2.0, "seed": 0},
+        "timing": {
+            "tick_period_s": 0.02,
+            "command_validity_s": 0.1,
+            "discovery_timeout_s": 15.0,
+            "reset_timeout_s": 10.0,
+            "scan_stale_s": 0.5,
+            "odom_stale_s": 0.3,
+            "truth_stale_s": 0.3,
+            "use_ground_truth": True,
+        },
+    }
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(fleet.get(key), dict):
+            fleet[key] = {**fleet[key], **value}  # type: ignore[dict-item]
+        else:
+            fleet[key] = value
+    path.write_text(yaml.safe_dump(fleet, sort_keys=False))
+    return path
