@@ -191,6 +191,10 @@ class TrainConfig:
     """World control steps summed over the parallel worlds."""
     n_envs: int = setting(4, ge=1, le=256)
     """Parallel worlds stepped in lockstep."""
+    start_xy_m: float = setting(0.3, ge=0.0, le=5.0)
+    """Training episodes start each robot up to this far (uniformly, in x and y) from its start."""
+    start_yaw_rad: float = setting(0.6, ge=0.0, le=3.1416)
+    """... and turned up to this much; evaluation and deployment always use the exact starts."""
     seed: int = setting(0, ge=0)
     net_arch: tuple[int, ...] = setting((256, 256), min_len=1)
     learning_rate: float = setting(3e-4, gt=0.0, le=1.0)

@@ -56,6 +56,10 @@ class DistanceField:
             gap, (ix, iy) = ndimage.distance_transform_edt(~free, return_indices=True)
             field = np.where(free, field, field[ix, iy] + gap * resolution_m)
         self.values = field
+        gx_, gy_ = np.gradient(field, resolution_m)
+        # the free path leaves each point against the gradient of the distance
+        self.directions = np.arctan2(-gy_, -gx_)
+        self._unit = np.stack([np.cos(self.directions), np.sin(self.directions)], axis=-1)
 
     def _dijkstra(self, free: np.ndarray, source: np.ndarray, straight: np.ndarray) -> np.ndarray:
         nx, ny = free.shape
@@ -79,6 +83,23 @@ class DistanceField:
         dist = dijkstra(graph, directed=False, indices=n)
         out = dist[:n].reshape(nx, ny)
         return np.where(np.isfinite(out), out, np.nan)
+
+    def direction(self, xy: np.ndarray) -> np.ndarray:
+        """Heading (rad) of the shortest free path at points (n, 2): where a robot there should drive."""
+        p = np.asarray(xy, dtype=np.float64)
+        nx, ny = self.values.shape
+        fx = np.clip((p[:, 0] - self.x0) / self.resolution_m, 0.0, nx - 1.000001)
+        fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
+        ix, iy = fx.astype(int), fy.astype(int)
+        tx, ty = (fx - ix)[:, None], (fy - iy)[:, None]
+        u = self._unit
+        v = (
+            u[ix, iy] * (1 - tx) * (1 - ty)
+            + u[ix + 1, iy] * tx * (1 - ty)
+            + u[ix, iy + 1] * (1 - tx) * ty
+            + u[ix + 1, iy + 1] * tx * ty
+        )
+        return np.asarray(np.arctan2(v[:, 1], v[:, 0]))
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         """Distances (m) at points (n, 2), bilinearly interpolated; points outside the room are clamped."""

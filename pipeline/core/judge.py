@@ -19,7 +19,7 @@ from pipeline.core.scenario import Scenario, box_clearance
 
 ProgressDistance = Literal["geodesic", "euclidean"]
 
-REWARD_TERMS: tuple[str, ...] = ("progress", "goal", "team", "collision", "step")
+REWARD_TERMS: tuple[str, ...] = ("progress", "heading", "goal", "team", "collision", "step")
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,8 @@ class RewardWeights:
     """Named reward weights: progress per metre toward the own goal, bonuses and penalties."""
 
     progress_per_m: float = 10.0
+    heading_per_rad: float = 0.0
+    """Per radian that the heading turned toward the direction of the path to the goal (0 turns it off)."""
     goal: float = 10.0
     team: float = 10.0
     collision: float = -10.0
@@ -79,6 +81,7 @@ class EpisodeJudge:
         self.steps = 0
         self.team_success = False
         self._prev_dist = np.zeros(n)
+        self._prev_heading_err = np.zeros(n)
 
     @property
     def done(self) -> np.ndarray:
@@ -92,6 +95,20 @@ class EpisodeJudge:
         self.steps = 0
         self.team_success = False
         self._prev_dist = self.goal_distance(pose)
+        self._prev_heading_err = self.heading_error(pose)
+
+    def path_direction(self, pose: np.ndarray) -> np.ndarray:
+        """(n_robots,) heading (rad) toward each robot's goal: along the free path, or straight at it."""
+        xy = np.asarray(pose)[:, :2]
+        if self._fields:
+            return np.array([float(f.direction(xy[i : i + 1])[0]) for i, f in enumerate(self._fields)])
+        d = self.goals - xy
+        return np.asarray(np.arctan2(d[:, 1], d[:, 0]))
+
+    def heading_error(self, pose: np.ndarray) -> np.ndarray:
+        """(n_robots,) |heading - path direction| in [0, pi] (rad)."""
+        err = np.asarray(pose)[:, 2] - self.path_direction(pose)
+        return np.asarray(np.abs(np.angle(np.exp(1j * err))))
 
     def goal_distance(self, pose: np.ndarray) -> np.ndarray:
         """(n_robots,) distance (m) from each robot to its goal centre, straight or along the free path."""
@@ -146,14 +163,17 @@ class EpisodeJudge:
         dist = self.goal_distance(pose)
         w = self.weights
         zeros = np.zeros(len(active))
+        heading_err = self.heading_error(pose) if w.heading_per_rad else zeros
         terms = {
             "progress": np.where(active, w.progress_per_m * (self._prev_dist - dist), 0.0),
+            "heading": np.where(active, w.heading_per_rad * (self._prev_heading_err - heading_err), 0.0),
             "goal": np.where(new_reached, w.goal, 0.0),
             "team": zeros.copy(),
             "collision": np.where(new_collided, w.collision, 0.0),
             "step": np.where(active, w.step, 0.0),
         }
         self._prev_dist = np.where(active, dist, self._prev_dist)
+        self._prev_heading_err = np.where(active, heading_err, self._prev_heading_err)
         self.reached |= new_reached
         self.collided |= new_collided
         events = [(int(i), "collision") for i in np.flatnonzero(new_collided)]
@@ -165,7 +185,9 @@ class EpisodeJudge:
         truncated = bool(self.steps >= self.max_steps and not self.done.all())
         if truncated:
             events += [(int(i), "timeout") for i in np.flatnonzero(~self.done)]
-        reward = terms["progress"] + terms["goal"] + terms["team"] + terms["collision"] + terms["step"]
+        reward = zeros.copy()
+        for name in REWARD_TERMS:
+            reward = reward + terms[name]
         return JudgeStep(
             reward=reward,
             terms=terms,

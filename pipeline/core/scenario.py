@@ -236,3 +236,36 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
         scenario = scenario.with_robots(n_robots)
     scenario.validate()
     return scenario
+
+
+def perturbed_starts(
+    scenario: Scenario, rng: np.random.Generator, xy_m: float, yaw_rad: float, clearance_m: float = 0.05, tries: int = 50
+) -> np.ndarray:
+    """(n_robots, 3) start poses moved by up to `xy_m` and turned by up to `yaw_rad`, uniformly.
+
+    Each robot keeps `clearance_m` from walls, boxes, other robots and its own goal square; a
+    draw that cannot be placed after `tries` attempts keeps the scenario's start.
+    """
+    starts = scenario.starts.copy()
+    if xy_m <= 0 and yaw_rad <= 0:
+        return starts
+    r = scenario.robot.radius_m
+    room = scenario.room
+    half = scenario.goal_size_m / 2
+    for i in range(scenario.n_robots):
+        for _ in range(tries):
+            cand = scenario.starts[i] + rng.uniform([-xy_m, -xy_m, -yaw_rad], [xy_m, xy_m, yaw_rad])
+            x, y = cand[0], cand[1]
+            gap = min(x - room.x_min_m, room.x_max_m - x, y - room.y_min_m, room.y_max_m - y) - r
+            for box in scenario.obstacles:
+                gap = min(gap, float(box_clearance(box, cand[None, :2])[0]) - r)
+            others = np.delete(starts[:, :2], i, axis=0)
+            if len(others):
+                gap = min(gap, float(np.hypot(*(others - cand[:2]).T).min()) - 2 * r)
+            gx, gy = scenario.goals[i]
+            in_goal = abs(x - gx) <= half + r and abs(y - gy) <= half + r
+            if gap >= clearance_m and not in_goal:
+                starts[i] = cand
+                break
+    starts[:, 2] = np.angle(np.exp(1j * starts[:, 2]))
+    return starts

@@ -79,7 +79,7 @@ def train(
     """
     th.set_num_threads(cfg.torch_threads)
     start = time.perf_counter()
-    worlds = VecWorlds(scenario, world, cfg.n_envs, cfg.seed)
+    worlds = VecWorlds(scenario, world, cfg.n_envs, cfg.seed, cfg.start_xy_m, cfg.start_yaw_rad)
     streams = StreamMap(cfg.mode, worlds)
     learners: list[OffPolicyLearner | OnPolicyLearner] = [
         build_learner(cfg, streams.observation_space, streams.action_space, streams.n_streams, cfg.seed + 7919 * i)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.config import WorldConfig
-from pipeline.core.scenario import Scenario
+from pipeline.core.scenario import Scenario, perturbed_starts
 from pipeline.sim.env import MultiRobotSim
 
 
@@ -57,7 +57,16 @@ class WorldsStep:
 class VecWorlds:
     """`n_worlds` copies of one scenario, stepped together."""
 
-    def __init__(self, scenario: Scenario, world: WorldConfig, n_worlds: int, seed: int) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        world: WorldConfig,
+        n_worlds: int,
+        seed: int,
+        start_xy_m: float = 0.0,
+        start_yaw_rad: float = 0.0,
+    ) -> None:
+        """`start_xy_m`, `start_yaw_rad`: each episode starts every robot this far (uniformly) from its start pose."""
         if n_worlds < 1:
             raise ValueError(f"n_worlds must be >= 1, got {n_worlds}")
         self.scenario = scenario
@@ -68,6 +77,9 @@ class VecWorlds:
         self.obs_size = self.sims[0].layout.size
         self.codec = self.sims[0].codec
         self._seeds = np.random.default_rng(seed)
+        self._starts = np.random.default_rng([seed, 1])
+        self.start_xy_m = start_xy_m
+        self.start_yaw_rad = start_yaw_rad
         self._episode_seed = np.zeros(n_worlds, dtype=np.int64)
         self._returns = np.zeros((n_worlds, self.n_robots))
         self._obs = np.zeros((n_worlds, self.n_robots, self.obs_size), dtype=np.float32)
@@ -75,11 +87,15 @@ class VecWorlds:
     def _next_seed(self) -> int:
         return int(self._seeds.integers(0, 2**31 - 1))
 
+    def _reset_world(self, j: int) -> np.ndarray:
+        self._episode_seed[j] = self._next_seed()
+        starts = perturbed_starts(self.scenario, self._starts, self.start_xy_m, self.start_yaw_rad)
+        return self.sims[j].reset(int(self._episode_seed[j]), starts)
+
     def reset(self) -> np.ndarray:
         """Start every world's first episode; returns observations (n_worlds, n_robots, obs_size)."""
-        for j, sim in enumerate(self.sims):
-            self._episode_seed[j] = self._next_seed()
-            self._obs[j] = sim.reset(int(self._episode_seed[j]))
+        for j in range(self.n_worlds):
+            self._obs[j] = self._reset_world(j)
         self._returns[:] = 0.0
         return self._obs.copy()
 
@@ -118,8 +134,7 @@ class VecWorlds:
                         team_success=judged.team_success,
                     )
                 )
-                self._episode_seed[j] = self._next_seed()
-                self._obs[j] = sim.reset(int(self._episode_seed[j]))
+                self._obs[j] = self._reset_world(j)
                 self._returns[j] = 0.0
             else:
                 self._obs[j] = result.obs

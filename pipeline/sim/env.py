@@ -60,13 +60,13 @@ class MultiRobotSim:
         self.ranges, self.obs = observed.ranges, observed.obs
         return self.obs
 
-    def reset(self, seed: int | None = None) -> np.ndarray:
-        """Start an episode; returns observations (n_robots, obs_size)."""
+    def reset(self, seed: int | None = None, starts: np.ndarray | None = None) -> np.ndarray:
+        """Start an episode (at the scenario's starts, or at `starts` (n_robots, 3)); returns observations."""
         if seed is None and not self._seeded:
             seed = int(np.random.SeedSequence().generate_state(1)[0])
         if seed is not None:
             self._seeded = True
-        self.world.reset(seed)
+        self.world.reset(seed, starts)
         self.judge.reset(self.world.truth)
         self.last_cmd = np.zeros((self.n, 2))
         return self._observe().copy()

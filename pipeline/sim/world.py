@@ -64,12 +64,12 @@ class SimWorld:
     def time_s(self) -> float:
         return float(self.data.time)
 
-    def reset(self, seed: int | None = None) -> None:
-        """Place every robot at its start, at rest; reseed all noise when `seed` is given."""
+    def reset(self, seed: int | None = None, starts: np.ndarray | None = None) -> None:
+        """Place every robot at its start (or at `starts`, (n_robots, 3)), at rest; reseed all noise when `seed` is given."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[self._qpos] = self.scenario.starts
+        self.data.qpos[self._qpos] = self.scenario.starts if starts is None else starts
         mujoco.mj_forward(self.model, self.data)
         self._pending.clear()
         self._substep = 0

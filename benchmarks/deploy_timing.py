@@ -1,0 +1,185 @@
+"""Deploy-side timing at 1x time: emitter tick jitter, cross-robot send skew, joint-state age.
+
+For 3 and for 10 robots it trains and exports a tiny shared policy, starts the hardware twin
+(mild profile) in its own process, deploys over DDS on loopback for `--seconds`, and computes
+from the recorded /mrl/timing:
+
+- tick period p50 and tick jitter p99 (|period - 20 ms|), against the jitter of a bare timer
+  loop on the same clock measured in the same run (the limit this machine allows);
+- cross-robot send skew p99: within a tick, last send minus first send;
+- joint-state age p99: at each control step, control time minus the receive time of each
+  robot's latest odometry and scan.
+
+Targets: tick jitter p99 <= 1 ms, skew p99 <= 0.5 ms. Last line:
+``ratio=<tick jitter p99 / bare timer jitter p99> jitter_p99_ms=<..> skew_p99_ms=<..>`` (3 robots).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from pipeline.config import TrainConfig, world_config
+from pipeline.learn.trainer import train
+from pipeline.messages.convert import TIMING_CODES
+from pipeline.policy.export import export_policy, golden_observations
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record import McapLog
+from pipeline.ros.clock import WallClock
+from pipeline.ros.deployment import DeployRequest, deploy_policy
+from pipeline.ros.fleet import load_fleet
+from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.sim import make_world
+
+TICK_NS = 20_000_000
+
+
+def scenario_file(folder: Path, n: int) -> Path:
+    """A room for n robots in two facing rows (robot i crosses to the other side)."""
+    cols = (n + 1) // 2
+    width = max(6.0, 1.0 * cols + 1.0)
+    robots = []
+    for i in range(n):
+        row, col = divmod(i, cols)
+        x = 1.0 + col * (width - 2.0) / max(cols - 1, 1)
+        y, gy, yaw = (1.0, 3.0, 1.5707963) if row == 0 else (3.0, 1.0, -1.5707963)
+        robots.append({"start": {"x_m": x, "y_m": y, "yaw_rad": yaw}, "goal": {"x_m": x, "y_m": gy}})
+    scenario = {
+        "name": f"rows{n}",
+        "room": {"x_min_m": 0.0, "x_max_m": width, "y_min_m": 0.0, "y_max_m": 4.0, "wall_thickness_m": 0.1, "wall_height_m": 0.5},
+        "robot": {"radius_m": 0.165, "height_m": 0.2, "mass_kg": 5.0, "wheel_separation_m": 0.281, "wheel_diameter_m": 0.068},
+        "goal_size_m": 0.4,
+        "robots": robots,
+        "obstacles": [],
+    }
+    path = folder / f"rows{n}.yaml"
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    return path
+
+
+def tiny_policy(folder: Path, scenario: Path, max_steps: int) -> Path:
+    sc, world = make_world(world=world_config({"scenario": str(scenario), "observation": "rich", "max_steps": max_steps}))
+    tiny = {"mode": "shared", "total_steps": 100, "n_envs": 1, "net_arch": [16, 16], "batch_size": 16, "learning_starts": 20}
+    cfg = from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), tiny), "<benchmark>")
+    result = train(sc, world, cfg, folder / "run", progress=False)
+    export_policy(result.checkpoint, folder / "policy", golden_observations(sc, world, 4))
+    return folder / "policy"
+
+
+def fleet_file(folder: Path, scenario: Path, n: int, domain: int) -> Path:
+    fleet = {
+        "target": "twin",
+        "transport": "dds",
+        "scenario": str(scenario),
+        "network": {"domain_id": domain, "loopback_only": True, "peers": []},
+        "robots": [{"name": f"robot_{i + 1}", "namespace": f"robot_{i + 1}", "v_max_mps": 0.4, "w_max_radps": 0.2} for i in range(n)],
+        "twin": {"profile": "mild", "time_scale": 1.0, "seed": 0},
+        "timing": {
+            "tick_period_s": 0.02,
+            "command_validity_s": 0.1,
+            "discovery_timeout_s": 30.0,
+            "reset_timeout_s": 20.0,
+            "scan_stale_s": 0.5,
+            "odom_stale_s": 0.3,
+            "truth_stale_s": 0.3,
+            "use_ground_truth": True,
+        },
+    }
+    path = folder / f"fleet{n}.yaml"
+    path.write_text(yaml.safe_dump(fleet, sort_keys=False))
+    return path
+
+
+def bare_timer_jitter_ms(seconds: float) -> float:
+    """p99 |period - 20 ms| of a loop that only sleeps to a 20 ms grid on the same clock."""
+    clock = WallClock()
+    stamps = []
+    next_t = clock.now_ns()
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        clock.sleep_until(next_t)
+        stamps.append(clock.now_ns())
+        next_t += TICK_NS
+    periods = np.diff(stamps) / 1e6
+    return float(np.percentile(np.abs(periods - 20.0), 99))
+
+
+def timing_figures(path: Path) -> dict[str, float]:
+    ticks: list[int] = []
+    sends: dict[int, list[int]] = {}
+    receives: dict[tuple[str, str], list[int]] = {}
+    controls: list[int] = []
+    for m in McapLog(path).messages(["/mrl/timing"]):
+        t = m.msg
+        if t.kind == TIMING_CODES["tick"]:
+            ticks.append(t.local_ns)
+        elif t.kind == TIMING_CODES["send"]:
+            sends.setdefault(t.tick, []).append(t.local_ns)
+        elif t.kind == TIMING_CODES["receive"]:
+            channel = t.topic.rsplit("/", 1)[-1]
+            if channel in ("odom", "scan"):
+                receives.setdefault((t.robot, channel), []).append(t.local_ns)
+        elif t.kind == TIMING_CODES["control"]:
+            controls.append(t.local_ns)
+    periods = np.diff(np.array(ticks)) / 1e6
+    periods = periods[periods < 100.0]  # gaps between episodes' resets are not tick periods
+    skews = np.array([(max(v) - min(v)) / 1e6 for v in sends.values() if len(v) > 1])
+    ages = []
+    for stamps in receives.values():
+        arr = np.sort(np.array(stamps))
+        idx = np.searchsorted(arr, np.array(controls), side="right") - 1
+        ok = idx >= 0
+        ages.append((np.array(controls)[ok] - arr[idx[ok]]) / 1e6)
+    age = np.concatenate(ages) if ages else np.zeros(1)
+    return {
+        "tick_p50_ms": float(np.percentile(periods, 50)),
+        "jitter_p99_ms": float(np.percentile(np.abs(periods - 20.0), 99)),
+        "skew_p99_ms": float(np.percentile(skews, 99)),
+        "age_p99_ms": float(np.percentile(age, 99)),
+        "ticks": float(len(ticks)),
+    }
+
+
+def measure(n: int, seconds: float, folder: Path, domain: int) -> dict[str, float]:
+    scenario = scenario_file(folder, n)
+    max_steps = 100
+    policy = tiny_policy(folder / f"p{n}", scenario, max_steps)
+    fleet_path = fleet_file(folder, scenario, n, domain)
+    episodes = max(1, round(seconds / (max_steps * 0.1)))
+    request = DeployRequest(episodes=episodes, seed=0, recording=folder / f"timing{n}.mcap", progress=False)
+    deploy_policy(PolicyRuntime(policy), load_fleet(fleet_path), str(fleet_path), request)
+    return timing_figures(folder / f"timing{n}.mcap")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=30.0, help="deployment time per fleet size")
+    parser.add_argument("--robots", type=int, nargs="+", default=[3, 10])
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        bare = bare_timer_jitter_ms(min(args.seconds, 10.0))
+        print(f"bare 20 ms timer loop: jitter p99 {bare:.3f} ms (the limit on this machine)")
+        first: dict[str, float] | None = None
+        for k, n in enumerate(args.robots):
+            fig = measure(n, args.seconds, folder, 150 + k)
+            first = first or fig
+            print(
+                f"{n:2d} robots: tick p50 {fig['tick_p50_ms']:.3f} ms, jitter p99 {fig['jitter_p99_ms']:.3f} ms, "
+                f"send skew p99 {fig['skew_p99_ms']:.3f} ms, joint-state age p99 {fig['age_p99_ms']:.1f} ms "
+                f"({fig['ticks']:.0f} ticks)"
+            )
+    assert first is not None
+    ratio = first["jitter_p99_ms"] / max(bare, 1e-6)
+    print(f"ratio={ratio:.2f} jitter_p99_ms={first['jitter_p99_ms']:.3f} skew_p99_ms={first['skew_p99_ms']:.3f}")
+
+
+if __name__ == "__main__":
+    threading.current_thread().name = "benchmark"
+    main()

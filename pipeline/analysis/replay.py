@@ -1,0 +1,175 @@
+"""Replay of recordings: the policy on recorded observations, and recorded commands in the simulator.
+
+``action_agreement``: re-run an exported policy on a recording's ``/mrl/observation`` and compare
+with the recorded ``/mrl/action`` (same file, same robots): did the deployed graph act as the
+exported one does?
+
+``open_loop_divergence``: take each episode's recorded ``cmd_vel`` (as sent) and its first
+ground-truth poses, drive the simulated world open loop with those commands at their send
+times, and measure how far the simulated robots drift from the recorded ground truth over time.
+A simulator whose actuation matches the fleet's stays close for longer: this is how calibration
+is checked beyond its own fit.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.config import WorldConfig, world_config
+from pipeline.core.scenario import Scenario
+from pipeline.errors import MrlError
+from pipeline.messages import convert as C
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record import McapLog
+from pipeline.settings import to_mapping
+from pipeline.sim.world import SimWorld
+
+NS_PER_S = 1_000_000_000
+REPLAY_TICK_S = 0.02
+
+
+class ReplayError(MrlError):
+    """A recording cannot be replayed (a needed topic is missing, robots differ); names the file and topic."""
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """How often the policy, re-run on the recorded observations, gives the recorded action."""
+
+    steps: int
+    agreement: float
+    max_abs_diff: float
+
+
+def action_agreement(path: Path, runtime: PolicyRuntime, tolerance: float = 1e-5) -> Agreement:
+    """Re-run `runtime` on every recorded control step of `path`; steps need an observation for every robot."""
+    log = McapLog(path)
+    topics = log.topics()
+    for needed in ("/mrl/observation", "/mrl/action"):
+        if needed not in topics:
+            raise ReplayError(f"{path}: no {needed} topic to replay")
+    robots = list(runtime.robots)
+    obs: dict[tuple[int, int], dict[str, np.ndarray]] = defaultdict(dict)
+    act: dict[tuple[int, int], dict[str, np.ndarray]] = defaultdict(dict)
+    for m in log.messages(["/mrl/observation", "/mrl/action"]):
+        key = (int(m.msg.episode), int(m.msg.step))
+        if m.topic == "/mrl/observation":
+            obs[key][m.msg.robot] = np.asarray(m.msg.values, dtype=np.float32)
+        else:
+            act[key][m.msg.robot] = np.asarray(m.msg.policy_output, dtype=np.float64)
+    steps, agree, worst = 0, 0, 0.0
+    for key, per_robot in sorted(obs.items()):
+        if set(per_robot) != set(robots) or set(act.get(key, {})) != set(robots):
+            continue
+        x = np.stack([per_robot[r] for r in robots])
+        got = np.asarray(runtime.actions(x), dtype=np.float64).reshape(len(robots), -1)
+        want = np.stack([act[key][r] for r in robots]).reshape(len(robots), -1)
+        diff = float(np.abs(got - want).max())
+        worst = max(worst, diff)
+        agree += int(diff <= tolerance)
+        steps += 1
+    if steps == 0:
+        raise ReplayError(f"{path}: no control step has an observation and an action for every robot {robots}")
+    return Agreement(steps=steps, agreement=agree / steps, max_abs_diff=worst)
+
+
+@dataclass(frozen=True)
+class Divergence:
+    """Position error (m) of the open-loop simulation against recorded ground truth, by time since episode start."""
+
+    times_s: np.ndarray  # (k,)
+    mean_error_m: np.ndarray  # (k,) mean over episodes and robots
+    p90_error_m: np.ndarray  # (k,)
+    episodes: int
+
+    def at(self, t_s: float) -> float:
+        """Mean error (m) at `t_s` seconds after the start (nan past the recorded horizon)."""
+        if len(self.times_s) == 0 or t_s > self.times_s[-1]:
+            return float("nan")
+        return float(np.interp(t_s, self.times_s, self.mean_error_m))
+
+
+def _episodes(log: McapLog) -> list[tuple[int, int]]:
+    """(start, end) log times of every finished episode."""
+    spans, start = [], None
+    for m in log.messages(["/mrl/episode"]):
+        name = C.EVENT_NAMES.get(int(m.msg.event), "")
+        if name == "start":
+            start = m.log_time_ns
+        elif name == "end" and start is not None:
+            spans.append((start, m.log_time_ns))
+            start = None
+    return spans
+
+
+def open_loop_divergence(
+    path: Path, scenario: Scenario, world: WorldConfig, horizon_s: float = 10.0, max_episodes: int = 20
+) -> Divergence:
+    """Drive `world` open loop with each recorded episode's commands; error against recorded ground truth."""
+    log = McapLog(path)
+    names = scenario.robot_names
+    topics = log.topics()
+    for ns in names:
+        for kind in ("cmd_vel", "ground_truth"):
+            if f"/{ns}/{kind}" not in topics:
+                raise ReplayError(f"{path}: no /{ns}/{kind} topic; open-loop replay needs commands and ground truth")
+    replay_world = world_config(
+        {"control_period_s": REPLAY_TICK_S, "max_steps": 100_000, "lidar": {"noise_sigma_m": 0.0}},
+        base=world_config(to_mapping(world)),
+    )
+    sim = SimWorld(scenario, replay_world)
+    tick_ns = round(REPLAY_TICK_S * NS_PER_S)
+    n_ticks = int(horizon_s / REPLAY_TICK_S)
+    errors = []
+    for start_ns, end_ns in _episodes(log)[:max_episodes]:
+        truth: dict[str, list[tuple[int, np.ndarray]]] = defaultdict(list)
+        cmds: dict[str, list[tuple[int, tuple[float, float]]]] = defaultdict(list)
+        wanted = [f"/{ns}/{k}" for ns in names for k in ("cmd_vel", "ground_truth")]
+        for m in log.messages(wanted, start_ns=start_ns, end_ns=end_ns):
+            ns = m.topic.split("/")[1]
+            if m.topic.endswith("ground_truth"):
+                truth[ns].append((m.log_time_ns, C.planar_pose(m.msg.pose)))
+            else:
+                cmds[ns].append((m.log_time_ns, C.twist_command(m.msg)))
+        if any(not truth[ns] for ns in names):
+            continue
+        t0 = max(truth[ns][0][0] for ns in names)
+        first = np.stack([next(p for t, p in truth[ns] if t >= t0) for ns in names])
+        sim.reset(0, first)
+        cmd_times = {ns: np.array([t for t, _ in cmds[ns]], dtype=np.int64) for ns in names}
+        cmd_vals = {ns: np.array([c for _, c in cmds[ns]]).reshape(-1, 2) for ns in names}
+        truth_t = {ns: np.array([t for t, _ in truth[ns]], dtype=np.int64) for ns in names}
+        truth_xy = {ns: np.stack([p[:2] for _, p in truth[ns]]) for ns in names}
+        err = np.full((n_ticks, len(names)), np.nan)
+        for k in range(n_ticks):
+            t = t0 + k * tick_ns
+            if t > end_ns:
+                break
+            command = np.zeros((len(names), 2))
+            for i, ns in enumerate(names):
+                j = np.searchsorted(cmd_times[ns], t, side="right") - 1
+                if j >= 0:
+                    command[i] = cmd_vals[ns][j]
+            sim.step(command)
+            t_next = t + tick_ns
+            for i, ns in enumerate(names):
+                j = np.searchsorted(truth_t[ns], t_next)
+                if j < len(truth_t[ns]):
+                    err[k, i] = float(np.hypot(*(sim.truth[i, :2] - truth_xy[ns][j])))
+        errors.append(err)
+    if not errors:
+        raise ReplayError(f"{path}: no finished episode with ground truth for every robot")
+    stack = np.stack(errors)  # (episodes, ticks, robots)
+    flat = stack.transpose(1, 0, 2).reshape(n_ticks, -1)
+    valid = ~np.all(np.isnan(flat), axis=1)
+    times = (np.arange(1, n_ticks + 1) * REPLAY_TICK_S)[valid]
+    return Divergence(
+        times_s=times,
+        mean_error_m=np.nanmean(flat[valid], axis=1),
+        p90_error_m=np.nanpercentile(flat[valid], 90, axis=1),
+        episodes=len(errors),
+    )

@@ -1,0 +1,638 @@
+"""Session recordings as polars tables: episodes (one row per episode and robot), topics, poses.
+
+A :class:`Recording` opens one MCAP file of the session layout (:mod:`pipeline.record.session`),
+reads the topics an analysis asks for in one pass over the file, and decodes each topic column-wise
+(:mod:`pipeline.analysis.decode`). Episodes are delimited by the ``/mrl/episode`` events: a ``start``
+opens one, an ``end`` (or a team-level ``abort``) closes it; an episode that is never closed (the
+recorder was killed) or that saw any ``abort`` counts as aborted. A salvaged file (no summary, read
+up to its last complete chunk) is analysed like any other: the reader's TruncatedLogWarning is
+raised as usual and :attr:`Recording.salvaged` and the ``salvaged`` column say so.
+
+Times: ``t_ns`` is a message's log time (the session clock: simulated ns in sim, the deploy
+clock's ns on the fleet), ``stamp_ns`` the sender's header stamp. Positions are metres in the
+frame of the topic (``map`` for ground truth, ``<ns>/odom`` for odometry), yaw in radians.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import polars as pl
+
+from pipeline.analysis import AnalysisError, MissingTopicError, TopicTypeError
+from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat, decode
+from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.errors import MrlError
+from pipeline.messages import topics as T
+from pipeline.messages.convert import EVENT_NAMES
+from pipeline.record import McapLog
+
+NS_PER_S = 1_000_000_000
+EPISODE_TOPIC = "/mrl/episode"
+PoseKind = Literal["ground_truth", "odom"]
+POSE_TYPES: dict[str, str] = {"ground_truth": T.POSE_STAMPED, "odom": T.ODOMETRY}
+_ROBOT_TOPIC = re.compile(r"^/([^/]+)/(scan|odom|ground_truth|cmd_vel)$")
+_SEED = re.compile(r"(?:^|[\s,;])seed=(-?\d+)")
+_INT64_MAX = np.iinfo(np.int64).max
+DECODE_BATCH = 16384
+"""Messages of one topic decoded together while a file is read (bounds the raw bytes held in memory)."""
+
+EPISODES_SCHEMA: dict[str, Any] = {
+    "world": pl.String,
+    "scenario": pl.String,
+    "policy": pl.String,
+    "policy_digest": pl.String,
+    "profile": pl.String,
+    "session": pl.String,
+    "path": pl.String,
+    "episode": pl.Int64,
+    "seed": pl.Int64,
+    "robot": pl.String,
+    "success": pl.Boolean,
+    "reached": pl.Boolean,
+    "collided": pl.Boolean,
+    "timeout": pl.Boolean,
+    "aborted": pl.Boolean,
+    "time_to_goal_s": pl.Float64,
+    "time_to_goal_clock_s": pl.Float64,
+    "path_length_m": pl.Float64,
+    "path_source": pl.String,
+    "steps": pl.Int64,
+    "team_success": pl.Boolean,
+    "end": pl.String,
+    "abort_reason": pl.String,
+    "start_ns": pl.Int64,
+    "end_ns": pl.Int64,
+    "salvaged": pl.Boolean,
+}
+"""Columns of :func:`episodes_table`, in order."""
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """The ``session`` metadata of a recording (empty strings where the file does not say)."""
+
+    world: str
+    scenario: str
+    robots: tuple[str, ...]
+    control_period_s: float | None
+    profile: str
+    policy: str
+    policy_digest: str
+    training_digest: str
+
+
+@dataclass
+class _Window:
+    """One episode as its events delimit it (log times in ns)."""
+
+    episode: int
+    start_ns: int
+    seed: int | None
+    end_ns: int | None = None
+    end_step: int | None = None
+    end_detail: str = ""
+    closed: bool = False
+    aborted: bool = False
+    abort_reasons: list[str] = field(default_factory=list)
+    team_success: bool = False
+    max_step: int = 0
+    robot_events: dict[str, dict[str, tuple[int, int]]] = field(default_factory=dict)  # robot -> event -> (t, step)
+
+
+class Recording:
+    """One session recording opened for analysis; decoded topics are cached.
+
+    Args:
+        source: the MCAP file (or an open :class:`~pipeline.record.McapLog`).
+        session: the name in the ``session`` column; the file's stem by default.
+
+    Raises:
+        LogReadError: the file is missing, not MCAP or damaged beyond salvage (from the reader).
+    """
+
+    def __init__(self, source: str | os.PathLike[str] | McapLog, session: str | None = None) -> None:
+        self.log = source if isinstance(source, McapLog) else McapLog(source)
+        self.path = self.log.path
+        self.where = str(self.path)
+        self.session = session if session is not None else self.path.stem
+        self._topics = self.log.topics()
+        self._metadata = self.log.metadata()
+        self.info = self._session_info()
+        self._decoded: dict[str, tuple[np.ndarray, np.ndarray, Decoded]] = {}
+        self._frames: dict[str, pl.DataFrame] = {}
+        self._windows: list[_Window] | None = None
+        self._table: pl.DataFrame | None = None
+
+    # -- file facts --------------------------------------------------------------------------
+
+    @property
+    def salvaged(self) -> bool:
+        """True when the file had no summary and was read up to its last complete chunk."""
+        return self.log.salvaged
+
+    @property
+    def robots(self) -> tuple[str, ...]:
+        return self.info.robots
+
+    def topics(self) -> dict[str, str]:
+        """``{topic: message type}`` of the file."""
+        return dict(self._topics)
+
+    def document(self, name: str) -> str | None:
+        """The text of a metadata document (``params``, ``scenario``, ``world``, ``policy``), if recorded."""
+        record = self._metadata.get(name)
+        return None if record is None else record.get("text")
+
+    def scenario(self) -> Scenario:
+        """The scenario of the session: the recorded ``scenario`` document, else the bundled one it names."""
+        text = self.document("scenario")
+        try:
+            if text:
+                return load_scenario(json.loads(text))
+            if self.info.scenario:
+                return load_scenario(self.info.scenario)
+        except (MrlError, ValueError, TypeError) as exc:
+            raise AnalysisError(self.where, f"the recorded scenario cannot be loaded: {exc}") from exc
+        raise AnalysisError(self.where, "the recording names no scenario (no 'scenario' metadata)")
+
+    def _session_info(self) -> SessionInfo:
+        meta = self._metadata.get("session", {})
+        robots = tuple(r for r in meta.get("robots", "").split(",") if r)
+        if not robots:
+            found = {m.group(1) for topic in self._topics if (m := _ROBOT_TOPIC.match(topic))}
+            robots = tuple(sorted(found))
+        try:
+            period: float | None = float(meta["control_period_s"])
+            if not (period is not None and math.isfinite(period) and period > 0):
+                period = None
+        except (KeyError, ValueError):
+            period = None
+        return SessionInfo(
+            world=meta.get("world", ""),
+            scenario=meta.get("scenario", ""),
+            robots=robots,
+            control_period_s=period,
+            profile=meta.get("profile", ""),
+            policy=meta.get("policy", ""),
+            policy_digest=meta.get("policy_digest", ""),
+            training_digest=meta.get("training_digest", ""),
+        )
+
+    # -- reading -----------------------------------------------------------------------------
+
+    def robot_topics(self, *kinds: str) -> list[str]:
+        """The topics ``/<robot>/<kind>`` of every robot for each of `kinds` (e.g. "odom") in the file."""
+        return [f"/{r}/{k}" for k in kinds for r in self.robots if f"/{r}/{k}" in self._topics]
+
+    def require(self, topics: Sequence[str], needed_for: str) -> None:
+        """Raise MissingTopicError unless the file has at least one of `topics`."""
+        if not any(t in self._topics for t in topics):
+            raise MissingTopicError(self.where, topics, needed_for)
+
+    def load(self, topics: Iterable[str]) -> None:
+        """Read and decode `topics` (those present and not cached yet) in one pass over the file.
+
+        Every frame reads the topics it needs on first use; loading the topics of several frames
+        first reads the file once for all of them.
+        """
+        wanted = [t for t in dict.fromkeys(topics) if t in self._topics and t not in self._decoded]
+        for topic in wanted:
+            if self._topics[topic] not in DECODABLE:
+                raise AnalysisError(
+                    self.where, f"topic {topic} carries {self._topics[topic]}, which has no column decoder"
+                )
+        if not wanted:
+            return
+        pending: dict[str, tuple[list[int], list[int], list[bytes]]] = {t: ([], [], []) for t in wanted}
+        parts: dict[str, list[tuple[np.ndarray, np.ndarray, Decoded]]] = {t: [] for t in wanted}
+
+        def flush(topic: str) -> None:
+            log_ns, pub_ns, datas = pending[topic]
+            t_ns = np.array(log_ns, dtype=np.int64)
+            where = f"{self.where}: topic {topic}"
+            decoded = decode(self._topics[topic], datas, where=where, log_times_ns=t_ns)
+            parts[topic].append((t_ns, np.array(pub_ns, dtype=np.int64), decoded))
+            pending[topic] = ([], [], [])
+
+        batch = DECODE_BATCH
+        for topic, _, log_ns, pub_ns, _, data in self.log.raw(wanted):
+            times, stamps, datas = pending[topic]
+            times.append(log_ns)
+            stamps.append(pub_ns)
+            datas.append(data)
+            if len(datas) >= batch:
+                flush(topic)
+        for topic in wanted:
+            if pending[topic][2] or not parts[topic]:
+                flush(topic)
+            chunks = parts.pop(topic)
+            t_all = np.concatenate([c[0] for c in chunks])
+            pub_all = np.concatenate([c[1] for c in chunks])
+            self._decoded[topic] = (t_all, pub_all, concat([c[2] for c in chunks]))
+
+    def topic_frame(self, topic: str) -> pl.DataFrame:
+        """One row per message of `topic`, flat columns (see :func:`topic_frame`)."""
+        frame = self._frames.get(topic)
+        if frame is not None:
+            return frame
+        self.require([topic], f"a frame of {topic}")
+        self.load([topic])
+        t_ns, pub_ns, decoded = self._decoded[topic]
+        frame = _flat_frame(t_ns, pub_ns, decoded)
+        self._frames[topic] = frame
+        return frame
+
+    def _expect_type(self, topic: str, typename: str) -> None:
+        found = self._topics.get(topic)
+        if found is not None and found != typename:
+            raise TopicTypeError(self.where, topic, found, typename)
+
+    # -- episodes ----------------------------------------------------------------------------
+
+    def events(self) -> pl.DataFrame:
+        """``/mrl/episode`` as a frame: t_ns, episode, step, robot ('' for team events), event (name), detail."""
+        self.require([EPISODE_TOPIC], "the episodes")
+        self._expect_type(EPISODE_TOPIC, T.EPISODE_EVENT)
+        frame = self.topic_frame(EPISODE_TOPIC)
+        names = pl.Series([EVENT_NAMES.get(code, f"event_{code}") for code in range(256)], dtype=pl.String)
+        codes = frame["event"].cast(pl.Int64).to_numpy()
+        return frame.select(
+            pl.col("t_ns"),
+            pl.col("episode").cast(pl.Int64),
+            pl.col("step").cast(pl.Int64),
+            pl.col("robot"),
+            names.gather(codes).alias("event"),
+            pl.col("detail"),
+        )
+
+    def _episode_windows(self) -> list[_Window]:
+        if self._windows is not None:
+            return self._windows
+        windows: list[_Window] = []
+        current: _Window | None = None
+        by_number: dict[int, _Window] = {}
+        for t, episode, step, robot, event, detail in self.events().iter_rows():
+            if event == "start":
+                if current is not None and not current.closed:
+                    current.end_ns = t - 1  # a start without an end before it: the episode never ended
+                seed_match = _SEED.search(detail)
+                current = _Window(episode, t, int(seed_match.group(1)) if seed_match else None)
+                windows.append(current)
+                by_number[episode] = current
+                continue
+            window = current if current is not None and current.episode == episode else by_number.get(episode)
+            if window is None:
+                continue  # events of an episode whose start is not in the file
+            window.max_step = max(window.max_step, step)
+            if event == "end":
+                window.closed = True
+                window.end_ns, window.end_step, window.end_detail = t, step, detail
+                if detail == "aborted":
+                    window.aborted = True
+                if detail == "team_success":
+                    window.team_success = True
+            elif event == "abort":
+                window.aborted = True
+                window.abort_reasons.append(f"{robot}: {detail}" if robot else detail)
+                if not robot:
+                    window.closed = True
+                    window.end_ns, window.end_step = t, step
+                    window.end_detail = window.end_detail or "aborted"
+            elif event == "success" and not robot:
+                window.team_success = True
+            elif robot:
+                window.robot_events.setdefault(robot, {}).setdefault(event, (t, step))
+        for k, window in enumerate(windows):
+            if not window.closed:
+                window.aborted = True
+                window.abort_reasons.append("no end event (the recording stops inside the episode)")
+                if window.end_ns is None:
+                    window.end_ns = windows[k + 1].start_ns - 1 if k + 1 < len(windows) else None
+        self._windows = windows
+        return windows
+
+    def episodes(self) -> pl.DataFrame:
+        """One row per episode: episode, seed, start_ns, end_ns (null when the file stops inside it),
+        steps (of the end or abort event; null if neither), end (the end event's detail), aborted,
+        abort_reason, team_success."""
+        rows = [
+            {
+                "episode": w.episode,
+                "seed": w.seed,
+                "start_ns": w.start_ns,
+                "end_ns": w.end_ns,
+                "steps": w.end_step,
+                "end": w.end_detail,
+                "aborted": w.aborted,
+                "abort_reason": "; ".join(w.abort_reasons),
+                "team_success": w.team_success and not w.aborted,
+            }
+            for w in self._episode_windows()
+        ]
+        schema = {
+            "episode": pl.Int64,
+            "seed": pl.Int64,
+            "start_ns": pl.Int64,
+            "end_ns": pl.Int64,
+            "steps": pl.Int64,
+            "end": pl.String,
+            "aborted": pl.Boolean,
+            "abort_reason": pl.String,
+            "team_success": pl.Boolean,
+        }
+        return pl.DataFrame(rows, schema=schema)
+
+    def _window_index(self, t_ns: np.ndarray) -> np.ndarray:
+        """(n,) index of the episode window holding each log time, -1 outside every episode."""
+        windows = self._episode_windows()
+        if not windows or not len(t_ns):
+            return np.full(len(t_ns), -1, dtype=np.int64)
+        starts = np.array([w.start_ns for w in windows], dtype=np.int64)
+        ends = np.array([_INT64_MAX if w.end_ns is None else w.end_ns for w in windows], dtype=np.int64)
+        idx = np.searchsorted(starts, t_ns, side="right") - 1
+        inside = (idx >= 0) & (t_ns <= ends[np.maximum(idx, 0)])
+        return np.where(inside, idx, -1).astype(np.int64)
+
+    # -- poses -------------------------------------------------------------------------------
+
+    def pose_topics(self, kind: PoseKind) -> dict[str, str]:
+        """``{robot: topic}`` of the pose topics of `kind` present in the file."""
+        if kind not in POSE_TYPES:
+            raise AnalysisError(self.where, f"pose kind {kind!r} is not one of {sorted(POSE_TYPES)}")
+        return {r: f"/{r}/{kind}" for r in self.robots if f"/{r}/{kind}" in self._topics}
+
+    def poses(self, kind: PoseKind = "ground_truth") -> pl.DataFrame:
+        """Poses of every robot: robot, episode (null between episodes), t_ns, stamp_ns, x_m, y_m, yaw_rad
+        (odometry adds v_mps, w_radps), sorted by robot then log time."""
+        topics = self.pose_topics(kind)
+        wanted = [f"/{r}/{kind}" for r in self.robots]
+        missing = [t for t in wanted if t not in topics.values()]
+        if missing or not wanted:
+            raise MissingTopicError(self.where, missing or [f"/<robot>/{kind}"], f"{kind} poses of every robot")
+        for topic in topics.values():
+            self._expect_type(topic, POSE_TYPES[kind])
+        return self._poses(topics, kind)
+
+    def _poses(self, topics: dict[str, str], kind: PoseKind) -> pl.DataFrame:
+        has_events = EPISODE_TOPIC in self._topics
+        self.load([*topics.values(), *([EPISODE_TOPIC] if has_events else [])])
+        windows = self._episode_windows() if has_events else []
+        numbers = np.array([w.episode for w in windows], dtype=np.int64)
+        columns = ["t_ns", "stamp_ns", "x_m", "y_m", "yaw_rad"] + (["v_mps", "w_radps"] if kind == "odom" else [])
+        parts = []
+        for robot, topic in topics.items():
+            frame = self.topic_frame(topic)
+            idx = self._window_index(frame["t_ns"].to_numpy()) if has_events else np.full(frame.height, -1)
+            episode = pl.Series("episode", numbers[np.maximum(idx, 0)] if len(numbers) else idx, dtype=pl.Int64)
+            episode = episode.scatter(np.flatnonzero(idx < 0), None) if (idx < 0).any() else episode
+            parts.append(frame.select(columns).with_columns(pl.lit(robot, dtype=pl.String).alias("robot"), episode))
+        out = pl.concat(parts) if parts else pl.DataFrame()
+        return out.select(["robot", "episode", *columns])
+
+    # -- the episodes table ------------------------------------------------------------------
+
+    def episodes_table(self) -> pl.DataFrame:
+        """One row per (episode, robot); columns :data:`EPISODES_SCHEMA` (see :func:`episodes_table`)."""
+        if self._table is None:
+            self._table = self._episodes_table()
+        return self._table
+
+    def _episodes_table(self) -> pl.DataFrame:
+        self.require([EPISODE_TOPIC], "the episodes table")
+        sources: dict[str, tuple[str, str]] = {}
+        for robot in self.robots:
+            gt, odom = f"/{robot}/ground_truth", f"/{robot}/odom"
+            if gt in self._topics:
+                self._expect_type(gt, T.POSE_STAMPED)
+                sources[robot] = ("ground_truth", gt)
+            elif odom in self._topics:
+                self._expect_type(odom, T.ODOMETRY)
+                sources[robot] = ("odom", odom)
+            else:
+                raise MissingTopicError(self.where, [gt, odom], f"the path length of {robot}")
+        self.load([EPISODE_TOPIC, *(topic for _, topic in sources.values())])
+        # a ground-truth channel without messages (e.g. cut off by a crash) falls back to odometry
+        for robot, (kind, topic) in list(sources.items()):
+            odom = f"/{robot}/odom"
+            if kind == "ground_truth" and not len(self._decoded[topic][0]) and odom in self._topics:
+                self._expect_type(odom, T.ODOMETRY)
+                self.load([odom])
+                sources[robot] = ("odom", odom)
+        windows = self._episode_windows()
+        period = self.info.control_period_s
+        lengths: dict[str, np.ndarray] = {}
+        last_t: dict[str, np.ndarray] = {}
+        for robot, (_, topic) in sources.items():
+            frame = self.topic_frame(topic)
+            lengths[robot], last_t[robot] = _path_lengths(
+                frame["t_ns"].to_numpy(),
+                frame["x_m"].to_numpy(),
+                frame["y_m"].to_numpy(),
+                self._window_index(frame["t_ns"].to_numpy()),
+                len(windows),
+            )
+        info = self.info
+        rows: list[tuple[Any, ...]] = []
+        for k, w in enumerate(windows):
+            steps = w.end_step
+            if steps is None:
+                latest = max((int(last_t[r][k]) for r in self.robots if last_t[r][k] >= 0), default=w.start_ns)
+                by_time = (latest - w.start_ns) // round(period * NS_PER_S) if period else 0
+                steps = max(w.max_step, int(by_time))
+            team = w.team_success and not w.aborted
+            for robot in self.robots:
+                events = w.robot_events.get(robot, {})
+                goal = events.get("goal")
+                reached = goal is not None
+                collided = "collision" in events
+                if goal is None:
+                    ttg: float | None = None
+                    ttg_clock: float | None = None
+                else:
+                    ttg_clock = (goal[0] - w.start_ns) / NS_PER_S
+                    ttg = goal[1] * period if period else ttg_clock
+                rows.append(
+                    (
+                        info.world,
+                        info.scenario,
+                        info.policy,
+                        info.policy_digest,
+                        info.profile,
+                        self.session,
+                        self.where,
+                        w.episode,
+                        w.seed,
+                        robot,
+                        reached and not collided,
+                        reached,
+                        collided,
+                        "timeout" in events,
+                        w.aborted,
+                        ttg,
+                        ttg_clock,
+                        float(lengths[robot][k]),
+                        sources[robot][0],
+                        steps,
+                        team,
+                        w.end_detail if w.closed else "",
+                        "; ".join(w.abort_reasons),
+                        w.start_ns,
+                        w.end_ns,
+                        self.salvaged,
+                    )
+                )
+        return pl.DataFrame(rows, schema=EPISODES_SCHEMA, orient="row")
+
+
+def _path_lengths(
+    t_ns: np.ndarray, x: np.ndarray, y: np.ndarray, window: np.ndarray, n_windows: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n_windows,) path length (m) summed over consecutive poses inside each window, and the last
+    pose's log time per window (-1 where a window has no pose)."""
+    lengths: np.ndarray
+    if len(t_ns) < 2:
+        lengths = np.zeros(n_windows)
+    else:
+        step = np.hypot(np.diff(x), np.diff(y))
+        same = (window[1:] == window[:-1]) & (window[1:] >= 0)
+        lengths = np.bincount(window[1:][same], weights=step[same], minlength=n_windows)[:n_windows]
+    last = np.full(n_windows, -1, dtype=np.int64)
+    inside = window >= 0
+    if inside.any():
+        last[window[inside]] = t_ns[inside]  # log times ascend, so the last write per window is its latest
+    return np.asarray(lengths, dtype=np.float64), last
+
+
+def _yaw(qx: np.ndarray, qy: np.ndarray, qz: np.ndarray, qw: np.ndarray) -> np.ndarray:
+    """Yaw (rad) in [-pi, pi] of quaternions."""
+    return np.asarray(np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)))
+
+
+def _series(name: str, column: np.ndarray | Strings | Ragged) -> pl.Series:
+    if isinstance(column, Strings):
+        return pl.Series(name, list(column.values), dtype=pl.String).gather(column.codes)
+    if isinstance(column, Ragged):
+        inner = pl.Series(values=column.values).dtype
+        return pl.Series(name, column.tolist(), dtype=pl.List(inner))
+    return pl.Series(name, column)
+
+
+_RENAMES: dict[str, dict[str, str]] = {
+    T.POSE_STAMPED: {"x": "x_m", "y": "y_m", "z": "z_m"},
+    T.ODOMETRY: {"x": "x_m", "y": "y_m", "z": "z_m", "linear_x": "v_mps", "angular_z": "w_radps"},
+    T.TWIST: {
+        "linear_x": "v_mps",
+        "angular_z": "w_radps",
+        "linear_y": "linear_y_mps",
+        "linear_z": "linear_z_mps",
+        "angular_x": "angular_x_radps",
+        "angular_y": "angular_y_radps",
+    },
+    T.LASER_SCAN: {
+        "angle_min": "angle_min_rad",
+        "angle_max": "angle_max_rad",
+        "angle_increment": "angle_increment_rad",
+        "time_increment": "time_increment_s",
+        "scan_time": "scan_time_s",
+        "range_min": "range_min_m",
+        "range_max": "range_max_m",
+        "ranges": "ranges_m",
+    },
+}
+_DROPPED: dict[str, frozenset[str]] = {
+    T.POSE_STAMPED: frozenset({"qx", "qy", "qz", "qw"}),
+    T.ODOMETRY: frozenset({"qx", "qy", "qz", "qw", "linear_y", "linear_z", "angular_x", "angular_y"}),
+}
+
+
+def _flat_frame(t_ns: np.ndarray, pub_ns: np.ndarray, decoded: Decoded) -> pl.DataFrame:
+    typename = decoded.typename
+    cols = decoded.columns
+    renames = _RENAMES.get(typename, {})
+    dropped = _DROPPED.get(typename, frozenset())
+    series = [pl.Series("t_ns", t_ns, dtype=pl.Int64), pl.Series("publish_ns", pub_ns, dtype=pl.Int64)]
+    for name, column in cols.items():
+        if name in dropped:
+            continue
+        if name == "intensities" and _empty_sequences(column):
+            continue
+        series.append(_series(renames.get(name, name), column))
+        if name == "z" and "qw" in cols:
+            qx, qy, qz, qw = (np.asarray(cols[q]) for q in ("qx", "qy", "qz", "qw"))
+            series.append(pl.Series("yaw_rad", _yaw(qx, qy, qz, qw)))
+    return pl.DataFrame(series)
+
+
+def _empty_sequences(column: np.ndarray | Strings | Ragged) -> bool:
+    if isinstance(column, Ragged):
+        return len(column.values) == 0
+    return isinstance(column, np.ndarray) and column.ndim == 2 and column.shape[1] == 0
+
+
+# -- module-level entry points -----------------------------------------------------------------
+
+Source = str | os.PathLike[str] | McapLog | Recording
+"""A recording to analyse: a path, an open McapLog, or a Recording (whose decoded topics are reused)."""
+
+
+def open_recording(source: Source) -> Recording:
+    """`source` as a :class:`Recording` (itself if it already is one)."""
+    return source if isinstance(source, Recording) else Recording(source)
+
+
+def episodes_table(source: Source) -> pl.DataFrame:
+    """One row per (episode, robot) of a session recording.
+
+    Columns (:data:`EPISODES_SCHEMA`): session facts (world, scenario, policy, policy_digest,
+    profile, session = file stem, path), episode, seed (from the start event's ``seed=<n>``), robot,
+    success (reached its goal without colliding), reached, collided, timeout, aborted (the episode
+    saw an abort event, ended ``aborted``, or has no end event), time_to_goal_s (the goal event's
+    control step x control period; null if not reached), time_to_goal_clock_s (log time from start
+    to goal), path_length_m (over the ground-truth poses inside the episode; over odometry where
+    the robot has no ground truth, as ``path_source`` says), steps (control steps of the end or
+    abort event; without either, estimated from the last pose), team_success (all robots reached
+    their goals and the episode was not aborted), end (the end event's detail, ``aborted`` after a
+    team-level abort, empty when the file stops inside the episode), abort_reason,
+    start_ns and end_ns (log times; end_ns null when the file stops inside the episode), salvaged.
+
+    Raises:
+        MissingTopicError: no ``/mrl/episode``, or a robot with neither ground truth nor odometry.
+        LogReadError: the file cannot be read (from the reader).
+    """
+    return open_recording(source).episodes_table()
+
+
+def topic_frame(source: Source, topic: str) -> pl.DataFrame:
+    """One row per message of `topic`: t_ns (log time), publish_ns, stamp_ns (header) and the fields.
+
+    Poses: frame_id, x_m, y_m, z_m, yaw_rad (odometry adds child_frame_id, v_mps, w_radps and
+    linear_z...); Twist: v_mps, w_radps and the other four components; LaserScan: frame_id, the
+    angle (rad), time (s) and range (m) fields, ``ranges_m`` as an Array(Float32, beams) column (a
+    List column when the beam count changes), ``intensities`` when recorded; other decodable types
+    (:data:`~pipeline.analysis.decode.DECODABLE`) keep their field names.
+    """
+    return open_recording(source).topic_frame(topic)
+
+
+def poses_frame(source: Source, kind: PoseKind = "ground_truth") -> pl.DataFrame:
+    """Poses of every robot with robot and episode columns (see :meth:`Recording.poses`)."""
+    return open_recording(source).poses(kind)
+
+
+def events_frame(source: Source) -> pl.DataFrame:
+    """The ``/mrl/episode`` events (see :meth:`Recording.events`)."""
+    return open_recording(source).events()
+
+
+def episodes_tables(sources: Iterable[Source]) -> pl.DataFrame:
+    """The episodes tables of several recordings, concatenated."""
+    tables = [episodes_table(s) for s in sources]
+    return pl.concat(tables) if tables else pl.DataFrame(schema=EPISODES_SCHEMA)

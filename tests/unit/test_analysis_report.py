@@ -1,0 +1,132 @@
+"""Figures and the report folder: files written, PNGs of sensible sizes, metrics JSON without NaN."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from pipeline.analysis import AnalysisError, TableError
+from pipeline.analysis.plots import Rate, plot_learning_curves, plot_success_rates, plot_trajectories
+from pipeline.analysis.report import LabelledSession, markdown_table, write_report
+from tests.unit.test_analysis_tables import write_session
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    folder = tmp_path_factory.mktemp("report")
+    return write_session(folder / "sim.mcap"), write_session(folder / "real.mcap", ground_truth=False)
+
+
+def write_curve(path: Path, episodes: int = 60) -> Path:
+    robots = ("robot_1", "robot_2")
+    with path.open("w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(
+            ["episode", "world_steps", "world", "seed", "length"]
+            + [f"return_{r}" for r in robots]
+            + [f"success_{r}" for r in robots]
+            + ["team_success", "robot_success", "robot_success_window"]
+        )
+        for e in range(episodes):
+            s1, s2 = int(e % 3 != 0), int(e > episodes // 2)
+            out.writerow([e + 1, 200 * (e + 1), e % 4, e, 200, e * 0.5, e * 0.25, s1, s2, s1 * s2, (s1 + s2) / 2, 0.5])
+    return path
+
+
+def assert_png(path: Path, min_width: int, min_height: int) -> None:
+    assert path.is_file() and path.stat().st_size > 10_000
+    with Image.open(path) as image:
+        assert image.format == "PNG"
+        assert image.size[0] >= min_width and image.size[1] >= min_height
+
+
+def test_report_folder(recordings, tmp_path):
+    sim, real = recordings
+    curve = write_curve(tmp_path / "curve.csv")
+    out = tmp_path / "report"
+    report = write_report(
+        out,
+        [("nominal", "sim", sim), LabelledSession("nominal", "real", real)],
+        {"sac": curve},
+        "Noise sigma 0.012 m (fit).",
+    )
+    assert report.markdown == out / "report.md" and report.metrics == out / "metrics.json"
+    assert set(report.figures) == {"success_rates", "trajectories", "learning_curves"}
+    assert_png(out / "success_rates.png", 600, 300)
+    assert_png(out / "trajectories.png", 600, 400)
+    assert_png(out / "learning_curves.png", 600, 300)
+    text = report.markdown.read_text()
+    for needle in (
+        "![success rates](success_rates.png)",
+        "![trajectories](trajectories.png)",
+        "![learning curves](learning_curves.png)",
+        "## Calibration",
+        "Noise sigma 0.012 m (fit).",
+        "| world | label | episodes | aborted |",
+        "fisher_exact",
+    ):
+        assert needle in text
+    raw = report.metrics.read_text()
+    assert "NaN" not in raw
+    metrics = json.loads(raw)
+    assert metrics["sim/nominal/robot_trials"] == 4  # two complete episodes of two robots; three were aborted
+    assert metrics["sim/nominal/aborted_episodes"] == 3
+    assert "gap/nominal/robot_success_p_value" in metrics
+    assert metrics["gap/nominal/robot_success"] == 0.0
+    assert metrics.keys() == report.comparison.metrics.keys()
+    for key, value in report.comparison.metrics.items():
+        assert metrics[key] == (None if math.isnan(value) else value)
+    assert report.episodes.height == 20 and set(report.episodes["label"]) == {"nominal"}
+
+
+def test_undefined_metrics_are_null(tmp_path):
+    one_goal = [(3, 4, [(2, "goal", "robot_1"), (3, "collision", "robot_2")], [(4, "end", "incomplete")])]
+    sim = write_session(tmp_path / "one.mcap", episodes=one_goal)
+    report = write_report(tmp_path / "out", [("", "sim", sim)])
+    metrics = json.loads(report.metrics.read_text())
+    assert metrics["sim/mean_time_to_goal_s"] == pytest.approx(0.2)
+    assert metrics["sim/mean_time_to_goal_s_ci_low"] is None and metrics["sim/robot_success"] == 0.5
+    assert "## Sim vs real" not in report.markdown.read_text()
+
+
+def test_report_refuses_bad_sessions(recordings, tmp_path):
+    sim, _ = recordings
+    with pytest.raises(AnalysisError, match="world 'lab' of session 'nominal' is not sim or real"):
+        write_report(tmp_path, [("nominal", "lab", sim)])
+    with pytest.raises(AnalysisError, match="no sessions"):
+        write_report(tmp_path, [])
+
+
+def test_learning_curve_files_are_checked(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("episode,world_steps\n1,200\n")
+    with pytest.raises(TableError, match=r"bad\.csv: lacks column\(s\) robot_success, team_success"):
+        plot_learning_curves([bad], tmp_path / "curves.png")
+    with pytest.raises(TableError, match=r"gone\.csv: no such training-curve file"):
+        plot_learning_curves([tmp_path / "gone.csv"], tmp_path / "curves.png")
+    assert_png(plot_learning_curves([write_curve(tmp_path / "run.csv", 10)], tmp_path / "one.png"), 500, 300)
+
+
+def test_success_rates_and_trajectories_stand_alone(recordings, tmp_path):
+    panels = {"robot-level": [Rate("sim", 9, 10), Rate("real", 0, 0)], "team-level": [Rate("sim", 3, 5)]}
+    assert_png(plot_success_rates(panels, tmp_path / "rates.png"), 600, 300)
+    sim, real = recordings
+    path = plot_trajectories([("sim", sim), ("real (odometry)", real)], tmp_path / "paths.png", episodes=[1, 4])
+    assert_png(path, 600, 400)
+
+
+def test_markdown_table():
+    import polars as pl
+
+    frame = pl.DataFrame({"a": [1, 2], "b": [0.5, float("nan")], "c": ["x|y", None], "d": [True, False]})
+    assert markdown_table(frame).splitlines() == [
+        "| a | b | c | d |",
+        "|---|---|---|---|",
+        "| 1 | 0.500 | x\\|y | yes |",
+        "| 2 | n/a |  | no |",
+    ]
