@@ -280,6 +280,25 @@ class CalibrateConfig:
 
 
 @dataclass(frozen=True)
+class ReplayConfig:
+    """The `replay` stage: the policy on recorded observations, and recorded commands open loop in sim."""
+
+    horizon_s: float = setting(10.0, gt=0.0, le=600.0)
+    max_episodes: int = setting(20, ge=1, le=10_000)
+    tolerance: float = setting(1e-5, gt=0.0, le=1.0)
+    """Largest |replayed - recorded| policy output counted as agreement."""
+    out_dir: str = setting("logs/replay")
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    """The `report` stage: sim vs real before and after calibration, as report.md, metrics.json and plots."""
+
+    trajectory_episodes: int = setting(3, ge=1, le=20)
+    out_dir: str = setting("logs/report")
+
+
+@dataclass(frozen=True)
 class Params:
     """All of params.yaml."""
 
@@ -290,6 +309,8 @@ class Params:
     eval_sim: EvalSimConfig = setting()
     deploy: DeployConfig = setting()
     calibrate: CalibrateConfig = setting()
+    replay: ReplayConfig = setting()
+    report: ReportConfig = setting()
 
     def check(self) -> list[tuple[str, object, str]]:
         return check_training_fits_world(self.train, self.world)

@@ -73,9 +73,9 @@ def _torch_policy(
 
 
 def _torch_actions(policy: Any, obs: np.ndarray) -> np.ndarray:
-    with th.no_grad():
-        actions = policy._predict(th.as_tensor(obs, dtype=th.float32), deterministic=True)
-    return np.asarray(actions.cpu().numpy())
+    """Deterministic actions as the training library's ``predict`` returns them (clipped to the Box)."""
+    actions, _ = policy.predict(np.asarray(obs, dtype=np.float32), deterministic=True)
+    return np.asarray(actions)
 
 
 def learner_spaces(meta: dict[str, Any]) -> tuple[int, gymnasium.Space[Any]]:

@@ -176,3 +176,22 @@ def test_export_refuses_missing_or_corrupt_checkpoints(exported, tmp_path: Path)
     (ckpt / "learner_0.pt").write_bytes(b"garbage")
     with pytest.raises(CheckpointError, match=r"learner_0\.pt"):
         export_policy(ckpt, tmp_path / "out", np.zeros((1, 2, 21)))
+
+
+def test_export_clips_unbounded_ppo_means_like_the_training_library(tmp_path: Path) -> None:
+    """A PPO mean far outside [-1, 1] is clipped by predict(); the ONNX graph must do the same."""
+    import torch
+
+    from pipeline.learn.checkpoint import save_checkpoint
+
+    scenario, world = world_for("ppo")
+    result = train(scenario, world, tiny_config(algorithm="ppo", mode="shared"), tmp_path / "run", progress=False)
+    ckpt = load_checkpoint(result.checkpoint)
+    weights = [{k: (v * 50.0 if k.startswith("action_net") else v) for k, v in w.items()} for w in ckpt.weights]
+    meta = {k: v for k, v in ckpt.meta.items() if k not in ("n_learners", "weights_sha256")}
+    save_checkpoint(tmp_path / "big", meta, weights)
+    golden = golden_from_sim(scenario, world)
+    export_policy(tmp_path / "big", tmp_path / "policy", golden)
+    actions = PolicyRuntime(tmp_path / "policy").actions(golden[3])
+    assert np.abs(actions).max() == pytest.approx(1.0)
+    assert isinstance(weights[0]["action_net.weight"], torch.Tensor)

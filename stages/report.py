@@ -1,0 +1,58 @@
+"""dvc stage `report`: sim vs real success before and after calibration, with plots, as report.md and metrics.json."""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from pipeline.analysis.report import write_report
+from pipeline.cli import ROUNDS, run_stage, stage_arguments
+from pipeline.config import load_params
+
+
+def relink_images(markdown: str, source: Path, target: Path) -> str:
+    """Markdown from `source` with its relative image links rewritten to work from `target`."""
+    prefix = Path(os.path.relpath(source, target))
+
+    def fix(match: re.Match[str]) -> str:
+        link = match.group(2)
+        if "://" in link or link.startswith("/"):
+            return match.group(0)
+        return f"![{match.group(1)}]({(prefix / link).as_posix()})"
+
+    return re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", fix, markdown)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = stage_arguments(__doc__ or "", argv, rounds=False)
+    params = load_params(args.params)
+    out = Path(params.report.out_dir)
+    sessions = []
+    for r in ROUNDS:
+        sessions.append((r, "sim", Path(params.eval_sim.out_dir) / r / "session.mcap"))
+        sessions.append((r, "real", Path(params.deploy.out_dir) / r / "session.mcap"))
+    curves = {r: Path(params.train.out_dir) / r / "curve.csv" for r in ROUNDS}
+    calibration = Path(params.calibrate.out_dir)
+    replay = Path(params.replay.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    extra = []
+    for folder, name in ((calibration, "calibration.md"), (replay, "replay.md")):
+        text = (folder / name).read_text(encoding="utf-8")
+        extra.append(relink_images(text, folder, out))
+    report = write_report(
+        out,
+        sessions,
+        curves,
+        "\n\n".join(extra),
+        extra_title="Calibration and replay",
+        trajectory_episodes=params.report.trajectory_episodes,
+    )
+    print(f"report: {report.markdown} and {report.metrics}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_stage("report", main))
