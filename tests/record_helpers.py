@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.core.scan import ScanGeometry
+from pipeline.core.scenario import load_scenario
 from pipeline.messages import convert as C
 from pipeline.messages import fleet_topics, message_store
 
@@ -47,6 +48,8 @@ def contract_messages(t0_ns: int = 1_700_000_000 * NS) -> list[tuple[str, Any, i
     out.append(("/mrl/timing", C.timing(t, "receive", "robot_1", "/robot_1/scan", t - 5, 99, 4, store=s)))
     out.append(("/mrl/reset", C.reset_request(t, 4, 2**40 + 3, False, store=s)))
     out.append(("/mrl/reset_done", C.reset_request(t, 4, 2**40 + 3, True, store=s)))
+    frames = [f"{ns}/ground_truth" for ns in ROBOTS]
+    out.append(("/mrl/map", C.map_markers(t, load_scenario("obstacles"), frames, store=s)))
     return [(topic, msg, t + 1000 * (i + 1)) for i, (topic, msg) in enumerate(out)]
 
 

@@ -9,6 +9,7 @@ twin at 1x, simulated time otherwise); poses are planar (x m, y m, yaw rad) in t
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -257,3 +258,103 @@ def timing(
 def reset_request(t_ns: int, episode: int, seed: int, done: bool, store: MessageStore | None = None) -> Any:
     s = _store(store)
     return s.new(T.RESET_REQUEST, header=header(t_ns, "fleet", s), episode=int(episode), seed=int(seed), done=done)
+
+
+def _color(rgba: tuple[float, float, float, float], store: MessageStore) -> Any:
+    r, g, b, a = (float(np.float32(c)) for c in rgba)  # float32 on the wire: keep exactly what is sent
+    return store.new("std_msgs/msg/ColorRGBA", r=r, g=g, b=b, a=a)
+
+
+ROBOT_RGBA: tuple[tuple[float, float, float, float], ...] = (
+    (0.85, 0.2, 0.2, 1.0),
+    (0.2, 0.45, 0.85, 1.0),
+    (0.2, 0.7, 0.3, 1.0),
+    (0.85, 0.6, 0.1, 1.0),
+    (0.6, 0.3, 0.8, 1.0),
+    (0.1, 0.7, 0.7, 1.0),
+)
+
+
+def map_markers(t_ns: int, scenario: Any, truth_frames: Sequence[str] = (), store: MessageStore | None = None) -> Any:
+    """visualization_msgs/MarkerArray of a scenario in ``map``: walls, boxes, goal squares, and robot bodies.
+
+    A robot body is a cylinder fixed to its frame in `truth_frames` (e.g. ``robot_1/ground_truth``),
+    so it follows the robot wherever that frame is published.
+    """
+    s = _store(store)
+    zero = s.new("builtin_interfaces/msg/Duration", sec=0, nanosec=0)
+    image = s.new("sensor_msgs/msg/CompressedImage", header=header(t_ns, "", s), format="", data=np.zeros(0, np.uint8))
+    mesh = s.new("visualization_msgs/msg/MeshFile", filename="", data=np.zeros(0, np.uint8))
+    markers: list[Any] = []
+
+    def marker(
+        ns: str,
+        kind: int,
+        frame: str,
+        pose: np.ndarray,
+        size: tuple[float, float, float],
+        z: float,
+        rgba: tuple[float, float, float, float],
+        locked: bool = False,
+    ) -> None:
+        p = _pose(float(pose[0]), float(pose[1]), float(pose[2]), s)
+        p.position.z = z
+        markers.append(
+            s.new(
+                "visualization_msgs/msg/Marker",
+                header=header(t_ns, frame, s),
+                ns=ns,
+                id=len(markers),
+                type=kind,
+                action=0,
+                pose=p,
+                scale=_vector(*size, s),
+                color=_color(rgba, s),
+                lifetime=zero,
+                frame_locked=locked,
+                points=[],
+                colors=[],
+                texture_resource="",
+                texture=image,
+                uv_coordinates=[],
+                text="",
+                mesh_resource="",
+                mesh_file=mesh,
+                mesh_use_embedded_materials=False,
+            )
+        )
+
+    room = scenario.room
+    t, h = room.wall_thickness_m, room.wall_height_m
+    cx, cy = (room.x_min_m + room.x_max_m) / 2, (room.y_min_m + room.y_max_m) / 2
+    lx, ly = room.x_max_m - room.x_min_m + 2 * t, room.y_max_m - room.y_min_m + 2 * t
+    grey = (0.5, 0.5, 0.5, 1.0)
+    for x, y, sx, sy in (
+        (cx, room.y_min_m - t / 2, lx, t),
+        (cx, room.y_max_m + t / 2, lx, t),
+        (room.x_min_m - t / 2, cy, t, ly),
+        (room.x_max_m + t / 2, cy, t, ly),
+    ):
+        marker("walls", 1, "map", np.array([x, y, 0.0]), (sx, sy, h), h / 2, grey)
+    for box in scenario.obstacles:
+        pose = np.array([box.x_m, box.y_m, box.yaw_rad])
+        marker(
+            "boxes", 1, "map", pose, (box.size_x_m, box.size_y_m, box.height_m), box.height_m / 2, (0.9, 0.5, 0.1, 1.0)
+        )
+    g = scenario.goal_size_m
+    for i, (gx, gy) in enumerate(scenario.goals):
+        r, gg, b, _ = ROBOT_RGBA[i % len(ROBOT_RGBA)]
+        marker("goals", 1, "map", np.array([gx, gy, 0.0]), (g, g, 0.01), 0.005, (r, gg, b, 0.4))
+    radius, height = scenario.robot.radius_m, scenario.robot.height_m
+    for i, frame in enumerate(truth_frames):
+        marker(
+            "robots",
+            3,
+            frame,
+            np.zeros(3),
+            (2 * radius, 2 * radius, height),
+            height / 2,
+            ROBOT_RGBA[i % len(ROBOT_RGBA)],
+            True,
+        )
+    return s.new("visualization_msgs/msg/MarkerArray", markers=markers)

@@ -4,7 +4,7 @@ Per robot namespace ``ns`` (robot -> us unless noted):
 ``/<ns>/scan`` LaserScan, ``/<ns>/odom`` Odometry, ``/<ns>/ground_truth`` PoseStamped,
 ``/<ns>/cmd_vel`` Twist (us -> robot). Fleet-wide: ``/tf``, ``/clock``, the reset handshake
 ``/mrl/reset`` (us -> fleet) and ``/mrl/reset_done`` (fleet -> us), and the recorded-only
-``/mrl/observation``, ``/mrl/action``, ``/mrl/episode``, ``/mrl/timing``.
+``/mrl/observation``, ``/mrl/action``, ``/mrl/episode``, ``/mrl/timing`` and ``/mrl/map`` (the room as markers).
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ ACTION = "mrl_msgs/msg/Action"
 EPISODE_EVENT = "mrl_msgs/msg/EpisodeEvent"
 TIMING = "mrl_msgs/msg/Timing"
 RESET_REQUEST = "mrl_msgs/msg/ResetRequest"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,7 @@ FLEET_TOPICS: dict[str, TopicSpec] = {
     "action": TopicSpec("/mrl/action", ACTION, QOS_EVENT),
     "episode": TopicSpec("/mrl/episode", EPISODE_EVENT, QOS_EVENT),
     "timing": TopicSpec("/mrl/timing", TIMING, QOS_EVENT),
+    "map": TopicSpec("/mrl/map", MARKER_ARRAY, QosProfile("reliable", "transient_local", 1)),
 }
 
 

@@ -2,7 +2,8 @@
 
 Per robot namespace ``ns``: ``/<ns>/scan``, ``/<ns>/odom``, ``/<ns>/ground_truth`` (as
 received, or as simulated) and ``/<ns>/cmd_vel`` (as sent). Fleet-wide: ``/tf`` (``map`` ->
-``<ns>/odom`` -> ``<ns>/base_link`` -> ``<ns>/laser``), ``/mrl/observation`` and
+``<ns>/odom`` -> ``<ns>/base_link`` -> ``<ns>/laser``, and ``map`` -> ``<ns>/ground_truth``),
+``/mrl/map`` (walls, boxes, goals and robot bodies as markers, at every episode start), ``/mrl/observation`` and
 ``/mrl/action`` (one message per robot and control step), ``/mrl/episode`` (start, goal,
 collision, timeout, success, abort, end), ``/mrl/timing`` (deployments: every send, receive,
 emitter tick and control step), ``/clock`` when the fleet's time is scaled.
@@ -112,10 +113,19 @@ class SessionLog:
         """A received message object, logged at local time `t_ns`."""
         self.recorder.write(topic, msg, t_ns, stamp_ns)
 
-    def tf(self, t_ns: int, odom_poses: np.ndarray, mount_yaw_rad: Sequence[float] | None = None) -> None:
-        """One /tf message: map -> ns/odom (identity), ns/odom -> ns/base_link (odometry), base_link -> laser."""
+    def tf(
+        self,
+        t_ns: int,
+        odom_poses: np.ndarray,
+        truth_poses: np.ndarray | None = None,
+        mount_yaw_rad: Sequence[float] | None = None,
+    ) -> None:
+        """One /tf message: map -> ns/odom (identity), ns/odom -> ns/base_link (odometry), base_link -> laser,
+        and map -> ns/ground_truth when true poses are known."""
         transforms: list[tuple[str, str, np.ndarray]] = []
         for i, ns in enumerate(self.robots):
+            if truth_poses is not None:
+                transforms.append(("map", f"{ns}/ground_truth", truth_poses[i]))
             laser = _IDENTITY if mount_yaw_rad is None else np.array([0.0, 0.0, mount_yaw_rad[i]])
             transforms += [
                 ("map", f"{ns}/odom", _IDENTITY),
@@ -123,6 +133,11 @@ class SessionLog:
                 (f"{ns}/base_link", f"{ns}/laser", laser),
             ]
         self.recorder.write("/tf", C.tf_message(t_ns, transforms, store=self.store), t_ns)
+
+    def map(self, t_ns: int, scenario: Any) -> None:
+        """/mrl/map: the scenario's walls, boxes and goals, and a body for each robot on its ground-truth frame."""
+        frames = [f"{ns}/ground_truth" for ns in self.robots]
+        self.recorder.write("/mrl/map", C.map_markers(t_ns, scenario, frames, store=self.store), t_ns)
 
     def clock(self, t_ns: int) -> None:
         self.recorder.write("/clock", C.clock(t_ns, store=self.store), t_ns)

@@ -321,6 +321,7 @@ class DeployRunner:
         n = len(self.namespaces)
         t_start = self.clock.now_ns()
         self.log.event(t_start, episode, 0, "start", detail=f"seed={seed}")
+        self.log.map(t_start, self.scenario)
         state = self.receiver.joint_state(t_start)
         scans, geoms, odom, truth = self._arrays(state)
         self.judge.reset(truth if truth is not None else odom)
@@ -371,7 +372,7 @@ class DeployRunner:
                 self.log.action(
                     t, episode, step, ns, np.atleast_1d(actions[i]), (float(commands[i, 0]), float(commands[i, 1]))
                 )
-            self.log.tf(t, odom)
+            self.log.tf(t, odom, truth)
             step += 1
             next_t += self.period_ns
         self.emitter.clear()

@@ -41,7 +41,7 @@ def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
         log.scan(t_ns, ns, sim.raw_scan[i], world.scan_geometry)
         log.odom(t_ns, ns, world.odometry.pose[i], (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1])))
         log.ground_truth(t_ns, ns, world.truth[i])
-    log.tf(t_ns, world.odometry.pose)
+    log.tf(t_ns, world.odometry.pose, world.truth)
 
 
 def run_episode(
@@ -66,6 +66,7 @@ def run_episode(
     step = 0
     if log is not None:
         log.event(t0_ns, episode, 0, "start", detail=f"seed={seed}")
+        log.map(t0_ns, sim.scenario)
         _record_state(log, sim, t0_ns)
     while True:
         t_ns = t0_ns + step * period_ns

@@ -65,7 +65,7 @@ class SimWorld:
         return float(self.data.time)
 
     def reset(self, seed: int | None = None, starts: np.ndarray | None = None) -> None:
-        """Place every robot at its start (or at `starts`, (n_robots, 3)), at rest; reseed all noise when `seed` is given."""
+        """Place every robot at its start (or at `starts`, (n, 3)), at rest; reseed the noise when `seed` is given."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         mujoco.mj_resetData(self.model, self.data)

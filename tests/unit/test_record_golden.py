@@ -23,7 +23,7 @@ def test_golden_file_decodes_to_the_committed_json():
 def test_golden_file_covers_the_contract():
     expected = json.loads(GOLDEN_JSON.read_text())
     assert 30 <= len(expected["messages"]) <= 100
-    assert len(expected["topics"]) == 16 and len(set(expected["topics"].values())) == 11
+    assert len(expected["topics"]) == 17 and len(set(expected["topics"].values())) == 12
     assert {"params", "session", "versions"} <= set(expected["metadata"])
     times = [m["log_time_ns"] for m in expected["messages"]]
     assert times == sorted(times)
