@@ -35,8 +35,14 @@ class SimWorld:
         self.data = mujoco.MjData(self.model)
         self.n = scenario.n_robots
         lidar = world.lidar
+        # the layout as a LaserScan carries it (float32), so a recorded scan reduces exactly the same way
+        f32 = np.float32
         self.scan_geometry = ScanGeometry(
-            lidar.sim_beams, 0.0, 2 * math.pi / lidar.sim_beams, lidar.range_min_m, lidar.range_max_m
+            lidar.sim_beams,
+            0.0,
+            float(f32(2 * math.pi / lidar.sim_beams)),
+            float(f32(lidar.range_min_m)),
+            float(f32(lidar.range_max_m)),
         )
         self._dirs = lidar_directions(lidar.sim_beams)
         self._vec = np.zeros(lidar.sim_beams * 3)
