@@ -276,6 +276,14 @@ class CalibrateConfig:
 
     round: Literal["nominal"] = setting("nominal")
     """The round whose deployment recording is calibrated from."""
+    parts: tuple[Literal["lidar", "actuation", "odometry", "network"], ...] = setting(
+        ("lidar", "actuation", "odometry", "network"), min_len=1
+    )
+    """The groups of the reality profile to estimate."""
+    stationary_min_s: float = setting(1.0, gt=0.0, le=60.0)
+    """Lidar noise is measured on spans where a robot stands still at least this long."""
+    bootstrap: int = setting(200, ge=20, le=100_000)
+    seed: int = setting(0, ge=0)
     out_dir: str = setting("logs/calibration")
 
 

@@ -239,7 +239,12 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
 
 
 def perturbed_starts(
-    scenario: Scenario, rng: np.random.Generator, xy_m: float, yaw_rad: float, clearance_m: float = 0.05, tries: int = 50
+    scenario: Scenario,
+    rng: np.random.Generator,
+    xy_m: float,
+    yaw_rad: float,
+    clearance_m: float = 0.05,
+    tries: int = 50,
 ) -> np.ndarray:
     """(n_robots, 3) start poses moved by up to `xy_m` and turned by up to `yaw_rad`, uniformly.
 

@@ -109,6 +109,7 @@ class EmitterBuffer:
         self._seq = 0
         self.last_sent: dict[str, tuple[float, float]] = {r: (0.0, 0.0) for r in self.robots}
         self.error: BaseException | None = None
+        self.grid_origin_ns = 0
 
     def command(self, robot: str, stamp_ns: int, v_mps: float, w_radps: float) -> None:
         """Queue a command for `robot` valid from `stamp_ns`."""
@@ -175,16 +176,17 @@ class EmitterBuffer:
         return sent
 
     def start(self) -> None:
-        """Tick on the grid t0 + k * period in a background thread until stop()."""
+        """Tick on the grid `grid_origin_ns` + k * period in a background thread until stop()."""
         if self._thread is not None:
             return
         self._stop.clear()
+        self.grid_origin_ns = self.clock.now_ns()
         self._thread = threading.Thread(target=self._run, name="emitter", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         try:
-            next_t = self.clock.now_ns()
+            next_t = self.grid_origin_ns
             while not self._stop.is_set():
                 if not self.clock.sleep_until(next_t, self._stop):
                     break

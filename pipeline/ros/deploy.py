@@ -316,10 +316,22 @@ class DeployRunner:
         odom_map = _compose(self._origin, np.stack(odom))
         return scans, geoms, odom_map, np.stack(truth) if self.use_truth else None
 
+    def next_control_time(self, now_ns: int) -> int:
+        """The first control time at or after `now_ns` on the grid half an emitter tick before the ticks.
+
+        Control steps fall midway between emitter ticks, so a command stamped with its control time
+        is in place for the next tick even when the step runs a little late, and each command covers
+        the ticks of its period exactly.
+        """
+        origin = self.emitter.grid_origin_ns - self.emitter.tick_period_ns // 2
+        k = -((origin - now_ns) // self.period_ns)
+        return origin + k * self.period_ns
+
     def run_episode(self, episode: int, seed: int) -> EpisodeResult:
         self._reset(episode, seed)
         n = len(self.namespaces)
-        t_start = self.clock.now_ns()
+        t_start = self.next_control_time(self.clock.now_ns())
+        self.clock.sleep_until(t_start)
         self.log.event(t_start, episode, 0, "start", detail=f"seed={seed}")
         self.log.map(t_start, self.scenario)
         state = self.receiver.joint_state(t_start)
@@ -366,7 +378,7 @@ class DeployRunner:
             actions = self.runtime.actions(observed.obs)
             commands = self.runtime.codec.decode(actions)
             commands[done] = 0.0
-            self.emitter.command_all(t, commands)
+            self.emitter.command_all(next_t, commands)
             for i, ns in enumerate(self.namespaces):
                 self.log.observation(t, episode, step, ns, self.runtime.layout.name, observed.obs[i])
                 self.log.action(

@@ -241,12 +241,14 @@ class HardwareTwin:
         return now_ns - self._first_reset_ns >= s.after_s * 1e9
 
     def step(self) -> None:
-        """One twin tick: commands in, physics, messages out."""
+        """One twin tick at time t: messages out describing the state at t, then commands in and physics to t + tick."""
         now = self.clock.now_ns()
         self._handle_reset(now)
-        self.world.step(self._commands(now))
         self.ticks += 1
-        now = self.clock.now_ns()
+        self._publish(now)
+        self.world.step(self._commands(now))
+
+    def _publish(self, now: int) -> None:
         truth = self.world.truth
         odom_pose = self.world.odometry.pose
         velocity = self.world.body_velocity()

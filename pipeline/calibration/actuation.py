@@ -1,0 +1,360 @@
+"""Actuation delay, first-order time constant and velocity gains from commanded vs achieved velocity.
+
+Model, per channel c (forward speed v and yaw rate w): the achieved body velocity (the smoothed
+ground truth in the robot's frame) is ``y_c(t) = gain_c * lag_tau(u_c(t - delay))``, where u is
+the command as sent (held until the next one, zero after the command timeout) and lag_tau a
+first-order low-pass with time constant tau (exact for held inputs: a = exp(-h / tau) per grid
+step h), started at each track's measured velocity. Delay and tau are shared by both channels,
+as in the simulator; for given (delay, tau) the gains are linear least squares.
+
+The search: a coarse grid of delay and tau, then a local grid around its best point whose cost is
+refined by a quadratic fit; the local grid's per-cluster sums (cluster: one robot in one episode)
+give a bootstrap over clusters for the uncertainties of all four values.
+
+Tracks are the contact-free stretches of smoothed ground truth (a robot touching a wall, a box or
+another robot does not follow its commands).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from pipeline.calibration.estimates import Estimate, bootstrap, spread
+from pipeline.calibration.settings import CalibrationSettings
+from pipeline.calibration.smoothing import NS_PER_S
+
+COARSE_STEP_S = 0.01
+COARSE_DELAY_STEP_S = 0.02
+FINE_STEP_S = 0.005
+TAU_MIN_S = 0.01
+TAU_MAX_S = 2.0
+LOCAL_DELAY_STEPS = 8
+"""The local grid spans the coarse delay +- this many fine steps..."""
+LOCAL_LOG_TAU = 0.5
+"""...and the coarse tau times exp(+-this)."""
+CHANNELS = ("linear", "angular")
+
+
+@dataclass(frozen=True)
+class CommandTimeline:
+    """A robot's commands as sent: times `t_ns` (n,) and (v m/s, w rad/s) `values` (n, 2)."""
+
+    t_ns: np.ndarray
+    values: np.ndarray
+
+    def at(self, t_ns: np.ndarray, timeout_s: float) -> np.ndarray:
+        """(m, 2) the command acting at times `t_ns` (m,): the latest sent, zero if older than `timeout_s` or none."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        k = np.searchsorted(self.t_ns, t, side="right") - 1
+        out = np.zeros((len(t), 2))
+        ok = k >= 0
+        ok[ok] &= (t[ok] - self.t_ns[k[ok]]) <= timeout_s * NS_PER_S
+        out[ok] = self.values[k[ok]]
+        return out
+
+
+@dataclass(frozen=True)
+class VelocityTrack:
+    """Achieved body velocity (n, 2) (v m/s, w rad/s) at times `t_ns` (n,) of one contact-free stretch.
+
+    `commands` is the robot's whole command timeline; `cluster` groups tracks for the bootstrap
+    (one robot in one episode).
+    """
+
+    robot: str
+    cluster: str
+    t_ns: np.ndarray
+    achieved: np.ndarray
+    commands: CommandTimeline
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_ns[-1] - self.t_ns[0]) / NS_PER_S
+
+
+@dataclass(frozen=True)
+class ActuationFit:
+    """The actuation estimates.
+
+    `example` is a stretch for the report: time (s), achieved, model and command velocities ((n, 2) each).
+    """
+
+    delay_s: Estimate
+    time_constant_s: Estimate
+    linear_gain: Estimate
+    angular_gain: Estimate
+    example: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    residual_rms: tuple[float, float] | None = None
+    tracks: int = 0
+    duration_s: float = 0.0
+    notes: tuple[str, ...] = ()
+
+
+class _Problem:
+    """Tracks laid out on a common time grid of step `h_s`, padded to one length."""
+
+    def __init__(self, tracks: Sequence[VelocityTrack], h_s: float, timeout_s: float) -> None:
+        self.h_s = h_s
+        self.timeout_s = timeout_s
+        self.tracks = tracks
+        h_ns = h_s * NS_PER_S
+        lengths = [math.floor((t.t_ns[-1] - t.t_ns[0]) / h_ns) + 2 for t in tracks]
+        self.length = max(lengths)
+        n = len(tracks)
+        self.y0 = np.stack([t.achieved[0] for t in tracks])
+        # where each truth sample falls on its track's grid: index and fraction for linear interpolation
+        rows, idx, frac, y = [], [], [], []
+        for i, t in enumerate(tracks):
+            pos = (t.t_ns - t.t_ns[0]) / h_ns
+            k = np.minimum(np.floor(pos).astype(np.int64), lengths[i] - 2)
+            rows.append(np.full(len(pos), i))
+            idx.append(k)
+            frac.append(pos - k)
+            y.append(t.achieved)
+        self.row = np.concatenate(rows)
+        self.idx = np.concatenate(idx)
+        self.frac = np.concatenate(frac)
+        self.y = np.concatenate(y)
+        self.n_tracks = n
+
+    def commands(self, delay_s: float) -> np.ndarray:
+        """(2, n_tracks, length) commands acting at grid cell midpoints delayed by `delay_s`."""
+        out = np.zeros((2, self.n_tracks, self.length))
+        mid = (np.arange(self.length) + 0.5) * self.h_s - delay_s
+        for i, t in enumerate(self.tracks):
+            times = t.t_ns[0] + np.round(mid * NS_PER_S).astype(np.int64)
+            out[:, i, :] = t.commands.at(times, self.timeout_s).T
+        return out
+
+    def response(self, u: np.ndarray, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Model velocity at every truth sample, (2, n) each: the lag's response to commands `u` (from
+        :meth:`commands`) from rest, before the gain; and the decay of each track's initial velocity."""
+        a = math.exp(-self.h_s / tau_s)
+        out = lfilter([1.0 - a], [1.0, -a], u, axis=-1)
+        states = np.concatenate([np.zeros((2, self.n_tracks, 1)), out], axis=-1)  # state at grid times 0..length
+        s0 = states[:, self.row, self.idx]
+        s1 = states[:, self.row, self.idx + 1]
+        forced = s0 + self.frac * (s1 - s0)
+        steps = self.idx + self.frac
+        free = self.y0.T[:, self.row] * np.power(a, steps)
+        return np.asarray(forced), np.asarray(free)
+
+
+def _sums(
+    problem: _Problem, response: tuple[np.ndarray, np.ndarray], clusters: np.ndarray, n_clusters: int
+) -> np.ndarray:
+    """(n_clusters, 2 channels, 3) per-cluster sums of y'm, mm and y'y', where m is the forced response and
+    y' the achieved velocity minus the free response."""
+    forced, free = response
+    out = np.zeros((n_clusters, 2, 3))
+    who = clusters[problem.row]
+    for c in range(2):
+        y = problem.y[:, c] - free[c]
+        m = forced[c]
+        np.add.at(out[:, c, 0], who, y * m)
+        np.add.at(out[:, c, 1], who, m * m)
+        np.add.at(out[:, c, 2], who, y * y)
+    return out
+
+
+def _cost(sums: np.ndarray, yy: np.ndarray, channels: Sequence[int]) -> float:
+    """Gain-optimised squared error from sums (2, 3) (see :func:`_sums`), normalised per channel by sum y^2 (2,)."""
+    total = 0.0
+    for c in channels:
+        ym, mm, rr = sums[c]
+        if mm <= 0:
+            return math.inf
+        total += (rr - ym * ym / mm) / yy[c]
+    return total
+
+
+def _quadratic_min(cost: np.ndarray, i: int, j: int) -> tuple[float, float]:
+    """Sub-grid offsets (grid steps, within +-1) of the minimum of a quadratic through the 3 x 3 cells around (i, j)."""
+    ni, nj = cost.shape
+    if not (0 < i < ni - 1 and 0 < j < nj - 1):
+        return 0.0, 0.0
+    c = cost[i - 1 : i + 2, j - 1 : j + 2]
+    if not np.all(np.isfinite(c)):
+        return 0.0, 0.0
+    di = (c[2, 1] - c[0, 1]) / 2
+    dj = (c[1, 2] - c[1, 0]) / 2
+    dii = c[2, 1] - 2 * c[1, 1] + c[0, 1]
+    djj = c[1, 2] - 2 * c[1, 1] + c[1, 0]
+    dij = (c[2, 2] - c[2, 0] - c[0, 2] + c[0, 0]) / 4
+    hess = np.array([[dii, dij], [dij, djj]])
+    if np.linalg.det(hess) <= 0 or dii <= 0:
+        return 0.0, 0.0
+    step = -np.linalg.solve(hess, np.array([di, dj]))
+    return float(np.clip(step[0], -1, 1)), float(np.clip(step[1], -1, 1))
+
+
+def _excitation(tracks: Sequence[VelocityTrack]) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel: the largest |command| and the number of command steps during the tracks."""
+    peak = np.zeros(2)
+    steps: list[np.ndarray] = []
+    for t in tracks:
+        cmd = t.commands
+        sel = (cmd.t_ns >= t.t_ns[0]) & (cmd.t_ns <= t.t_ns[-1])
+        if not sel.any():
+            continue
+        values = cmd.values[sel]
+        peak = np.maximum(peak, np.abs(values).max(axis=0))
+        steps.append(np.abs(np.diff(values, axis=0)))
+    jumps = np.concatenate(steps) if steps else np.zeros((0, 2))
+    return peak, jumps
+
+
+UNITS = {"delay_s": "s", "time_constant_s": "s", "linear_gain": "ratio", "angular_gain": "ratio"}
+
+
+def _all_unidentifiable(reason: str, tracks: int = 0, duration_s: float = 0.0) -> ActuationFit:
+    est = {k: Estimate.unidentifiable(reason, u) for k, u in UNITS.items()}
+    return ActuationFit(
+        est["delay_s"],
+        est["time_constant_s"],
+        est["linear_gain"],
+        est["angular_gain"],
+        tracks=tracks,
+        duration_s=duration_s,
+    )
+
+
+def _channel_problems(tracks: Sequence[VelocityTrack], settings: CalibrationSettings) -> list[str]:
+    """Per channel (linear, angular): why the commands cannot identify it ('' when they can)."""
+    peak, jumps = _excitation(tracks)
+    thresholds = (settings.actuation_min_linear_mps, settings.actuation_min_angular_radps)
+    units = ("m/s", "rad/s")
+    words = ("linear commands", "turning commands")
+    out: list[str] = []
+    for c in range(2):
+        n_steps = int(np.sum(jumps[:, c] >= thresholds[c])) if len(jumps) else 0
+        if peak[c] < thresholds[c]:
+            out.append(f"no {words[c]} above {thresholds[c]:g} {units[c]}")
+        elif n_steps < settings.actuation_min_steps:
+            out.append(
+                f"only {n_steps} steps of the {words[c]} above {thresholds[c]:g} {units[c]} "
+                f"(need {settings.actuation_min_steps})"
+            )
+        else:
+            out.append("")
+    return out
+
+
+def estimate_actuation(
+    tracks: Sequence[VelocityTrack], settings: CalibrationSettings, rng: np.random.Generator
+) -> ActuationFit:
+    """Delay (s), time constant (s), linear and angular gain from contact-free velocity `tracks`."""
+    tracks = [t for t in tracks if t.duration_s >= settings.actuation_min_track_s]
+    duration = float(sum(t.duration_s for t in tracks))
+    if not tracks:
+        return _all_unidentifiable(
+            f"no contact-free stretch of ground truth of >= {settings.actuation_min_track_s:g} s with commands"
+        )
+    problems = _channel_problems(tracks, settings)
+    channels = [c for c in range(2) if not problems[c]]
+    if not channels:
+        return _all_unidentifiable("; ".join(problems), len(tracks), duration)
+    cluster_names = sorted({t.cluster for t in tracks})
+    cluster_of = np.array([cluster_names.index(t.cluster) for t in tracks])
+    n_clusters = len(cluster_names)
+    max_delay = settings.actuation_delay_max_s
+    timeout = settings.command_timeout_s
+
+    # coarse grid over the whole range
+    coarse = _Problem(tracks, COARSE_STEP_S, timeout)
+    yy = np.array([np.sum(coarse.y[:, c] ** 2) for c in range(2)])
+    delays = np.arange(0.0, max_delay + 1e-9, COARSE_DELAY_STEP_S)
+    taus = np.geomspace(TAU_MIN_S, TAU_MAX_S, 36)
+    grid = np.full((len(delays), len(taus)), np.inf)
+    one = np.zeros(len(tracks), dtype=np.int64)
+    for i, d in enumerate(delays):
+        u = coarse.commands(float(d))
+        for j, tau in enumerate(taus):
+            grid[i, j] = _cost(_sums(coarse, coarse.response(u, float(tau)), one, 1)[0], yy, channels)
+    i0, j0 = np.unravel_index(int(np.argmin(grid)), grid.shape)
+    d0, tau0 = float(delays[i0]), float(taus[j0])
+
+    # local grid on the fine step, with per-cluster sums for the bootstrap
+    fine = _Problem(tracks, FINE_STEP_S, timeout)
+    yy = np.array([np.sum(fine.y[:, c] ** 2) for c in range(2)])
+    local_d = d0 + FINE_STEP_S * np.arange(-LOCAL_DELAY_STEPS, LOCAL_DELAY_STEPS + 1)
+    local_d = local_d[(local_d >= -1e-12) & (local_d <= max_delay + 1e-9)]
+    local_tau = tau0 * np.exp(np.linspace(-LOCAL_LOG_TAU, LOCAL_LOG_TAU, 21))
+    local_tau = local_tau[(local_tau >= TAU_MIN_S) & (local_tau <= TAU_MAX_S)]
+    log_step = float(np.log(local_tau[1] / local_tau[0])) if len(local_tau) > 1 else 0.0
+    cluster_sums = np.zeros((len(local_d), len(local_tau), n_clusters, 2, 3))
+    for i, d in enumerate(local_d):
+        u = fine.commands(float(d))
+        for j, tau in enumerate(local_tau):
+            cluster_sums[i, j] = _sums(fine, fine.response(u, float(tau)), cluster_of, n_clusters)
+
+    def solve(weights: np.ndarray) -> np.ndarray:
+        """(delay, tau, linear gain, angular gain) of the clusters weighted by `weights` (n_clusters,)."""
+        sums = np.tensordot(weights, cluster_sums, axes=([0], [2]))  # (n_delays, n_taus, 2, 3)
+        cost = np.array([[_cost(sums[i, j], yy, channels) for j in range(len(local_tau))] for i in range(len(local_d))])
+        if not np.isfinite(cost).any():
+            return np.full(4, np.nan)
+        i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        di, dj = _quadratic_min(cost, int(i), int(j))
+        gains = [sums[i, j, c, 0] / sums[i, j, c, 1] if sums[i, j, c, 1] > 0 else np.nan for c in range(2)]
+        return np.array([local_d[i] + di * FINE_STEP_S, local_tau[j] * math.exp(dj * log_step), gains[0], gains[1]])
+
+    best = solve(np.ones(n_clusters))
+    delay, tau = max(float(best[0]), 0.0), float(best[1])
+    # gains, residuals and the report's example at the refined (delay, tau)
+    forced, free = fine.response(fine.commands(delay), tau)
+    sums = _sums(fine, (forced, free), np.zeros(len(tracks), dtype=np.int64), 1)[0]
+    gains = np.array([sums[c, 0] / sums[c, 1] if sums[c, 1] > 0 else np.nan for c in range(2)])
+    fitted = forced * gains[:, None] + free
+    rms = (
+        float(np.sqrt(np.mean((fine.y[:, 0] - fitted[0]) ** 2))),
+        float(np.sqrt(np.mean((fine.y[:, 1] - fitted[1]) ** 2))),
+    )
+    if n_clusters >= 2:
+        samples = bootstrap(solve, n_clusters, settings.bootstrap, rng)
+        # resampled gains are read at grid points: shift them by the refinement of the full data's
+        samples[:, 2:] += gains - best[2:]
+        method = f"bootstrap over {n_clusters} robot-episodes"
+    else:
+        samples = np.full((2, 4), np.nan)
+        method = "one robot-episode: no uncertainty"
+    values = (delay, tau, float(gains[0]), float(gains[1]))
+    out: dict[str, Estimate] = {}
+    for k, (name, unit) in enumerate(UNITS.items()):
+        se, interval = spread(samples[:, k])
+        known_se = None if math.isnan(se) else se
+        known_interval = None if math.isnan(interval[0]) else interval
+        if k >= 2 and problems[k - 2]:
+            out[name] = Estimate.unidentifiable(problems[k - 2], unit)
+        elif name == "time_constant_s" and tau >= TAU_MAX_S * 0.95:
+            out[name] = Estimate.unidentifiable(f"the velocity does not settle within {TAU_MAX_S:g} s", unit)
+        else:
+            out[name] = Estimate.of(values[k], known_se, known_interval, unit, method, len(fine.y))
+    notes = (f"{len(tracks)} contact-free tracks, {duration:.1f} s, {n_clusters} robot-episodes",)
+    return ActuationFit(
+        out["delay_s"],
+        out["time_constant_s"],
+        out["linear_gain"],
+        out["angular_gain"],
+        example=_example(fine, fitted),
+        residual_rms=rms,
+        tracks=len(tracks),
+        duration_s=duration,
+        notes=notes,
+    )
+
+
+def _example(problem: _Problem, fitted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The longest track: time (s from its start); achieved, fitted, commanded velocity (n, 2) at its truth samples."""
+    lengths = [len(t.t_ns) for t in problem.tracks]
+    i = int(np.argmax(lengths))
+    sel = problem.row == i
+    track = problem.tracks[i]
+    t_s = (track.t_ns - track.t_ns[0]) / NS_PER_S
+    command = track.commands.at(track.t_ns, problem.timeout_s)
+    return t_s, problem.y[sel], fitted[:, sel].T, command

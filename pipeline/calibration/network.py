@@ -1,0 +1,253 @@
+"""Message loss and delivery jitter of the robots' sensor topics, and the rates of the sensors.
+
+The network model is the twin's: each message is lost independently with probability p, and
+delivered after a delay spread uniformly over [base, base + jitter].
+
+Ticks: topics that share their sender's clock ticks (the same stamps appear on several topics, as
+when one driver publishes every robot's data in one tick) are compared against the union of their
+stamps: a stamp one topic lacks is a message lost on it, even when the ticks are irregular. Other
+topics are read by stamp gaps: a gap of about k periods (the period is the median gap) means k - 1
+messages were lost; gaps longer than `network_max_gap_s` are pauses, not losses.
+
+Loss: a receiver that stalls (a busy host) drops bursts of consecutive messages, which are not
+the network's independent losses. So p comes from isolated losses only: with independent losses
+a message is lost while both its neighbours arrive with probability p (1 - p)^2, which is solved
+for p. All missing messages (bursts included) are reported in the notes.
+
+Jitter: a message's delay is its receive (log) time minus its stamp. Stalls of the receiver delay
+every message waiting at the time alike, so for topics sharing ticks the jitter comes from the
+difference of two topics' delays for the same stamp, which cancels them: the difference of two
+independent uniform delays on [0, J] has an interquartile range of (2 - sqrt 2) J. Topics without
+a partner fall back to twice the interquartile range of their own delays, which includes the
+receiver's stalls.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.analysis.stats import wilson_interval
+from pipeline.calibration.estimates import Estimate, bootstrap, spread
+from pipeline.calibration.settings import CalibrationSettings
+from pipeline.calibration.smoothing import NS_PER_S
+
+MIN_MESSAGES = 50
+SHARED_TICKS = 0.5
+"""Topics of one period whose stamps appear on another topic at least this often share their sender's ticks."""
+TRIANGULAR_IQR = 2.0 - math.sqrt(2.0)
+"""Interquartile range of the difference of two independent uniform [0, 1] variables."""
+MAX_ISOLATED_SHARE = 4.0 / 27.0
+"""The largest value of p (1 - p)^2 (at p = 1/3)."""
+
+
+@dataclass(frozen=True)
+class StampStream:
+    """One sensor topic of one robot: stamps (n,) as sent and log times (n,) as received, int ns.
+
+    `windows` are the (start, end) log times of its recording's episodes; only messages received
+    inside them count (None: all).
+    """
+
+    topic: str
+    stamp_ns: np.ndarray
+    log_ns: np.ndarray
+    windows: tuple[tuple[int, int], ...] | None = None
+
+    def inside(self) -> np.ndarray:
+        """(n,) messages received inside the windows."""
+        if self.windows is None:
+            return np.ones(len(self.log_ns), dtype=bool)
+        out = np.zeros(len(self.log_ns), dtype=bool)
+        for a, b in self.windows:
+            out |= (self.log_ns >= a) & (self.log_ns <= b)
+        return out
+
+
+@dataclass(frozen=True)
+class NetworkFit:
+    """Loss probability and jitter (s)."""
+
+    loss_prob: Estimate
+    jitter_s: Estimate
+    notes: tuple[str, ...] = ()
+
+
+def period_s(stamp_ns: np.ndarray) -> float | None:
+    """The sending period (s): the median gap between consecutive distinct stamps; None with fewer than 3."""
+    s = np.unique(np.asarray(stamp_ns, dtype=np.int64))
+    if len(s) < 3:
+        return None
+    return float(np.median(np.diff(s))) / NS_PER_S
+
+
+def rate_estimate(streams: Sequence[np.ndarray], unit: str = "Hz") -> Estimate:
+    """The sending rate (Hz) of one sensor on several robots, from their stamps (one (n,) array per robot).
+
+    Streams sharing their sender's ticks are merged first (their union has no lost messages); the
+    rate is 1 / the median gap between consecutive stamps, the median over groups; its standard
+    error is that of a median (1.2533 sigma / sqrt(n), sigma from the interquartile range of the gaps).
+    """
+    stamps = [np.unique(np.asarray(s, dtype=np.int64)) for s in streams if len(s) >= 3]
+    if not stamps:
+        return Estimate.unidentifiable("fewer than 3 messages on the topic", unit)
+    rates: list[float] = []
+    ses: list[float] = []
+    count = 0
+    for group in _shared_groups(stamps):
+        ticks = np.unique(np.concatenate([stamps[i] for i in group]))
+        gaps = np.diff(ticks) / NS_PER_S
+        period = float(np.median(gaps))
+        q25, q75 = np.percentile(gaps, [25, 75])
+        se_period = 1.2533 * (q75 - q25) / 1.349 / math.sqrt(len(gaps))
+        rates.append(1.0 / period)
+        ses.append(se_period / period**2)
+        count += len(gaps)
+    rate = float(np.median(rates))
+    se = float(np.median(ses))
+    interval = (min(rates) - 1.96 * se, max(rates) + 1.96 * se)
+    return Estimate.of(rate, se, interval, unit, "1 / median stamp gap of the robots' merged ticks", count)
+
+
+def _gap_runs(stamp_ns: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, int]:
+    """Lengths of the runs of lost messages of one stream (read from stamp gaps) and the messages expected."""
+    s = np.unique(np.asarray(stamp_ns, dtype=np.int64))
+    p = period_s(s)
+    if p is None:
+        return np.zeros(0, dtype=np.int64), len(s)
+    gaps = np.diff(s) / NS_PER_S
+    inside = gaps <= max_gap_s
+    runs = np.maximum(np.round(gaps[inside] / p).astype(np.int64) - 1, 0)
+    return runs[runs > 0], len(s) + int(runs.sum())
+
+
+def _tick_runs(own: np.ndarray, ticks: np.ndarray) -> np.ndarray:
+    """Lengths of the runs of `ticks` missing from the stream's stamps `own`."""
+    missing = ~np.isin(ticks, own)
+    edges = np.diff(np.r_[0, missing.astype(np.int8), 0])
+    return np.asarray(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1))
+
+
+def _shared_groups(stamps: Sequence[np.ndarray]) -> list[list[int]]:
+    """Indices of streams grouped by shared ticks (same period, stamps found on the group's other topics)."""
+    periods = [period_s(s) for s in stamps]
+    groups: dict[int, list[int]] = {}
+    for i, p in enumerate(periods):
+        if p is not None:
+            groups.setdefault(round(math.log(p) * 50), []).append(i)  # periods within 2 %
+    out: list[list[int]] = []
+    for members in groups.values():
+        if len(members) < 2:
+            out.extend([m] for m in members)
+            continue
+        shared = True
+        for m in members:
+            others = np.unique(np.concatenate([stamps[o] for o in members if o != m]))
+            if np.isin(stamps[m], others).sum() < SHARED_TICKS * len(stamps[m]):
+                shared = False
+                break
+        out.extend([members] if shared else [[m] for m in members])
+    return out
+
+
+def isolated_loss(isolated: int, expected: int) -> Estimate:
+    """Loss probability p of independent losses from the number of isolated losses among `expected` messages.
+
+    Solves p (1 - p)^2 = isolated / expected on [0, 1/3]; the 95 % interval maps the Wilson interval of
+    that share, the standard error follows the delta method.
+    """
+    share = isolated / expected
+
+    def invert(q: float) -> float:
+        q = min(max(q, 0.0), MAX_ISOLATED_SHARE)
+        if q == 0.0:
+            return 0.0
+        lo, hi = 0.0, 1.0 / 3.0
+        for _ in range(60):
+            mid = (lo + hi) / 2
+            if mid * (1 - mid) ** 2 < q:
+                lo = mid
+            else:
+                hi = mid
+        return (lo + hi) / 2
+
+    p = invert(share)
+    slope = (1 - p) * (1 - 3 * p)
+    se_share = math.sqrt(max(share * (1 - share), 1.0 / expected) / expected)
+    se = se_share / slope if slope > 1e-6 else math.inf
+    low, high = wilson_interval(isolated, expected)
+    method = "isolated losses, p (1 - p)^2 = share of lost messages with both neighbours received (Wilson interval)"
+    return Estimate.of(p, se, (invert(low), invert(high)), "probability", method, expected)
+
+
+def estimate_network(
+    streams: Sequence[StampStream], settings: CalibrationSettings, rng: np.random.Generator
+) -> NetworkFit:
+    """Loss probability and jitter (s) of sensor `streams`, from the messages received inside their windows."""
+    kept: list[StampStream] = []
+    for stream in streams:
+        inside = stream.inside()
+        if inside.sum() >= MIN_MESSAGES:
+            _, first = np.unique(stream.stamp_ns[inside], return_index=True)
+            kept.append(
+                StampStream(stream.topic, stream.stamp_ns[inside][first], stream.log_ns[inside][first], stream.windows)
+            )
+    if not kept:
+        reason = f"fewer than {MIN_MESSAGES} sensor messages per topic inside episodes"
+        return NetworkFit(Estimate.unidentifiable(reason, "probability"), Estimate.unidentifiable(reason, "s"))
+    runs: list[np.ndarray] = []
+    expected = 0
+    pair_jitter: list[float] = []
+    own_jitter: list[float] = []
+    for group in _shared_groups([k.stamp_ns for k in kept]):
+        if len(group) > 1:
+            ticks = np.unique(np.concatenate([kept[i].stamp_ns for i in group]))
+            for i in group:
+                runs.append(_tick_runs(kept[i].stamp_ns, ticks))
+                expected += len(ticks)
+            for a_i, a in enumerate(group):
+                for b in group[a_i + 1 :]:
+                    sa, sb = kept[a], kept[b]
+                    common, ia, ib = np.intersect1d(sa.stamp_ns, sb.stamp_ns, return_indices=True)
+                    if len(common) < MIN_MESSAGES:
+                        continue
+                    diff = ((sa.log_ns[ia] - sa.stamp_ns[ia]) - (sb.log_ns[ib] - sb.stamp_ns[ib])) / NS_PER_S
+                    q25, q75 = np.percentile(diff, [25, 75])
+                    pair_jitter.append(float(q75 - q25) / TRIANGULAR_IQR)
+            continue
+        stream = kept[group[0]]
+        for a, b in stream.windows or [(int(stream.log_ns.min()), int(stream.log_ns.max()))]:
+            sel = (stream.log_ns >= a) & (stream.log_ns <= b)
+            if sel.sum() >= 3:
+                r, n = _gap_runs(stream.stamp_ns[sel], settings.network_max_gap_s)
+                runs.append(r)
+                expected += n
+        delay = (stream.log_ns - stream.stamp_ns) / NS_PER_S
+        q25, q75 = np.percentile(delay, [25, 75])
+        own_jitter.append(2.0 * float(q75 - q25))
+    all_runs = np.concatenate(runs) if runs else np.zeros(0, dtype=np.int64)
+    isolated = int(np.sum(all_runs == 1))
+    lost = int(all_runs.sum())
+    loss = isolated_loss(isolated, max(expected, 1))
+    if pair_jitter:
+        values = np.asarray(pair_jitter)
+        method = f"interquartile range of delay differences between {len(values)} topic pairs sharing ticks, median"
+    else:
+        values = np.asarray(own_jitter)
+        method = "2 x interquartile range of each topic's delays (receiver stalls included), median over topics"
+    jitter = float(np.median(values))
+    if len(values) >= 2:
+        samples = bootstrap(lambda c: np.array([np.median(np.repeat(values, c))]), len(values), settings.bootstrap, rng)
+        se, interval = spread(samples[:, 0])
+        jitter_est = Estimate.of(jitter, se, interval, "s", method + "; bootstrap over them", len(values))
+    else:
+        jitter_est = Estimate.of(jitter, None, None, "s", method, len(values))
+    bursts = int(np.sum(all_runs >= 2))
+    notes = (
+        f"{len(kept)} sensor topics, {expected} messages expected, {lost} missing "
+        f"({lost / max(expected, 1):.3f}; {isolated} isolated, {bursts} bursts of 2 or more)",
+    )
+    return NetworkFit(loss, jitter_est, notes)

@@ -1,0 +1,200 @@
+"""Odometry drift per metre from odometry vs smoothed ground truth, per robot and episode.
+
+The simulator's odometry model (and the twin's) draws, per robot and episode, a distance scale
+error s, a yaw-rate scale error k and a heading drift per metre h, each from N(0, drift_per_m):
+between two odometry messages the odometry moves (1 + s) times the true distance and turns
+(1 + k) times the true turn plus h times the true distance. So per episode:
+
+- s = odometry distance / true distance - 1 (needs `odometry_min_distance_m` of travel);
+- k and h by least squares of the heading error (odometry turn - true turn) on the true turn and
+  the true distance (k needs `odometry_min_turn_rad` of total turning, h the distance).
+
+Both work on chunks of `CHUNK_S` seconds rather than on single intervals between messages: a
+chunk's true displacement and turn are differences of two smoothed poses, so errors of the
+smoothed truth (timing jitter, motion-capture noise) enter only at the chunk's ends and do not
+pile up along the path or leak into the regressors (which would bias k and h towards -1 and 0).
+Distances are chord lengths of the chunks for both odometry and truth, so the chord-vs-arc
+shortening cancels in the ratio; the distance regressor of h is the odometry's own path length
+over the chunk divided by (1 + s).
+
+drift_per_m is the spread of those draws around zero: sigma_hat^2 = mean(draw^2) - mean(se^2)
+(the draws' own estimation variance removed), with a 95 % interval from the chi distribution
+(n sigma_hat^2 / sigma^2 ~ chi-square with n degrees of freedom).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.calibration.estimates import Estimate, chi_interval
+from pipeline.calibration.settings import CalibrationSettings
+
+MIN_DRAWS = 3
+CHUNK_S = 0.5
+"""Length of the chunks that increments are summed over (s)."""
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class OdometryEpisode:
+    """One robot's odometry and true poses (n, 3) (x m, y m, yaw rad) at the same times `t_ns` (n,) in one episode.
+
+    `piece` (n,) numbers the stretches of continuous truth (None: one stretch); nothing is compared
+    across a gap between two stretches.
+    """
+
+    robot: str
+    label: str
+    t_ns: np.ndarray
+    odom: np.ndarray
+    truth: np.ndarray
+    piece: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class EpisodeDrift:
+    """Per-episode draws (None where not identifiable), their standard errors, distance (m) and turn (rad) covered."""
+
+    robot: str
+    label: str
+    distance_m: float
+    turn_rad: float
+    scale_error: float | None
+    yaw_scale_error: float | None
+    heading_drift_per_m: float | None
+    yaw_scale_se: float
+    heading_drift_se: float
+    error_curve: tuple[np.ndarray, np.ndarray]
+    """(distance travelled m, position error m) along the episode, odometry aligned with truth at its start."""
+
+
+@dataclass(frozen=True)
+class OdometryFit:
+    """drift_per_m and the per-episode draws it comes from."""
+
+    drift_per_m: Estimate
+    episodes: tuple[EpisodeDrift, ...]
+    component_rms: dict[str, float]
+    notes: tuple[str, ...] = ()
+
+
+def _increments(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Forward and left displacement (m) in the previous pose's frame and the turn (rad) between consecutive poses."""
+    d = np.diff(pose[:, :2], axis=0)
+    c, s = np.cos(pose[:-1, 2]), np.sin(pose[:-1, 2])
+    forward = c * d[:, 0] + s * d[:, 1]
+    left = -s * d[:, 0] + c * d[:, 1]
+    turn = np.angle(np.exp(1j * np.diff(pose[:, 2])))
+    return forward, left, turn
+
+
+def _aligned_error(odom: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance travelled (m) and position error (m) of odometry moved onto the truth's first pose."""
+    dyaw = truth[0, 2] - odom[0, 2]
+    c, s = math.cos(dyaw), math.sin(dyaw)
+    rel = odom[:, :2] - odom[0, :2]
+    moved = truth[0, :2] + np.stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]], axis=1)
+    error = np.hypot(*(moved - truth[:, :2]).T)
+    travelled = np.r_[0.0, np.cumsum(np.hypot(*np.diff(truth[:, :2], axis=0).T))]
+    return travelled, error
+
+
+def _chunks(t_ns: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last pose indices of consecutive chunks of about CHUNK_S seconds, none crossing pieces."""
+    starts: list[int] = []
+    ends: list[int] = []
+    begin = 0
+    for i in range(1, len(t_ns) + 1):
+        if i == len(t_ns) or piece[i] != piece[begin]:
+            if i - 1 > begin:
+                starts.append(begin)
+                ends.append(i - 1)
+            begin = i
+        elif t_ns[i] - t_ns[begin] >= CHUNK_S * NS_PER_S:
+            starts.append(begin)
+            ends.append(i)
+            begin = i
+    return np.asarray(starts, dtype=np.int64), np.asarray(ends, dtype=np.int64)
+
+
+def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> EpisodeDrift:
+    """The draws of one robot-episode (see the module's description)."""
+    piece = episode.piece if episode.piece is not None else np.zeros(len(episode.t_ns), dtype=np.int64)
+    a, b = _chunks(episode.t_ns, piece)
+    same = piece[1:] == piece[:-1]
+    fo, lo, to = _increments(episode.odom)
+    _, _, tt = _increments(episode.truth)
+    cum_to = np.r_[0.0, np.cumsum(np.where(same, to, 0.0))]
+    cum_tt = np.r_[0.0, np.cumsum(np.where(same, tt, 0.0))]
+    cum_path = np.r_[0.0, np.cumsum(np.where(same, np.hypot(fo, lo), 0.0))]
+    chord_o = np.hypot(*(episode.odom[b, :2] - episode.odom[a, :2]).T)
+    chord_t = np.hypot(*(episode.truth[b, :2] - episode.truth[a, :2]).T)
+    turn_o = cum_to[b] - cum_to[a]
+    turn_t = cum_tt[b] - cum_tt[a]
+    path_o = cum_path[b] - cum_path[a]
+    distance = float(chord_t.sum())
+    turn = float(np.abs(turn_t).sum())
+    use_s = distance >= settings.odometry_min_distance_m
+    scale = float(chord_o.sum() / distance - 1.0) if use_s else None
+    path_t = path_o / (1.0 + (scale or 0.0))
+    err = turn_o - turn_t
+    use_k = turn >= settings.odometry_min_turn_rad
+    use_h = use_s
+    columns = ([turn_t] if use_k else []) + ([path_t] if use_h else [])
+    k = h = None
+    k_se = h_se = 0.0
+    if columns and len(err) > len(columns):
+        x = np.stack(columns, axis=1)
+        coef, *_ = np.linalg.lstsq(x, err, rcond=None)
+        dof = max(len(err) - x.shape[1], 1)
+        resid = err - x @ coef
+        cov = np.linalg.pinv(x.T @ x) * float(resid @ resid) / dof
+        ses = np.sqrt(np.diag(cov))
+        col = 0
+        if use_k:
+            k, k_se = float(coef[col]), float(ses[col])
+            col += 1
+        if use_h:
+            h, h_se = float(coef[col]), float(ses[col])
+    curve = _aligned_error(episode.odom, episode.truth)
+    return EpisodeDrift(episode.robot, episode.label, distance, turn, scale, k, h, k_se, h_se, curve)
+
+
+def estimate_odometry(episodes: Sequence[OdometryEpisode], settings: CalibrationSettings) -> OdometryFit:
+    """drift_per_m (per metre; the spread of the per-episode scale, yaw-scale and heading-drift errors)."""
+    drifts = tuple(episode_drift(e, settings) for e in episodes if len(e.odom) >= 3)
+    draws: list[float] = []
+    variances: list[float] = []
+    components: dict[str, list[float]] = {"scale_error": [], "yaw_scale_error": [], "heading_drift_per_m": []}
+    for d in drifts:
+        if d.scale_error is not None:
+            draws.append(d.scale_error)
+            variances.append(0.0)
+            components["scale_error"].append(d.scale_error)
+        if d.yaw_scale_error is not None:
+            draws.append(d.yaw_scale_error)
+            variances.append(d.yaw_scale_se**2)
+            components["yaw_scale_error"].append(d.yaw_scale_error)
+        if d.heading_drift_per_m is not None:
+            draws.append(d.heading_drift_per_m)
+            variances.append(d.heading_drift_se**2)
+            components["heading_drift_per_m"].append(d.heading_drift_per_m)
+    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in components.items() if v}
+    n = len(draws)
+    notes = (f"{len(drifts)} robot-episodes, {n} draws",)
+    if n < MIN_DRAWS:
+        reason = (
+            f"only {n} per-episode odometry errors (need {MIN_DRAWS}): robots must drive >= "
+            f"{settings.odometry_min_distance_m:g} m or turn >= {settings.odometry_min_turn_rad:g} rad in an episode"
+        )
+        return OdometryFit(Estimate.unidentifiable(reason, "per m", n), drifts, rms, notes)
+    x = np.asarray(draws)
+    sigma = math.sqrt(max(float(np.mean(x * x) - np.mean(variances)), 0.0))
+    low, high = chi_interval(sigma, n)
+    se = sigma / math.sqrt(2 * n)
+    estimate = Estimate.of(sigma, se, (low, high), "per m", f"chi distribution of {n} zero-mean draws", n)
+    return OdometryFit(estimate, drifts, rms, notes)

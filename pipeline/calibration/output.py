@@ -1,0 +1,108 @@
+"""The calibration file (``calibration.yaml``) that training reads, and the fit report next to it.
+
+Layout of ``calibration.yaml``:
+
+- ``profile``: the identified values in the reality profile's keys (lidar, actuation, odometry, network);
+- ``uncertainty``: every estimated key with its status, and either its value, standard error, 95 %
+  interval, unit, method and sample count, or the reason it is unidentifiable;
+- ``world``: simulator settings (keys of ``pipeline.config.WorldConfig``) that training applies on
+  top of params.yaml's ``world`` (:func:`pipeline.config.calibrated_world`); unidentified values are
+  left out, so training keeps their nominal values;
+- ``unidentified``: the keys left out and why;
+- ``source``: the recordings (path and session metadata) and the calibration settings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration
+from pipeline.calibration.errors import CalibrationError
+from pipeline.config import CALIBRATION_FILE, world_config
+from pipeline.errors import ConfigError
+from pipeline.settings import to_mapping
+
+FORMAT = "mrl-calibration/1"
+REPORT_FILE = "calibration.md"
+
+
+def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
+    """The content of ``calibration.yaml`` as plain mappings (see the module's description)."""
+    uncertainty: dict[str, dict[str, Any]] = {}
+    for group, keys in PROFILE_KEYS.items():
+        for key in keys:
+            est = calibration.values.get(f"{group}.{key}")
+            if est is not None:
+                uncertainty.setdefault(group, {})[key] = est.as_mapping()
+    world = calibration.world_overrides()
+    try:
+        world_config(world, source="<calibrated world>")
+    except ConfigError as exc:
+        raise CalibrationError("<calibrated world>", f"the estimates are not valid simulator settings: {exc}") from exc
+    mapping: dict[str, Any] = as_plain(
+        {
+            "format": FORMAT,
+            "scenario": calibration.scenario,
+            "profile": calibration.profile(),
+            "uncertainty": uncertainty,
+            "world": world,
+            "unidentified": calibration.unidentified(),
+            "source": {
+                "recordings": [
+                    {"path": s.path, "episodes": s.episodes, "session": s.session} for s in calibration.sources
+                ],
+                "settings": to_mapping(calibration.settings),
+            },
+        }
+    )
+    return mapping
+
+
+def _header(calibration: Calibration) -> str:
+    lines = [
+        f"# Simulator calibration from {len(calibration.sources)} recording(s) of scenario {calibration.scenario!r}.",
+        "# profile: estimates in the reality-profile keys; uncertainty: standard errors and 95 % intervals;",
+        "# world: overrides of params.yaml's world section for training (the calibrated round).",
+    ]
+    missing = calibration.unidentified()
+    if missing:
+        lines.append("# Not identified (training keeps the nominal value):")
+        lines += [f"#   {key}: {reason}" for key, reason in missing.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write_calibration(calibration: Calibration, out_dir: str | Path, report: bool = True) -> Path:
+    """Write ``calibration.yaml`` (with `report` also ``calibration.md`` and its plots) into `out_dir`; its path."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CalibrationError(str(out), f"cannot create the output folder: {exc.strerror}") from exc
+    path = out / CALIBRATION_FILE
+    text = _header(calibration) + yaml.safe_dump(calibration_mapping(calibration), sort_keys=False, width=120)
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise CalibrationError(str(path), f"cannot write: {exc.strerror}") from exc
+    if report:
+        from pipeline.calibration.report import write_report
+
+        write_report(calibration, out)
+    return path
+
+
+def as_plain(value: Any) -> Any:
+    """Numbers and containers as plain Python values for YAML."""
+    if isinstance(value, dict):
+        return {str(k): as_plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [as_plain(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value)
+    if isinstance(value, (np.integer, int)) and not isinstance(value, bool):
+        return int(value)
+    return value

@@ -1,0 +1,345 @@
+"""Reading a session recording into the arrays calibration needs, on one clock.
+
+Per robot namespace ``ns``: ``/<ns>/ground_truth`` (PoseStamped), ``/<ns>/scan`` (LaserScan),
+``/<ns>/odom`` (Odometry) and ``/<ns>/cmd_vel`` (Twist, logged when sent); ``/mrl/episode``
+delimits episodes when present (a recording without it is one episode).
+
+Times: everything is put on the recorder's clock (MCAP log time, int ns). Commands are logged
+when sent, so their log time is used as is. Sensor messages carry the sender's stamp, which is
+when the data were true; each sensor topic's stamps are moved onto the recorder's clock by the
+smallest delivery delay observed on it (the 2nd percentile of log time minus stamp), i.e. the
+quickest messages are taken to have arrived without delay. This also maps robot or
+motion-capture clocks that are not synchronised with the recorder.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.calibration.errors import CalibrationError, MissingTopicError, ScenarioMismatchError
+from pipeline.calibration.settings import Part
+from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.errors import MrlError
+from pipeline.messages.convert import EVENT_NAMES, quaternion_yaw
+from pipeline.record import McapLog
+from pipeline.settings import to_mapping
+
+NS_PER_S = 1_000_000_000
+OFFSET_QUANTILE = 2.0
+"""Percentile of (log time - stamp) taken as a sensor topic's clock offset (the quickest deliveries)."""
+OUTLIER_S = 10.0
+"""Messages whose (log time - stamp) lies this far from the topic's median are not used (a clock not yet running)."""
+
+TOPICS_FOR: dict[Part, tuple[str, ...]] = {
+    "lidar": ("ground_truth", "scan"),
+    "actuation": ("ground_truth", "cmd_vel"),
+    "odometry": ("ground_truth", "odom"),
+    "network": ("ground_truth",),
+}
+"""Per-robot topics (``/<ns>/<kind>``) each part of the calibration needs."""
+
+
+@dataclass(frozen=True)
+class Stamped:
+    """Times of one sensor topic's messages (n,), int ns: on the recorder's clock, stamped, and received."""
+
+    t_ns: np.ndarray
+    stamp_ns: np.ndarray
+    log_ns: np.ndarray
+    offset_ns: int
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Planar poses (n, 3) x, y (m), yaw (rad) with their times; `velocity` (n, 2) v (m/s), w (rad/s) if sent."""
+
+    time: Stamped
+    pose: np.ndarray
+    velocity: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ScanSeries:
+    """Scans: ranges (n, beams) in metres as sent; beam k of scan i points at angle_min[i] + k angle_increment[i]."""
+
+    time: Stamped
+    ranges: np.ndarray
+    angle_min_rad: np.ndarray
+    angle_increment_rad: np.ndarray
+    range_min_m: np.ndarray
+    range_max_m: np.ndarray
+
+    @property
+    def beams(self) -> int:
+        return int(self.ranges.shape[1])
+
+
+@dataclass(frozen=True)
+class CommandSeries:
+    """Velocity commands as sent: `t_ns` (n,) send times, `v` (n,) m/s, `w` (n,) rad/s."""
+
+    t_ns: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+
+
+@dataclass(frozen=True)
+class RobotData:
+    """One robot's recorded streams (None where the recording lacks the topic)."""
+
+    name: str
+    truth: PoseSeries | None
+    scans: ScanSeries | None
+    odom: PoseSeries | None
+    commands: CommandSeries | None
+
+
+@dataclass(frozen=True)
+class EpisodeWindow:
+    """One episode: recorder-clock times of its start and end events (ns) and its seed if recorded."""
+
+    episode: int
+    start_ns: int
+    end_ns: int
+    seed: int | None = None
+
+
+@dataclass(frozen=True)
+class SessionData:
+    """A recording as calibration reads it."""
+
+    path: Path
+    session: dict[str, str]
+    scenario: Scenario
+    robots: tuple[RobotData, ...]
+    episodes: tuple[EpisodeWindow, ...]
+    has_episode_topic: bool
+
+    @property
+    def windows(self) -> list[tuple[int, int]]:
+        return [(e.start_ns, e.end_ns) for e in self.episodes]
+
+
+def _robots(log: McapLog, session: dict[str, str]) -> tuple[str, ...]:
+    robots = tuple(r for r in session.get("robots", "").split(",") if r)
+    if robots:
+        return robots
+    found = sorted({t.split("/")[1] for t in log.topics() if t.count("/") == 2 and t.endswith("/ground_truth")})
+    return tuple(found)
+
+
+def recorded_scenario(log: McapLog, expected: str | Path | Scenario | None) -> Scenario:
+    """The scenario of a recording (its ``scenario`` document, else the bundled one its session names).
+
+    With `expected`, a recording of another scenario raises ScenarioMismatchError; a recording that
+    names no scenario uses `expected`.
+    """
+    where = str(log.path)
+    meta = log.metadata()
+    text = meta.get("scenario", {}).get("text")
+    name = meta.get("session", {}).get("scenario", "")
+    recorded: Scenario | None = None
+    try:
+        if text:
+            recorded = load_scenario(json.loads(text))
+        elif name:
+            recorded = load_scenario(name)
+    except (MrlError, ValueError, TypeError) as exc:
+        raise CalibrationError(where, f"the recorded scenario cannot be loaded: {exc}") from exc
+    wanted: Scenario | None = None
+    if expected is not None:
+        try:
+            wanted = load_scenario(expected)
+        except MrlError as exc:
+            raise CalibrationError(where, f"the scenario asked for cannot be loaded: {exc}") from exc
+    if recorded is None:
+        if wanted is None:
+            raise CalibrationError(
+                where, "the recording names no scenario (no 'scenario' metadata); pass the scenario it was made in"
+            )
+        return wanted
+    if wanted is not None:
+        if recorded.name != wanted.name:
+            raise ScenarioMismatchError(where, recorded.name, wanted.name)
+        if to_mapping(recorded) != to_mapping(wanted):
+            raise CalibrationError(
+                where, f"the recording's scenario {recorded.name!r} differs from the scenario of that name asked for"
+            )
+    return recorded
+
+
+def _stamped(log_ns: list[int], stamp_ns: list[int], windows: Sequence[tuple[int, int]]) -> Stamped:
+    log = np.asarray(log_ns, dtype=np.int64)
+    stamp = np.asarray(stamp_ns, dtype=np.int64)
+    if len(log) == 0:
+        return Stamped(log, stamp, log, 0)
+    delay = log - stamp
+    good = np.abs(delay - np.median(delay)) < OUTLIER_S * NS_PER_S
+    inside = np.zeros(len(log), dtype=bool)
+    for start, end in windows:
+        inside |= (log >= start) & (log <= end)
+    use = good & inside if (good & inside).sum() >= 10 else good
+    offset = int(np.percentile(delay[use], OFFSET_QUANTILE))
+    return Stamped(stamp + offset, stamp, log, offset)
+
+
+def _episodes(log: McapLog, where: str) -> tuple[list[EpisodeWindow], bool]:
+    if "/mrl/episode" not in log.topics():
+        return [], False
+    starts: dict[int, tuple[int, int | None]] = {}
+    out: list[EpisodeWindow] = []
+    last_ns = 0
+    for m in log.messages(["/mrl/episode"]):
+        last_ns = max(last_ns, m.log_time_ns)
+        event = EVENT_NAMES.get(int(m.msg.event), "")
+        episode = int(m.msg.episode)
+        if event == "start":
+            seed: int | None = None
+            detail = str(m.msg.detail)
+            if detail.startswith("seed="):
+                try:
+                    seed = int(detail[5:])
+                except ValueError:
+                    seed = None
+            starts[episode] = (m.log_time_ns, seed)
+        elif event == "end" and episode in starts:
+            start, seed = starts.pop(episode)
+            out.append(EpisodeWindow(episode, start, m.log_time_ns, seed))
+    for episode, (start, seed) in starts.items():  # an episode cut short by the end of the recording
+        out.append(EpisodeWindow(episode, start, last_ns, seed))
+    out.sort(key=lambda e: e.start_ns)
+    if not out:
+        raise CalibrationError(where, "topic /mrl/episode holds no start event: the recording has no episode")
+    return out, True
+
+
+def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path | Scenario | None = None) -> SessionData:
+    """The streams of a recording needed for `parts`; MissingTopicError names every topic that is absent."""
+    p = Path(path)
+    where = str(p)
+    log = McapLog(p)
+    meta = log.metadata()
+    session = dict(meta.get("session", {}))
+    scen = recorded_scenario(log, scenario)
+    robots = _robots(log, session)
+    if not robots:
+        raise MissingTopicError(where, ["/<robot>/ground_truth"], "every estimate (the robots' true poses)")
+    topics = log.topics()
+    needed: dict[str, list[str]] = {}
+    for part in parts:
+        for kind in TOPICS_FOR[part]:
+            for ns in robots:
+                topic = f"/{ns}/{kind}"
+                if topic not in topics:
+                    needed.setdefault(topic, []).append(part)
+    if needed:
+        uses = sorted({part for parts_ in needed.values() for part in parts_})
+        raise MissingTopicError(where, sorted(needed), "the " + ", ".join(uses) + " calibration")
+    if len(robots) != scen.n_robots:
+        raise CalibrationError(
+            where, f"the recording has {len(robots)} robots, scenario {scen.name!r} has {scen.n_robots}"
+        )
+    episodes, has_episodes = _episodes(log, where)
+    kinds = sorted({kind for part in parts for kind in TOPICS_FOR[part]})
+    wanted = [f"/{ns}/{kind}" for ns in robots for kind in kinds]
+    raw: dict[str, dict[str, list[Any]]] = {t: {"log": [], "stamp": [], "data": []} for t in wanted}
+    for m in log.messages(wanted, skip_undecodable=True):
+        bucket = raw[m.topic]
+        bucket["log"].append(m.log_time_ns)
+        kind = m.topic.rsplit("/", 1)[1]
+        msg = m.msg
+        if kind == "cmd_vel":
+            bucket["stamp"].append(m.log_time_ns)
+            bucket["data"].append((float(msg.linear.x), float(msg.angular.z)))
+            continue
+        bucket["stamp"].append(int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec))
+        if kind == "ground_truth":
+            q = msg.pose
+            bucket["data"].append((q.position.x, q.position.y, quaternion_yaw(q.orientation)))
+        elif kind == "odom":
+            q = msg.pose.pose
+            tw = msg.twist.twist
+            bucket["data"].append(
+                (q.position.x, q.position.y, quaternion_yaw(q.orientation), float(tw.linear.x), float(tw.angular.z))
+            )
+        else:
+            bucket["data"].append(
+                (
+                    np.asarray(msg.ranges, dtype=np.float64),
+                    float(msg.angle_min),
+                    float(msg.angle_increment),
+                    float(msg.range_min),
+                    float(msg.range_max),
+                )
+            )
+    if not episodes:
+        all_log = [t for b in raw.values() for t in b["log"]]
+        if not all_log:
+            raise CalibrationError(where, "the recording holds no messages on the robots' topics")
+        episodes = [EpisodeWindow(0, int(min(all_log)), int(max(all_log)), None)]
+    windows = [(e.start_ns, e.end_ns) for e in episodes]
+    robot_data = []
+    for ns in robots:
+        robot_data.append(
+            RobotData(
+                ns,
+                truth=_poses(raw.get(f"/{ns}/ground_truth"), windows),
+                scans=_scans(raw.get(f"/{ns}/scan"), windows, where, f"/{ns}/scan"),
+                odom=_poses(raw.get(f"/{ns}/odom"), windows),
+                commands=_commands(raw.get(f"/{ns}/cmd_vel")),
+            )
+        )
+    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes)
+
+
+def _poses(bucket: dict[str, list[Any]] | None, windows: Sequence[tuple[int, int]]) -> PoseSeries | None:
+    if bucket is None:
+        return None
+    data = np.asarray(bucket["data"], dtype=np.float64).reshape(len(bucket["data"]), -1)
+    time = _stamped(bucket["log"], bucket["stamp"], windows)
+    order = np.argsort(time.t_ns, kind="stable")
+    time = Stamped(time.t_ns[order], time.stamp_ns[order], time.log_ns[order], time.offset_ns)
+    data = data[order]
+    velocity = data[:, 3:5] if data.shape[1] >= 5 else None
+    return PoseSeries(time, data[:, :3], velocity)
+
+
+def _scans(
+    bucket: dict[str, list[Any]] | None, windows: Sequence[tuple[int, int]], where: str, topic: str
+) -> ScanSeries | None:
+    if bucket is None:
+        return None
+    rows = bucket["data"]
+    if not rows:
+        return ScanSeries(_stamped([], [], windows), np.zeros((0, 0)), *(np.zeros(0) for _ in range(4)))
+    counts = np.array([len(r[0]) for r in rows])
+    beams = int(np.bincount(counts).argmax())
+    keep = counts == beams
+    if beams == 0:
+        raise CalibrationError(where, f"topic {topic}: the scans hold no ranges")
+    time = _stamped(
+        [t for t, k in zip(bucket["log"], keep, strict=True) if k],
+        [t for t, k in zip(bucket["stamp"], keep, strict=True) if k],
+        windows,
+    )
+    kept = [r for r, k in zip(rows, keep, strict=True) if k]
+    order = np.argsort(time.t_ns, kind="stable")
+    ranges = np.stack([kept[i][0] for i in order])
+    cols = np.array([[kept[i][j] for j in range(1, 5)] for i in order], dtype=np.float64)
+    time = Stamped(time.t_ns[order], time.stamp_ns[order], time.log_ns[order], time.offset_ns)
+    return ScanSeries(time, ranges, cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3])
+
+
+def _commands(bucket: dict[str, list[Any]] | None) -> CommandSeries | None:
+    if bucket is None:
+        return None
+    t = np.asarray(bucket["log"], dtype=np.int64)
+    vw = np.asarray(bucket["data"], dtype=np.float64).reshape(len(t), 2)
+    order = np.argsort(t, kind="stable")
+    return CommandSeries(t[order], vw[order, 0], vw[order, 1])

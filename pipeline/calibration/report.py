@@ -1,0 +1,189 @@
+"""The fit report: ``calibration.md`` with the estimates and PNG plots of each fit."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration
+from pipeline.calibration.estimates import Estimate
+
+LIDAR_PLOT = "lidar_residuals.png"
+MOUNT_PLOT = "lidar_mount_yaw.png"
+ACTUATION_PLOT = "actuation_fit.png"
+ODOMETRY_PLOT = "odometry_drift.png"
+EXAMPLE_WINDOW_S = 12.0
+"""Length of the commanded-vs-achieved window shown."""
+
+
+def _fmt(x: float | None) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    return f"{x:.4g}"
+
+
+def _row(key: str, est: Estimate) -> str:
+    if not est.ok:
+        return f"| `{key}` | unidentifiable | | | {est.reason} |"
+    interval = "-" if est.interval is None else f"[{_fmt(est.interval[0])}, {_fmt(est.interval[1])}]"
+    return (
+        f"| `{key}` | {_fmt(est.value)} {est.unit} | {_fmt(est.std_error)} | {interval} | {est.method}, n = {est.n} |"
+    )
+
+
+def plot_lidar(calibration: Calibration, path: Path) -> bool:
+    """Histogram of the residuals (measured - cast, m) with the fitted Gaussian; False when there is nothing to plot."""
+    fit = calibration.lidar
+    if fit is None or len(fit.residuals_m) == 0 or not fit.noise_sigma_m.ok or not fit.bias_m.ok:
+        return False
+    sigma = float(fit.noise_sigma_m.value or 0.0)
+    bias = float(fit.bias_m.value or 0.0)
+    r = fit.residuals_m
+    lo, hi = bias - 6 * sigma, bias + 6 * sigma
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.hist(
+        r[(r > lo) & (r < hi)], bins=120, range=(lo, hi), density=True, color="0.7", label=f"residuals (n = {len(r)})"
+    )
+    x = np.linspace(lo, hi, 400)
+    ax.plot(
+        x,
+        np.exp(-0.5 * ((x - bias) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi)),
+        "C0",
+        label=f"N({bias:.4f}, {sigma:.4f}^2)",
+    )
+    ax.axvline(0.0, color="k", lw=0.5)
+    ax.set_xlabel("measured - cast range (m)")
+    ax.set_ylabel("density")
+    ax.set_title("Lidar residuals during stationary spans")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_mount_yaw(calibration: Calibration, path: Path) -> bool:
+    """The robust cost of the mounting-yaw search near its minimum; False when there is nothing to plot."""
+    fit = calibration.lidar
+    if fit is None or fit.yaw_cost is None:
+        return False
+    yaw, cost = fit.yaw_cost
+    finite = np.isfinite(cost)
+    if not finite.any():
+        return False
+    best = float(yaw[finite][np.argmin(cost[finite])])
+    near = finite & (np.abs(yaw - best) < math.radians(3))
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    order = np.argsort(yaw[near])
+    ax.plot(np.degrees(yaw[near][order]), cost[near][order], ".-", ms=3)
+    if fit.mount_yaw_rad.ok:
+        ax.axvline(math.degrees(float(fit.mount_yaw_rad.value or 0.0)), color="C3", label="estimate")
+        ax.legend()
+    ax.set_xlabel("mounting yaw (deg)")
+    ax.set_ylabel("mean truncated |residual| (m)")
+    ax.set_title("Mounting-yaw search")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_actuation(calibration: Calibration, path: Path) -> bool:
+    """Commanded vs achieved velocity with the fitted model over a window; False when there is nothing to plot."""
+    fit = calibration.actuation
+    if fit is None or fit.example is None:
+        return False
+    t, achieved, model, command = fit.example
+    sel = t <= t[0] + EXAMPLE_WINDOW_S
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    labels = (("forward speed (m/s)", "linear"), ("yaw rate (rad/s)", "angular"))
+    for c, ax in enumerate(axes):
+        ax.step(t[sel], command[sel, c], where="post", color="0.5", lw=1, label="commanded")
+        ax.plot(t[sel], achieved[sel, c], "C0", lw=1.2, label="achieved (smoothed truth)")
+        ax.plot(t[sel], model[sel, c], "C3--", lw=1.2, label="fitted model")
+        ax.set_ylabel(labels[c][0])
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[1].set_xlabel("time (s)")
+    delay, tau = fit.delay_s, fit.time_constant_s
+    title = "Actuation: gain x first-order lag of the delayed command"
+    if delay.ok and tau.ok:
+        title += f" (delay {_fmt(delay.value)} s, tau {_fmt(tau.value)} s)"
+    axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_odometry(calibration: Calibration, path: Path) -> bool:
+    """Odometry position error vs distance travelled per robot-episode; False when there is nothing to plot."""
+    fit = calibration.odometry
+    if fit is None or not fit.episodes:
+        return False
+    fig, ax = plt.subplots(figsize=(7, 4))
+    longest = 0.0
+    for e in fit.episodes:
+        dist, err = e.error_curve
+        ax.plot(dist, err, lw=0.8, alpha=0.7)
+        longest = max(longest, float(dist[-1]) if len(dist) else 0.0)
+    if fit.drift_per_m.ok and longest > 0:
+        d = np.linspace(0, longest, 50)
+        ax.plot(d, float(fit.drift_per_m.value or 0.0) * d, "k--", label="drift_per_m x distance")
+        ax.legend()
+    ax.set_xlabel("distance travelled (m)")
+    ax.set_ylabel("odometry position error (m)")
+    ax.set_title("Odometry error per robot-episode")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def write_report(calibration: Calibration, out_dir: Path) -> Path:
+    """Write ``calibration.md`` and the plots into `out_dir`; the report's path."""
+    plots = [
+        (LIDAR_PLOT, "Lidar residuals", plot_lidar),
+        (MOUNT_PLOT, "Mounting yaw", plot_mount_yaw),
+        (ACTUATION_PLOT, "Commanded vs achieved velocity", plot_actuation),
+        (ODOMETRY_PLOT, "Odometry drift", plot_odometry),
+    ]
+    lines = [
+        f"# Calibration: scenario `{calibration.scenario}`",
+        "",
+        "Recordings:",
+        "",
+    ]
+    for s in calibration.sources:
+        profile = s.session.get("profile", "")
+        lines.append(f"- `{s.path}`: {s.episodes} episode(s), world {s.session.get('world', '?')}, profile `{profile}`")
+    lines += ["", "| key | estimate | std. error | 95 % interval | method / reason |", "|---|---|---|---|---|"]
+    for group, keys in PROFILE_KEYS.items():
+        for key in keys:
+            est = calibration.values.get(f"{group}.{key}")
+            if est is not None:
+                lines.append(_row(f"{group}.{key}", est))
+    notes: list[str] = []
+    for part in (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network):
+        if part is not None:
+            notes += list(part.notes)
+    if calibration.actuation is not None and calibration.actuation.residual_rms is not None:
+        v, w = calibration.actuation.residual_rms
+        notes.append(f"actuation fit residual rms: {v:.4f} m/s, {w:.4f} rad/s")
+    if calibration.odometry is not None and calibration.odometry.component_rms:
+        parts = ", ".join(f"{k} {v:.4f}" for k, v in calibration.odometry.component_rms.items())
+        notes.append(f"odometry draws, rms per component: {parts}")
+    if notes:
+        lines += ["", "Data used:", ""] + [f"- {n}" for n in notes]
+    for name, title, plot in plots:
+        if plot(calibration, out_dir / name):
+            lines += ["", f"## {title}", "", f"![{title}]({name})"]
+    path = out_dir / "calibration.md"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

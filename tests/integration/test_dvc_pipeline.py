@@ -1,0 +1,103 @@
+"""The whole loop as `dvc repro` on a tiny budget, in a fresh copy of the repository, then `dvc exp run -S`."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.integration.conftest import write_fleet
+
+ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.integration
+
+TINY = {
+    "world": {"max_steps": 60},
+    "scripted_eval": {"episodes": 2},
+    "train": {
+        "total_steps": 1600,
+        "n_envs": 4,
+        "net_arch": [16, 16],
+        "checkpoint_every_episodes": 5,
+        "ppo": {"n_steps": 32, "minibatch_size": 64},
+    },
+    "export": {"golden_observations": 8},
+    "eval_sim": {"episodes": 3},
+    "deploy": {"episodes": 3, "time_scale": 4.0},
+    "calibrate": {"bootstrap": 20},
+    "replay": {"max_episodes": 3, "horizon_s": 3.0},
+}
+
+
+def run(cmd: list[str], cwd: Path, env: dict[str, str], timeout: int = 900) -> subprocess.CompletedProcess[str]:
+    done = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, f"{' '.join(cmd)} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    return done
+
+
+@pytest.fixture(scope="module")
+def repo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    dest = tmp_path_factory.mktemp("repo")
+    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    for name in files:
+        src = ROOT / name
+        if src.is_file():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / name)
+    params = yaml.safe_load((dest / "params.yaml").read_text())
+    for section, changes in TINY.items():
+        for key, value in changes.items():
+            if isinstance(value, dict):
+                params[section][key].update(value)
+            else:
+                params[section][key] = value
+    fleet = write_fleet(dest / "fleet.yaml", twin={"profile": "harsh", "time_scale": 4.0})
+    params["deploy"]["fleet"] = fleet.name
+    (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    env.update(
+        GIT_AUTHOR_NAME="ci",
+        GIT_AUTHOR_EMAIL="ci@localhost",
+        GIT_COMMITTER_NAME="ci",
+        GIT_COMMITTER_EMAIL="ci@localhost",
+    )
+    run(["git", "init", "-q"], dest, env)
+    run(["git", "add", "-A"], dest, env)
+    run(["git", "commit", "-qm", "tiny"], dest, env)
+    run([sys.executable, "-m", "dvc", "repro"], dest, env, timeout=1500)
+    return dest, env
+
+
+def test_repro_runs_the_closed_loop_and_reports_the_gap(repo):
+    dest, env = repo
+    metrics = json.loads((dest / "logs" / "report" / "metrics.json").read_text())
+    for label in ("nominal", "calibrated"):
+        assert f"sim/{label}/robot_success" in metrics and f"real/{label}/robot_success" in metrics
+        assert f"gap/{label}/robot_success" in metrics
+    calibration = yaml.safe_load((dest / "logs" / "calibration" / "calibration.yaml").read_text())
+    assert calibration["profile"]["lidar"]["beams"] == 360
+    report = (dest / "logs" / "report" / "report.md").read_text()
+    assert "success_rates.png" in report and "Calibration" in report
+    for png in ("success_rates", "trajectories", "learning_curves"):
+        assert (dest / "logs" / "report" / f"{png}.png").stat().st_size > 5000
+    shown = run([sys.executable, "-m", "dvc", "metrics", "show"], dest, env).stdout
+    assert "gap/nominal/robot_success" in shown
+    run([sys.executable, "-m", "dvc", "plots", "show", "-o", str(dest / "plots")], dest, env)
+    assert (dest / "plots" / "index.html").exists()
+
+
+def test_exp_run_with_a_set_parameter(repo):
+    dest, env = repo
+    run([sys.executable, "-m", "dvc", "exp", "run", "-S", "report.trajectory_episodes=1"], dest, env, timeout=600)
+    params = yaml.safe_load((dest / "params.yaml").read_text())
+    assert params["report"]["trajectory_episodes"] == 1
+    shown = run([sys.executable, "-m", "dvc", "exp", "show", "--csv"], dest, env).stdout
+    assert "report.trajectory_episodes" in shown

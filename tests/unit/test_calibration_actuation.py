@@ -1,0 +1,103 @@
+"""The actuation fit recovers delay, time constant and gains of a simulated first-order system."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.calibration.actuation import CommandTimeline, VelocityTrack, estimate_actuation
+from pipeline.calibration.settings import CalibrationSettings
+
+NS = 1_000_000_000
+SETTINGS = CalibrationSettings(bootstrap=60, actuation_delay_max_s=0.5)
+
+
+def simulate(
+    rng: np.random.Generator,
+    delay_s: float,
+    tau_s: float,
+    gains: tuple[float, float],
+    duration_s: float = 15.0,
+    turning: bool = True,
+    noise: float = 0.003,
+    start_s: float = 100.0,
+) -> tuple[np.ndarray, np.ndarray, CommandTimeline]:
+    """Truth sample times (ns), achieved (v, w) at them with noise, and the commands as sent every 20 ms."""
+    h = 0.001
+    t = start_s + np.arange(0, duration_s, h)
+    # a new command every 0.1 s, sent (repeated) on a 20 ms grid
+    steps = rng.integers(0, 5, size=int(duration_s / 0.1) + 1)
+    v_levels = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    w_levels = np.array([0.0, -0.2, -0.1, 0.1, 0.2]) if turning else np.zeros(5)
+    w_steps = rng.integers(0, 5, size=len(steps))
+    send = start_s + np.arange(0, duration_s, 0.02)
+    k = np.minimum((np.round(send - start_s, 6) / 0.1).astype(int), len(steps) - 1)
+    cmd = np.stack([v_levels[steps[k]], w_levels[w_steps[k]]], axis=1)
+    timeline = CommandTimeline(np.round(send * NS).astype(np.int64), cmd)
+    acting = timeline.at(np.round((t - delay_s) * NS).astype(np.int64), timeout_s=0.5)
+    y = np.zeros((len(t), 2))
+    a = math.exp(-h / tau_s)
+    for i in range(1, len(t)):
+        y[i] = a * y[i - 1] + (1 - a) * acting[i - 1] * np.array(gains)
+    sample = np.arange(0, len(t), 20)
+    achieved = y[sample] + rng.normal(0, noise, size=(len(sample), 2))
+    return np.round(t[sample] * NS).astype(np.int64), achieved, timeline
+
+
+def tracks(rng: np.random.Generator, n: int, **kw: object) -> list[VelocityTrack]:
+    out = []
+    for i in range(n):
+        t, y, cmd = simulate(rng, **kw)  # type: ignore[arg-type]
+        out.append(VelocityTrack(f"robot_{i % 3 + 1}", f"episode {i}", t, y, cmd))
+    return out
+
+
+@pytest.mark.parametrize(("delay", "tau", "gains"), [(0.05, 0.15, (0.95, 0.9)), (0.15, 0.35, (0.8, 0.75))])
+def test_delay_lag_and_gains_are_recovered(delay, tau, gains):
+    rng = np.random.default_rng(0)
+    fit = estimate_actuation(tracks(rng, 6, delay_s=delay, tau_s=tau, gains=gains), SETTINGS, rng)
+    assert fit.delay_s.ok and fit.time_constant_s.ok and fit.linear_gain.ok and fit.angular_gain.ok
+    assert fit.delay_s.value == pytest.approx(delay, abs=0.005)
+    assert fit.time_constant_s.value == pytest.approx(tau, rel=0.05)
+    assert fit.linear_gain.value == pytest.approx(gains[0], rel=0.02)
+    assert fit.angular_gain.value == pytest.approx(gains[1], rel=0.02)
+    # uncertainties from the bootstrap over robot-episodes, with intervals around the estimates
+    for est in (fit.delay_s, fit.time_constant_s, fit.linear_gain, fit.angular_gain):
+        assert est.std_error is not None and est.std_error > 0
+        assert est.interval is not None and est.interval[0] <= est.value <= est.interval[1]
+        assert "bootstrap over 6 robot-episodes" in est.method
+    assert fit.example is not None and fit.residual_rms is not None and fit.residual_rms[0] < 0.01
+
+
+def test_without_turning_commands_the_angular_gain_is_unidentifiable():
+    rng = np.random.default_rng(1)
+    fit = estimate_actuation(tracks(rng, 4, delay_s=0.1, tau_s=0.2, gains=(0.9, 0.8), turning=False), SETTINGS, rng)
+    assert fit.angular_gain.status == "unidentifiable"
+    assert fit.angular_gain.reason == "no turning commands above 0.05 rad/s"
+    assert fit.linear_gain.ok and fit.linear_gain.value == pytest.approx(0.9, rel=0.02)
+    assert fit.delay_s.ok and fit.delay_s.value == pytest.approx(0.1, abs=0.005)
+
+
+def test_robots_that_never_move_leave_everything_unidentifiable():
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 5, 0.02)
+    still = VelocityTrack(
+        "robot_1",
+        "episode 0",
+        (t * NS).astype(np.int64),
+        np.zeros((len(t), 2)),
+        CommandTimeline(np.array([0]), np.zeros((1, 2))),
+    )
+    fit = estimate_actuation([still], SETTINGS, rng)
+    for est in (fit.delay_s, fit.time_constant_s, fit.linear_gain, fit.angular_gain):
+        assert est.status == "unidentifiable"
+        assert "no linear commands above 0.05 m/s" in est.reason and "no turning commands" in est.reason
+    assert estimate_actuation([], SETTINGS, rng).delay_s.reason.startswith("no contact-free stretch")
+
+
+def test_commands_stop_acting_after_the_timeout():
+    timeline = CommandTimeline(np.array([0, NS]), np.array([[0.3, 0.1], [0.2, 0.0]]))
+    acting = timeline.at(np.array([-1, 0, NS // 2, NS - 1, NS, 2 * NS]), timeout_s=0.5)
+    np.testing.assert_allclose(acting[:, 0], [0.0, 0.3, 0.3, 0.0, 0.2, 0.0])

@@ -1,0 +1,81 @@
+"""Message loss, delivery jitter and sensor rates from synthetic stamps and receive times."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.calibration.network import StampStream, estimate_network, isolated_loss, rate_estimate
+from pipeline.calibration.settings import CalibrationSettings
+
+NS = 1_000_000_000
+SETTINGS = CalibrationSettings(bootstrap=60)
+
+
+def ticks(rng: np.random.Generator, seconds: float, period: float = 0.02, wobble: float = 0.004) -> np.ndarray:
+    """Stamps (ns) of a sender ticking every `period` s, each tick up to `wobble` s late."""
+    n = int(seconds / period)
+    return np.round((10.0 + np.arange(n) * period + rng.uniform(0, wobble, n)) * NS).astype(np.int64)
+
+
+def streams(
+    rng: np.random.Generator, loss: float, jitter: float, topics: int = 6, stalls: bool = True
+) -> list[StampStream]:
+    """Topics sharing ticks; independent loss and uniform jitter; a receiver that stalls now and then for everyone."""
+    stamps = ticks(rng, 120.0)
+    stall = np.zeros(len(stamps))
+    if stalls:
+        for start in rng.choice(len(stamps) - 20, 40, replace=False):
+            stall[start : start + 10] = rng.uniform(0.01, 0.05)  # every message waits for the stalled receiver
+    out = []
+    for k in range(topics):
+        keep = rng.random(len(stamps)) >= loss
+        if stalls:
+            keep &= ~((stall > 0.04) & (rng.random(len(stamps)) < 0.5))  # a long stall overflows the queue
+        delay = 0.002 + rng.uniform(0, jitter, len(stamps)) + stall
+        out.append(
+            StampStream(
+                f"/robot_{k // 2 + 1}/topic_{k % 2}",
+                stamps[keep],
+                stamps[keep] + np.round(delay[keep] * NS).astype(np.int64),
+            )
+        )
+    return out
+
+
+@pytest.mark.parametrize(("loss", "jitter"), [(0.01, 0.005), (0.1, 0.02)])
+def test_loss_and_jitter_of_topics_sharing_ticks(loss, jitter):
+    rng = np.random.default_rng(0)
+    fit = estimate_network(streams(rng, loss, jitter), SETTINGS, rng)
+    assert fit.loss_prob.value == pytest.approx(loss, abs=0.2 * loss + 0.002)
+    assert fit.jitter_s.value == pytest.approx(jitter, rel=0.2)
+    assert "topic pairs sharing ticks" in fit.jitter_s.method
+    assert "bursts" in fit.notes[0]
+
+
+def test_a_lone_topic_is_read_by_its_stamp_gaps():
+    rng = np.random.default_rng(1)
+    stamps = np.round((np.arange(6000) * 0.02 + 5.0) * NS).astype(np.int64)
+    keep = rng.random(len(stamps)) >= 0.05
+    delay = np.round((0.001 + rng.uniform(0, 0.01, len(stamps))) * NS).astype(np.int64)
+    lone = [StampStream("/robot_1/odom", stamps[keep], stamps[keep] + delay[keep])]
+    fit = estimate_network(lone, SETTINGS, rng)
+    assert fit.loss_prob.value == pytest.approx(0.05, abs=0.01)
+    assert fit.jitter_s.value == pytest.approx(0.01, rel=0.15)
+
+
+def test_isolated_loss_inverts_p_times_one_minus_p_squared():
+    p = 0.1
+    est = isolated_loss(round(p * (1 - p) ** 2 * 100_000), 100_000)
+    assert est.value == pytest.approx(p, abs=1e-4)
+    assert est.interval is not None and est.interval[0] < p < est.interval[1]
+    assert isolated_loss(0, 1000).value == 0.0
+
+
+def test_rates_from_irregular_ticks_with_losses():
+    rng = np.random.default_rng(2)
+    stamps = ticks(rng, 60.0, period=0.1, wobble=0.03)
+    robots = [stamps[rng.random(len(stamps)) > 0.1] for _ in range(3)]
+    est = rate_estimate(robots)
+    assert est.value == pytest.approx(10.0, rel=0.01)
+    assert rate_estimate([np.array([1, 2])]).status == "unidentifiable"

@@ -1,0 +1,84 @@
+"""Odometry drift per metre from episodes simulated with the simulator's own odometry error model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.calibration.odometry import OdometryEpisode, episode_drift, estimate_odometry
+from pipeline.calibration.settings import CalibrationSettings
+from pipeline.sim.noise import OdometryDrift
+
+NS = 1_000_000_000
+SETTINGS = CalibrationSettings()
+
+
+def drive(seed: int, drift: float, seconds: float = 12.0) -> tuple[OdometryEpisode, np.ndarray]:
+    """One robot-episode of random arcs at 50 Hz; the episode and its draws (scale, yaw scale, heading drift)."""
+    rng = np.random.default_rng(seed + 1000)
+    odometry = OdometryDrift(drift)
+    start = np.array([[1.0, 1.0, 0.3]])
+    odometry.reset(start, np.random.default_rng(seed))
+    draws = np.random.default_rng(seed).normal(0.0, drift, size=(3, 1))[:, 0]
+    truth = [start[0].copy()]
+    odom = [odometry.pose[0].copy()]
+    dt = 0.02
+    v = w = 0.0
+    for k in range(int(seconds / dt)):
+        if k % 50 == 0:
+            v, w = rng.uniform(0.0, 0.4), rng.uniform(-0.3, 0.3)
+        x, y, yaw = truth[-1]
+        new = np.array([x + v * dt * np.cos(yaw + w * dt / 2), y + v * dt * np.sin(yaw + w * dt / 2), yaw + w * dt])
+        new[2] = np.angle(np.exp(1j * new[2]))
+        odom.append(odometry.update(np.array([truth[-1]]), np.array([new]))[0])
+        truth.append(new)
+    t = (np.arange(len(truth)) * dt * NS).astype(np.int64)
+    return OdometryEpisode("robot_1", f"episode {seed}", t, np.array(odom), np.array(truth)), draws
+
+
+def test_each_episode_recovers_its_drawn_errors():
+    episode, (scale, yaw_scale, heading) = drive(3, 0.05)
+    d = episode_drift(episode, SETTINGS)
+    assert d.distance_m > 2.0 and d.turn_rad > 1.0
+    assert d.scale_error == pytest.approx(scale, abs=1e-3)
+    assert d.yaw_scale_error == pytest.approx(yaw_scale, abs=2e-3)
+    assert d.heading_drift_per_m == pytest.approx(heading, abs=2e-3)
+
+
+def test_drift_per_m_is_the_spread_of_the_draws_with_a_chi_interval():
+    episodes = [drive(seed, 0.05)[0] for seed in range(40)]
+    fit = estimate_odometry(episodes, SETTINGS)
+    est = fit.drift_per_m
+    assert est.ok and est.n == 120
+    assert est.value == pytest.approx(0.05, rel=0.15)
+    assert est.interval is not None and est.interval[0] < 0.05 < est.interval[1]
+    assert "chi distribution of 120 zero-mean draws" in est.method
+    assert set(fit.component_rms) == {"scale_error", "yaw_scale_error", "heading_drift_per_m"}
+
+
+def test_exact_odometry_gives_zero_drift():
+    episodes = [drive(seed, 0.0)[0] for seed in range(3)]
+    est = estimate_odometry(episodes, SETTINGS).drift_per_m
+    assert est.ok and est.value == pytest.approx(0.0, abs=1e-6)
+
+
+def test_robots_that_barely_move_leave_drift_unidentifiable():
+    episode, _ = drive(0, 0.05, seconds=1.0)
+    short = OdometryEpisode("robot_1", "episode 0", episode.t_ns, episode.odom, episode.truth)
+    est = estimate_odometry([short], SETTINGS).drift_per_m
+    assert est.status == "unidentifiable" and "robots must drive >= 0.5 m or turn >= 0.5 rad" in est.reason
+
+
+def test_nothing_is_compared_across_a_gap_in_the_truth():
+    episode, (scale, _, heading) = drive(5, 0.05)
+    half = len(episode.t_ns) // 2
+    # after a gap the robot reappears elsewhere (odometry and truth jump by different amounts)
+    odom = episode.odom.copy()
+    truth = episode.truth.copy()
+    truth[half:, :2] += [0.7, -0.3]
+    odom[half:, :2] += [0.2, 0.4]
+    piece = (np.arange(len(truth)) >= half).astype(np.int64)
+    jumped = OdometryEpisode("robot_1", "episode 5", episode.t_ns, odom, truth, piece)
+    d = episode_drift(jumped, SETTINGS)
+    assert d.scale_error == pytest.approx(scale, abs=2e-3)
+    assert d.heading_drift_per_m == pytest.approx(heading, abs=3e-3)

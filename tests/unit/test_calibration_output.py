@@ -1,0 +1,119 @@
+"""calibration.yaml: profile keys, uncertainties, simulator overrides that training accepts, unidentified keys."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from pipeline.calibration import (
+    Calibration,
+    CalibrationError,
+    Estimate,
+    Source,
+    calibration_mapping,
+    calibration_settings,
+    write_calibration,
+)
+from pipeline.config import WorldConfig, calibrated_world
+from pipeline.errors import ConfigError
+
+
+def ok(value: float, se: float = 0.001, unit: str = "") -> Estimate:
+    return Estimate.of(value, se, (value - 2 * se, value + 2 * se), unit, "test", 100)
+
+
+def calibration(**changes: Estimate) -> Calibration:
+    values = {
+        "lidar.beams": ok(360, 0.0, "beams"),
+        "lidar.rate_hz": ok(10.0, 0.01, "Hz"),
+        "lidar.noise_sigma_m": ok(0.021, 0.0001, "m"),
+        "lidar.dropout_prob": ok(0.011, 0.0005, "probability"),
+        "lidar.bias_m": ok(0.0098, 0.0001, "m"),
+        "lidar.mount_yaw_rad": ok(0.0101, 0.0002, "rad"),
+        "actuation.delay_s": ok(0.04, 0.002, "s"),
+        "actuation.time_constant_s": ok(0.16, 0.003, "s"),
+        "actuation.linear_gain": ok(0.95, 0.005, "ratio"),
+        "actuation.angular_gain": Estimate.unidentifiable("no turning commands above 0.05 rad/s", "ratio"),
+        "odometry.rate_hz": ok(50.0, 0.1, "Hz"),
+        "odometry.drift_per_m": ok(0.041, 0.004, "per m"),
+        "network.loss_prob": ok(0.012, 0.001, "probability"),
+        "network.jitter_s": ok(0.006, 0.001, "s"),
+    }
+    values.update(changes)
+    source = Source("logs/real/nominal/session.mcap", {"world": "real", "profile": "mild", "scenario": "obstacles"}, 8)
+    return Calibration("obstacles", (source,), values)
+
+
+def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_path):
+    path = write_calibration(calibration(), tmp_path)
+    text = path.read_text()
+    assert path.name == "calibration.yaml"
+    assert "#   actuation.angular_gain: no turning commands above 0.05 rad/s" in text
+    data = yaml.safe_load(text)
+    assert set(data) == {"format", "scenario", "profile", "uncertainty", "world", "unidentified", "source"}
+    assert data["profile"]["lidar"] == {
+        "beams": 360,
+        "rate_hz": 10.0,
+        "noise_sigma_m": 0.021,
+        "dropout_prob": 0.011,
+        "bias_m": 0.0098,
+        "mount_yaw_rad": 0.0101,
+    }
+    assert "angular_gain" not in data["profile"]["actuation"]
+    assert data["uncertainty"]["actuation"]["angular_gain"]["status"] == "unidentifiable"
+    assert data["uncertainty"]["lidar"]["noise_sigma_m"] == {
+        "status": "ok",
+        "value": 0.021,
+        "unit": "m",
+        "std_error": 0.0001,
+        "interval_95": [0.0208, 0.0212],
+        "method": "test",
+        "n": 100,
+    }
+    assert data["world"] == {
+        "lidar": {
+            "noise_sigma_m": 0.021,
+            "dropout_prob": 0.011,
+            "bias_m": 0.0098,
+            "mount_yaw_rad": 0.0101,
+            "sim_beams": 360,
+            "robot_radius_seen_m": 0.0,
+        },
+        "actuation": {"delay_s": 0.04, "time_constant_s": 0.16, "linear_gain": 0.95},
+        "odometry": {"drift_per_m": 0.041},
+    }
+    assert data["unidentified"] == {"actuation.angular_gain": "no turning commands above 0.05 rad/s"}
+    assert data["source"]["recordings"][0]["session"]["profile"] == "mild"
+    assert data["source"]["settings"]["parts"] == ["lidar", "actuation", "odometry", "network"]
+    # training reads the world overrides on top of params.yaml; the unidentified gain keeps its nominal value
+    world = calibrated_world(WorldConfig(), path)
+    assert world.lidar.sim_beams == 360 and world.lidar.noise_sigma_m == 0.021
+    assert world.actuation.delay_s == 0.04 and world.actuation.angular_gain == WorldConfig().actuation.angular_gain
+    assert world.odometry.drift_per_m == 0.041
+    # the report sits next to it (no fits here: a table and no plots)
+    report = (tmp_path / "calibration.md").read_text()
+    assert "| `actuation.angular_gain` | unidentifiable |" in report
+
+
+def test_estimates_that_training_would_refuse_are_an_error(tmp_path):
+    bad = calibration(**{"actuation.time_constant_s": ok(3.5, 0.1, "s")})
+    with pytest.raises(CalibrationError, match=r"actuation.time_constant_s = 3.5"):
+        calibration_mapping(bad)
+
+
+def test_settings_from_a_mapping_name_bad_keys():
+    settings = calibration_settings({"bootstrap": 50, "parts": ["lidar"]})
+    assert settings.bootstrap == 50 and settings.parts == ("lidar",)
+    with pytest.raises(ConfigError) as err:
+        calibration_settings({"bootstrap": 5, "lidar_noise": 1}, source="params.yaml")
+    text = str(err.value)
+    assert "params.yaml" in text and "bootstrap = 5" in text and "lidar_noise" in text
+
+
+def test_estimates_as_mappings():
+    assert Estimate.unidentifiable("no data", "m").as_mapping() == {
+        "status": "unidentifiable",
+        "reason": "no data",
+        "unit": "m",
+        "n": 0,
+    }
