@@ -52,8 +52,21 @@ def scenario_file(folder: Path, n: int) -> Path:
         robots.append({"start": {"x_m": x, "y_m": y, "yaw_rad": yaw}, "goal": {"x_m": x, "y_m": gy}})
     scenario = {
         "name": f"rows{n}",
-        "room": {"x_min_m": 0.0, "x_max_m": width, "y_min_m": 0.0, "y_max_m": 4.0, "wall_thickness_m": 0.1, "wall_height_m": 0.5},
-        "robot": {"radius_m": 0.165, "height_m": 0.2, "mass_kg": 5.0, "wheel_separation_m": 0.281, "wheel_diameter_m": 0.068},
+        "room": {
+            "x_min_m": 0.0,
+            "x_max_m": width,
+            "y_min_m": 0.0,
+            "y_max_m": 4.0,
+            "wall_thickness_m": 0.1,
+            "wall_height_m": 0.5,
+        },
+        "robot": {
+            "radius_m": 0.165,
+            "height_m": 0.2,
+            "mass_kg": 5.0,
+            "wheel_separation_m": 0.281,
+            "wheel_diameter_m": 0.068,
+        },
         "goal_size_m": 0.4,
         "robots": robots,
         "obstacles": [],
@@ -64,8 +77,17 @@ def scenario_file(folder: Path, n: int) -> Path:
 
 
 def tiny_policy(folder: Path, scenario: Path, max_steps: int) -> Path:
-    sc, world = make_world(world=world_config({"scenario": str(scenario), "observation": "rich", "max_steps": max_steps}))
-    tiny = {"mode": "shared", "total_steps": 100, "n_envs": 1, "net_arch": [16, 16], "batch_size": 16, "learning_starts": 20}
+    sc, world = make_world(
+        world=world_config({"scenario": str(scenario), "observation": "rich", "max_steps": max_steps})
+    )
+    tiny = {
+        "mode": "shared",
+        "total_steps": 100,
+        "n_envs": 1,
+        "net_arch": [16, 16],
+        "batch_size": 16,
+        "learning_starts": 20,
+    }
     cfg = from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), tiny), "<benchmark>")
     result = train(sc, world, cfg, folder / "run", progress=False)
     export_policy(result.checkpoint, folder / "policy", golden_observations(sc, world, 4))
@@ -78,7 +100,10 @@ def fleet_file(folder: Path, scenario: Path, n: int, domain: int) -> Path:
         "transport": "dds",
         "scenario": str(scenario),
         "network": {"domain_id": domain, "loopback_only": True, "peers": []},
-        "robots": [{"name": f"robot_{i + 1}", "namespace": f"robot_{i + 1}", "v_max_mps": 0.4, "w_max_radps": 0.2} for i in range(n)],
+        "robots": [
+            {"name": f"robot_{i + 1}", "namespace": f"robot_{i + 1}", "v_max_mps": 0.4, "w_max_radps": 0.2}
+            for i in range(n)
+        ],
         "twin": {"profile": "mild", "time_scale": 1.0, "seed": 0},
         "timing": {
             "tick_period_s": 0.02,

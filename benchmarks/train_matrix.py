@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from pipeline.config import TrainConfig, load_params, world_config
@@ -33,12 +34,43 @@ PAPER = {
 }
 
 
-def run(algorithm: str, scenario_name: str, steps: int, episodes: int, out: Path, params_path: str) -> dict[str, object]:
+@dataclass(frozen=True)
+class Row:
+    algorithm: str
+    mode: str
+    scenario: str
+    converged_at_episode: int | None
+    converged_at_steps: int | None
+    wall_to_convergence_s: float | None
+    train_episodes: int
+    train_steps: int
+    train_wall_s: float
+    robot_success: float
+    robot_ci: tuple[float, float]
+    team_success: float
+    team_ci: tuple[float, float]
+    collision_rate: float
+    paper_sim: str
+
+    def text(self) -> str:
+        conv = self.converged_at_episode if self.converged_at_episode is not None else "not reached"
+        wall = "-" if self.wall_to_convergence_s is None else f"{self.wall_to_convergence_s:.0f}"
+        robot = f"{100 * self.robot_success:.1f} % [{100 * self.robot_ci[0]:.1f}, {100 * self.robot_ci[1]:.1f}]"
+        team = f"{100 * self.team_success:.1f} % [{100 * self.team_ci[0]:.1f}, {100 * self.team_ci[1]:.1f}]"
+        return (
+            f"| {self.algorithm} ({self.mode}) | {self.scenario} | {conv} | {wall} | "
+            f"{self.train_episodes} / {self.train_steps} / {self.train_wall_s:.0f} s | "
+            f"{robot} | {team} | {self.paper_sim} |"
+        )
+
+
+def run(algorithm: str, scenario_name: str, steps: int, episodes: int, out: Path, params_path: str) -> Row:
     params = load_params(params_path)
     kind = "continuous" if algorithm == "sac" else "discrete"
     world = world_config({"scenario": scenario_name, "actions": {"kind": kind}}, base=params.world)
     scenario, world = make_world(world=world)
-    cfg = from_mapping(TrainConfig, merge(to_mapping(params.train), {"algorithm": algorithm, "total_steps": steps}), "<matrix>")
+    changes = {"algorithm": algorithm, "total_steps": steps}
+    cfg = from_mapping(TrainConfig, merge(to_mapping(params.train), changes), "<matrix>")
     folder = out / f"{algorithm}_{scenario_name}"
     start = time.perf_counter()
     result = train(scenario, world, cfg, folder / "run")
@@ -50,63 +82,60 @@ def run(algorithm: str, scenario_name: str, steps: int, episodes: int, out: Path
     conv_wall = None
     if result.converged_at_steps is not None:
         conv_wall = wall * result.converged_at_steps / max(result.world_steps, 1)
-    return {
-        "algorithm": algorithm,
-        "mode": cfg.mode,
-        "scenario": scenario_name,
-        "converged_at_episode": result.converged_at_episode,
-        "converged_at_steps": result.converged_at_steps,
-        "wall_to_convergence_s": None if conv_wall is None else round(conv_wall),
-        "train_episodes": result.episodes,
-        "train_wall_s": round(wall),
-        "robot_success": m["eval/robot_success"],
-        "robot_ci": (m["eval/robot_success_ci_low"], m["eval/robot_success_ci_high"]),
-        "team_success": m["eval/team_success"],
-        "team_ci": (m["eval/team_success_ci_low"], m["eval/team_success_ci_high"]),
-        "collision_rate": m["eval/collision_rate"],
-        "paper_sim": PAPER[(algorithm, scenario_name)],
-    }
-
-
-def row_text(r: dict[str, object]) -> str:
-    rl, rh = r["robot_ci"]  # type: ignore[misc]
-    tl, th = r["team_ci"]  # type: ignore[misc]
-    conv = r["converged_at_episode"] if r["converged_at_episode"] is not None else "not reached"
-    return (
-        f"| {r['algorithm']} ({r['mode']}) | {r['scenario']} | {conv} | {r['wall_to_convergence_s'] or '-'} | "
-        f"{r['train_episodes']} / {r['train_wall_s']} s | {100 * float(r['robot_success']):.1f} % [{100 * rl:.1f}, {100 * rh:.1f}] | "  # type: ignore[arg-type]
-        f"{100 * float(r['team_success']):.1f} % [{100 * tl:.1f}, {100 * th:.1f}] | {r['paper_sim']} |"  # type: ignore[arg-type]
+    return Row(
+        algorithm=algorithm,
+        mode=cfg.mode,
+        scenario=scenario_name,
+        converged_at_episode=result.converged_at_episode,
+        converged_at_steps=result.converged_at_steps,
+        wall_to_convergence_s=conv_wall,
+        train_episodes=result.episodes,
+        train_steps=result.world_steps,
+        train_wall_s=wall,
+        robot_success=m["eval/robot_success"],
+        robot_ci=(m["eval/robot_success_ci_low"], m["eval/robot_success_ci_high"]),
+        team_success=m["eval/team_success"],
+        team_ci=(m["eval/team_success_ci_low"], m["eval/team_success_ci_high"]),
+        collision_rate=m["eval/collision_rate"],
+        paper_sim=PAPER[(algorithm, scenario_name)],
     )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=0, help="training world steps (default: params.yaml train.total_steps)")
+    parser.add_argument(
+        "--steps",
+        nargs="+",
+        default=[],
+        metavar="ALGO=STEPS",
+        help="training world steps per algorithm, e.g. sac=400000",
+    )
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--algorithms", nargs="+", default=["sac", "dqn"])
     parser.add_argument("--scenarios", nargs="+", default=["empty", "obstacles"])
     parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--out", type=Path, default=Path("logs/train_matrix"))
     args = parser.parse_args()
-    steps = args.steps or load_params(args.params).train.total_steps
+    default = load_params(args.params).train.total_steps
+    budgets = {k: int(v) for k, _, v in (s.partition("=") for s in args.steps)}
     header = (
         "| algorithm (mode) | scenario | episodes to convergence | wall-clock to convergence (s) | "
-        "training episodes / wall-clock | robot success (95 % CI) | team success (95 % CI) | paper sim |\n"
+        "training episodes / steps / wall-clock | robot success (95 % CI) | team success (95 % CI) | paper sim |\n"
         "|---|---|---|---|---|---|---|---|"
     )
     rows = []
     for algorithm in args.algorithms:
         for scenario in args.scenarios:
-            r = run(algorithm, scenario, steps, args.episodes, args.out, args.params)
-            rows.append(r)
-            print(row_text(r), flush=True)
+            row = run(algorithm, scenario, budgets.get(algorithm, default), args.episodes, args.out, args.params)
+            rows.append(row)
+            print(row.text(), flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    table = header + "\n" + "\n".join(row_text(r) for r in rows) + "\n"
+    table = header + "\n" + "\n".join(r.text() for r in rows) + "\n"
     (args.out / "train_matrix.md").write_text(table)
     with (args.out / "train_matrix.csv").open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+        writer = csv.DictWriter(f, fieldnames=list(asdict(rows[0])))
+        writer.writeheader()
+        writer.writerows(asdict(r) for r in rows)
     print(table)
 
 

@@ -117,7 +117,13 @@ def train(
         return save_checkpoint(ckpt_dir, state, [learner.model.policy.state_dict() for learner in learners])
 
     converged_steps: int | None = None
-    bar = tqdm(total=cfg.total_steps, desc=f"train {cfg.algorithm}/{cfg.mode}", unit="step", disable=not progress)
+    bar = tqdm(
+        total=cfg.total_steps,
+        desc=f"train {cfg.algorithm}/{cfg.mode}",
+        unit="step",
+        disable=not progress,
+        mininterval=1.0,
+    )
     try:
         obs = worlds.reset()
         while steps < cfg.total_steps:

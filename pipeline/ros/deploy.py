@@ -413,7 +413,7 @@ class DeployRunner:
     def run(self, episodes: int, seed: int, progress: bool = True) -> list[EpisodeResult]:
         """Run `episodes` episodes with seeds seed, seed+1, ...; the emitter ticks throughout."""
         results: list[EpisodeResult] = []
-        bar = tqdm(range(episodes), desc="deploy", unit="ep", disable=not progress)
+        bar = tqdm(range(episodes), desc="deploy", unit="ep", disable=not progress, mininterval=1.0)
         self.emitter.start()
         try:
             for k in bar:

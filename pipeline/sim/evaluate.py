@@ -123,7 +123,7 @@ def evaluate(
     far are returned in the exception's `results` attribute (EvaluationInterrupted).
     """
     results: list[EpisodeResult] = []
-    bar = tqdm(range(episodes), desc="eval_sim", unit="ep", disable=not progress)
+    bar = tqdm(range(episodes), desc="eval_sim", unit="ep", disable=not progress, mininterval=1.0)
     t0 = 0
     period_ns = round(sim.world_config.control_period_s * NS_PER_S)
     try:

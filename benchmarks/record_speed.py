@@ -1,4 +1,4 @@
-"""Recorder and reader speed on odometry messages: ``python -m tests.record_speed [--messages N]``.
+"""Recorder and reader speed on odometry messages: ``python benchmarks/record_speed.py [--messages N]``.
 
 Each rate is printed with the limit measured in the same run on the same messages: for
 ``write`` the bare CDR serialization by the message store, for ``messages`` the bare CDR
