@@ -53,4 +53,5 @@ def test_only_ros_talks_to_the_network():
 
 def test_the_policy_runtime_loads_without_the_training_stack():
     runtime = imports_of("policy")["policy/runtime.py"]
-    assert not any(n.startswith(("stable_baselines3", "torch", "pickle", "cloudpickle", "pipeline.learn")) for n in runtime)
+    training = ("stable_baselines3", "torch", "pickle", "cloudpickle", "pipeline.learn")
+    assert not any(n.startswith(training) for n in runtime)
