@@ -40,11 +40,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     metrics = summarize(results, prefix="real")
     write_metrics(out / "metrics.json", metrics)
     write_episodes(out / "episodes.csv", results)
+    nan = float("nan")
     print(
-        f"deploy: robot success {metrics['real/robot_success']:.3f} "
-        f"[{metrics['real/robot_success_ci_low']:.3f}, {metrics['real/robot_success_ci_high']:.3f}], "
-        f"team success {metrics['real/team_success']:.3f} over {len(results)} episodes on {fleet.target} "
-        f"({profile}) -> {out}"
+        f"deploy: robot success {metrics.get('real/robot_success', nan):.3f} "
+        f"[{metrics.get('real/robot_success_ci_low', nan):.3f}, {metrics.get('real/robot_success_ci_high', nan):.3f}], "
+        f"team success {metrics.get('real/team_success', nan):.3f} over {len(results)} episodes "
+        f"({metrics['real/aborted_episodes']:.0f} aborted) on {fleet.target} ({profile}) -> {out}"
     )
     return 0
 

@@ -31,9 +31,18 @@ class EpisodeResult:
 
 
 def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, float]:
-    """Robot- and team-level success with 95 % Wilson intervals, collisions, time to goal."""
+    """Robot- and team-level success with 95 % Wilson intervals, collisions, time to goal.
+
+    Aborted episodes (a robot went silent, the session was stopped) are counted but are not
+    trials: the rates are over the finished episodes.
+    """
     if not results:
         raise ValueError("no episodes to summarise")
+    aborted = sum(r.aborted for r in results)
+    finished = [r for r in results if not r.aborted]
+    if not finished:
+        return {f"{prefix}/episodes": float(len(results)), f"{prefix}/aborted_episodes": float(aborted)}
+    results = finished
     success = np.stack([r.success for r in results])
     collided = np.stack([r.collided for r in results])
     team = np.array([r.team_success for r in results])
@@ -41,8 +50,8 @@ def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, f
     robot_k, robot_n = int(success.sum()), int(success.size)
     team_k, team_n = int(team.sum()), int(team.size)
     out = {
-        "episodes": float(len(results)),
-        "aborted_episodes": float(sum(r.aborted for r in results)),
+        "episodes": float(len(results) + aborted),
+        "aborted_episodes": float(aborted),
         "robot_success": robot_k / robot_n,
         "robot_success_ci_low": wilson_interval(robot_k, robot_n)[0],
         "robot_success_ci_high": wilson_interval(robot_k, robot_n)[1],
