@@ -107,7 +107,7 @@ def fleet_file(folder: Path, scenario: Path, n: int, domain: int) -> Path:
         "twin": {"profile": "mild", "time_scale": 1.0, "seed": 0},
         "timing": {
             "tick_period_s": 0.02,
-            "command_validity_s": 0.1,
+            "command_validity_s": 0.12,
             "discovery_timeout_s": 30.0,
             "reset_timeout_s": 20.0,
             "scan_stale_s": 0.5,

@@ -9,7 +9,7 @@ A fleet file is YAML (see ``pipeline/ros/fleets/twin.yaml``)::
     robots:                 # in scenario order: the i-th entry drives the scenario's i-th robot
       - {name: robot_1, namespace: robot_1, v_max_mps: 0.4, w_max_radps: 0.2}
     twin: {profile: mild, time_scale: 1.0, seed: 0}
-    timing: {tick_period_s: 0.02, command_validity_s: 0.1, ...}
+    timing: {tick_period_s: 0.02, command_validity_s: 0.12, ...}
 
 Loading is strict like params.yaml: unknown, missing or out-of-range keys fail with the file and
 the dotted key named.
@@ -72,7 +72,9 @@ class FleetTiming:
     """Deploy-side timing (seconds of the fleet's clock)."""
 
     tick_period_s: float = setting(0.02, gt=0.0, le=1.0)
-    command_validity_s: float = setting(0.1, gt=0.0, le=5.0)
+    command_validity_s: float = setting(0.12, gt=0.0, le=5.0)
+    """How long a command stays valid: the control period plus one emitter tick of grace, so a control
+    step that runs a little late does not leave a tick without a command."""
     discovery_timeout_s: float = setting(20.0, gt=0.0, le=600.0)
     reset_timeout_s: float = setting(20.0, gt=0.0, le=3600.0)
     scan_stale_s: float = setting(0.5, gt=0.0, le=10.0)

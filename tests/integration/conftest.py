@@ -58,7 +58,7 @@ def write_fleet(path: Path, **changes: object) -> Path:
         "twin": {"profile": "mild", "time_scale": 2.0, "seed": 0},
         "timing": {
             "tick_period_s": 0.02,
-            "command_validity_s": 0.1,
+            "command_validity_s": 0.12,
             "discovery_timeout_s": 15.0,
             "reset_timeout_s": 10.0,
             "scan_stale_s": 0.5,
