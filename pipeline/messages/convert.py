@@ -226,7 +226,7 @@ def episode_event(
     )
 
 
-TIMING_CODES: dict[str, int] = {"send": 0, "receive": 1, "tick": 2, "control": 3}
+TIMING_CODES: dict[str, int] = {"send": 0, "receive": 1, "tick": 2, "control": 3, "stale": 4}
 TIMING_NAMES: dict[int, str] = {v: k for k, v in TIMING_CODES.items()}
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from pipeline.core.scan import ScanGeometry
 from pipeline.ros.clock import Clock
 
-TimingKind = Literal["send", "receive", "tick", "control"]
+TimingKind = Literal["send", "receive", "tick", "control", "stale"]
 
 
 @dataclass(frozen=True)

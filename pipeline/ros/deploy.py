@@ -139,6 +139,7 @@ class DeployRunner:
         )
         timing = fleet.timing
         self.use_truth = timing.use_ground_truth
+        self.abort_after_ns = round(timing.abort_after_s * NS_PER_S)
         self.receiver = ReceiverBuffer(
             self.namespaces,
             scan_stale_ns=round(timing.scan_stale_s * NS_PER_S),
@@ -344,6 +345,7 @@ class DeployRunner:
         next_t = t_start
         aborted, reason = False, ""
         judged = None
+        stale_since: dict[str, int] = {}
         while True:
             if not self.clock.sleep_until(next_t):
                 break
@@ -357,11 +359,18 @@ class DeployRunner:
             if self.emitter.error is not None:
                 raise DeployAborted(f"the emitter failed: {self.emitter.error!r}", [])
             state = self.receiver.joint_state(t)
-            if not state.complete:
+            for name in self.namespaces:
+                if name in state.stale:
+                    stale_since.setdefault(name, t)
+                    self._timing(TimingEvent("stale", name, state.stale[name], t, tick=step))
+                else:
+                    stale_since.pop(name, None)
+            silent = {r: why for r, why in state.stale.items() if t - stale_since[r] >= self.abort_after_ns}
+            if silent:
                 self.emitter.clear()
-                for name, why in state.stale.items():
+                for name, why in silent.items():
                     self.log.event(t, episode, step, "abort", name, why)
-                aborted, reason = True, "; ".join(f"{r}: {why}" for r, why in state.stale.items())
+                aborted, reason = True, "; ".join(f"{r}: {why}" for r, why in silent.items())
                 break
             scans, geoms, odom, truth = self._arrays(state)
             observed = self.builder.build(scans, geoms, odom)
@@ -378,6 +387,8 @@ class DeployRunner:
             actions = self.runtime.actions(observed.obs)
             commands = self.runtime.codec.decode(actions)
             commands[done] = 0.0
+            # a robot whose data is stale stands still until it is fresh again (or the episode aborts)
+            commands[[name in state.stale for name in self.namespaces]] = 0.0
             self.emitter.command_all(next_t, commands)
             for i, ns in enumerate(self.namespaces):
                 self.log.observation(t, episode, step, ns, self.runtime.layout.name, observed.obs[i])

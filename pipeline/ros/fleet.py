@@ -81,6 +81,8 @@ class FleetTiming:
     odom_stale_s: float = setting(0.3, gt=0.0, le=10.0)
     truth_stale_s: float = setting(0.3, gt=0.0, le=10.0)
     """Ground truth staleness; used when use_ground_truth is true."""
+    abort_after_s: float = setting(1.0, ge=0.0, le=60.0)
+    """A robot stale this long aborts the episode; until then it is commanded zero velocity."""
     use_ground_truth: bool = setting(True)
     """Judge goals and collisions on /<ns>/ground_truth (motion capture or twin); else odometry and lidar."""
 

@@ -33,7 +33,10 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=None, help="noise seed (default: the fleet's)")
     parser.add_argument(
-        "--silence", default=None, metavar="NS@SECONDS", help="fault injection: robot NS stops publishing after SECONDS"
+        "--silence",
+        default=None,
+        metavar="NS@START[+DURATION]",
+        help="fault injection: robot NS stops publishing START seconds after the first reset (for DURATION seconds)",
     )
     return parser.parse_args(argv)
 
@@ -58,11 +61,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         seed = fleet.twin.seed if args.seed is None else args.seed
         silence = None
         if args.silence:
-            robot, _, after = args.silence.partition("@")
+            robot, _, when = args.silence.partition("@")
+            start, _, duration = when.partition("+")
             try:
-                silence = Silence(robot, float(after))
+                silence = Silence(robot, float(start), float(duration) if duration else None)
             except ValueError:
-                raise MrlError(f"--silence {args.silence!r}: expected NAMESPACE@SECONDS, e.g. robot_2@3.5") from None
+                raise MrlError(
+                    f"--silence {args.silence!r}: expected NAMESPACE@START[+DURATION], e.g. robot_2@3.5+0.6"
+                ) from None
         clock: Clock = WallClock() if scale == 1.0 else ScaledClock(scale, time.time_ns())
         transport = open_transport(fleet.transport, fleet.network_settings(args.fleet))
     except MrlError as exc:

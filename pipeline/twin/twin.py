@@ -74,10 +74,12 @@ def twin_world(profile: RealityProfile) -> WorldConfig:
 
 @dataclass(frozen=True)
 class Silence:
-    """Fault injection: robot `robot` stops publishing `after_s` seconds of twin time after the first reset."""
+    """Fault injection: robot `robot` stops publishing `after_s` seconds of twin time after the first
+    reset, for `duration_s` seconds (for good when None)."""
 
     robot: str
     after_s: float
+    duration_s: float | None = None
 
 
 class LossyLink:
@@ -238,7 +240,8 @@ class HardwareTwin:
         s = self.silence
         if s is None or s.robot != ns or self._first_reset_ns is None:
             return False
-        return now_ns - self._first_reset_ns >= s.after_s * 1e9
+        since = now_ns - self._first_reset_ns
+        return since >= s.after_s * 1e9 and (s.duration_s is None or since < (s.after_s + s.duration_s) * 1e9)
 
     def step(self) -> None:
         """One twin tick at time t: messages out describing the state at t, then commands in and physics to t + tick."""

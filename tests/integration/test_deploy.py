@@ -69,7 +69,7 @@ def test_a_robot_that_never_appears_is_named(tiny_policy, tmp_path):
 
 def test_a_robot_going_silent_aborts_the_episode_with_zero_commands(tiny_policy, tmp_path):
     fleet = write_fleet(tmp_path / "fleet.yaml")
-    results, _ = deploy(tiny_policy, fleet, tmp_path, twin_extra_args=["--silence", "robot_2@1.0"])
+    results, _ = deploy(tiny_policy, fleet, tmp_path, twin_extra_args=["--silence", "robot_2@0.3"])
     assert results[0].aborted and "robot_2" in results[0].abort_reason
     recorded = events(tmp_path / "session.mcap")
     aborts = [(robot, detail) for e, robot, detail in recorded if e == "abort"]
@@ -80,6 +80,19 @@ def test_a_robot_going_silent_aborts_the_episode_with_zero_commands(tiny_policy,
     abort_t = next(m.log_time_ns for m in log.messages(["/mrl/episode"]) if EVENT_NAMES[m.msg.event] == "abort")
     later = [m.msg for m in log.messages(["/robot_1/cmd_vel", "/robot_3/cmd_vel"], start_ns=abort_t + 1)]
     assert later and all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in later)
+
+
+def test_a_short_silence_stops_the_robot_without_aborting(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    results, _ = deploy(tiny_policy, fleet, tmp_path, twin_extra_args=["--silence", "robot_2@0.4+0.8"])
+    assert not results[0].aborted
+    log = McapLog(tmp_path / "session.mcap")
+    stale = [m for m in log.messages(["/mrl/timing"]) if m.msg.kind == 4]
+    assert stale and {m.msg.robot for m in stale} == {"robot_2"} and "old" in stale[0].msg.topic
+    first, last = stale[0].log_time_ns, stale[-1].log_time_ns
+    # while robot_2 was stale its commands were zero; the others kept driving
+    during = [m.msg for m in log.messages(["/robot_2/cmd_vel"], start_ns=first + 150_000_000, end_ns=last)]
+    assert during and all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in during)
 
 
 def test_ten_percent_loss_completes_and_shows_in_the_log(tiny_policy, tmp_path):
