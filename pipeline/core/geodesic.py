@@ -59,7 +59,7 @@ class DistanceField:
         gx_, gy_ = np.gradient(field, resolution_m)
         # the free path leaves each point against the gradient of the distance
         self.directions = np.arctan2(-gy_, -gx_)
-        self._unit = np.stack([np.cos(self.directions), np.sin(self.directions)], axis=-1)
+        self.unit = np.stack([np.cos(self.directions), np.sin(self.directions)], axis=-1)
 
     def _dijkstra(self, free: np.ndarray, source: np.ndarray, straight: np.ndarray) -> np.ndarray:
         nx, ny = free.shape
@@ -92,7 +92,7 @@ class DistanceField:
         fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
         ix, iy = fx.astype(int), fy.astype(int)
         tx, ty = (fx - ix)[:, None], (fy - iy)[:, None]
-        u = self._unit
+        u = self.unit
         v = (
             u[ix, iy] * (1 - tx) * (1 - ty)
             + u[ix + 1, iy] * tx * (1 - ty)
@@ -117,3 +117,46 @@ class DistanceField:
             + v[ix + 1, iy + 1] * tx * ty
         )
         return np.asarray(out)
+
+
+class GoalFields:
+    """Every robot's own distance field at once: robot i's distance and path heading at its position."""
+
+    def __init__(self, fields: list[DistanceField] | tuple[DistanceField, ...]) -> None:
+        first = fields[0]
+        self.resolution_m = first.resolution_m
+        self.x0, self.y0 = first.x0, first.y0
+        self.values = np.stack([f.values for f in fields])  # (n, nx, ny)
+        self.unit = np.stack([f.unit for f in fields])  # (n, nx, ny, 2)
+
+    def _corners(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        p = np.asarray(xy, dtype=np.float64)
+        _, nx, ny = self.values.shape
+        fx = np.clip((p[:, 0] - self.x0) / self.resolution_m, 0.0, nx - 1.000001)
+        fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
+        ix, iy = fx.astype(int), fy.astype(int)
+        return np.arange(len(p)), ix, iy, fx - ix, fy - iy
+
+    def distance(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) robot i's free-path distance (m) to its goal from point xy[i]."""
+        r, ix, iy, tx, ty = self._corners(xy)
+        v = self.values
+        return np.asarray(
+            v[r, ix, iy] * (1 - tx) * (1 - ty)
+            + v[r, ix + 1, iy] * tx * (1 - ty)
+            + v[r, ix, iy + 1] * (1 - tx) * ty
+            + v[r, ix + 1, iy + 1] * tx * ty
+        )
+
+    def direction(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) heading (rad) of robot i's free path to its goal at point xy[i]."""
+        r, ix, iy, tx, ty = self._corners(xy)
+        u = self.unit
+        tx, ty = tx[:, None], ty[:, None]
+        v = (
+            u[r, ix, iy] * (1 - tx) * (1 - ty)
+            + u[r, ix + 1, iy] * tx * (1 - ty)
+            + u[r, ix, iy + 1] * (1 - tx) * ty
+            + u[r, ix + 1, iy + 1] * tx * ty
+        )
+        return np.asarray(np.arctan2(v[:, 1], v[:, 0]))

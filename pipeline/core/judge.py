@@ -14,7 +14,7 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.core.geodesic import DistanceField
+from pipeline.core.geodesic import DistanceField, GoalFields
 from pipeline.core.scenario import Scenario, box_clearance
 
 ProgressDistance = Literal["geodesic", "euclidean"]
@@ -68,7 +68,7 @@ class EpisodeJudge:
         """`distance` measures progress toward the goal: straight-line, or along the free path ("geodesic")."""
         self.scenario = scenario
         self.distance = distance
-        self._fields = _distance_fields(scenario) if distance == "geodesic" else ()
+        self._fields = _goal_fields(scenario) if distance == "geodesic" else None
         self.weights = weights
         self.max_steps = max_steps
         self.margin_m = collision_margin_m
@@ -100,8 +100,8 @@ class EpisodeJudge:
     def path_direction(self, pose: np.ndarray) -> np.ndarray:
         """(n_robots,) heading (rad) toward each robot's goal: along the free path, or straight at it."""
         xy = np.asarray(pose)[:, :2]
-        if self._fields:
-            return np.array([float(f.direction(xy[i : i + 1])[0]) for i, f in enumerate(self._fields)])
+        if self._fields is not None:
+            return self._fields.direction(xy)
         d = self.goals - xy
         return np.asarray(np.arctan2(d[:, 1], d[:, 0]))
 
@@ -113,8 +113,8 @@ class EpisodeJudge:
     def goal_distance(self, pose: np.ndarray) -> np.ndarray:
         """(n_robots,) distance (m) from each robot to its goal centre, straight or along the free path."""
         xy = np.asarray(pose)[:, :2]
-        if self._fields:
-            return np.array([float(f(xy[i : i + 1])[0]) for i, f in enumerate(self._fields)])
+        if self._fields is not None:
+            return self._fields.distance(xy)
         d = xy - self.goals
         return np.asarray(np.hypot(d[:, 0], d[:, 1]))
 
@@ -202,6 +202,6 @@ class EpisodeJudge:
 
 
 @lru_cache(maxsize=16)
-def _distance_fields(scenario: Scenario) -> tuple[DistanceField, ...]:
-    """One free-path distance field per robot goal (cached: scenarios are immutable)."""
-    return tuple(DistanceField(scenario, goal) for goal in scenario.goals)
+def _goal_fields(scenario: Scenario) -> GoalFields:
+    """The free-path distance fields of every robot's goal (cached: scenarios are immutable)."""
+    return GoalFields([DistanceField(scenario, goal) for goal in scenario.goals])
