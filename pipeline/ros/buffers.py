@@ -15,11 +15,12 @@ measured from the recording. Times are integer nanoseconds of the deploy clock.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -66,8 +67,16 @@ class Command:
     w_radps: float
 
 
-Publish = Callable[[str, float, float], None]
-"""Sends (robot, v m/s, w rad/s) to the robot's cmd_vel."""
+Publish = Callable[[str, Any], None]
+"""Sends a prepared command (see Prepare) to the robot's cmd_vel."""
+Prepare = Callable[[str, float, float], Any]
+"""Everything of sending (robot, v m/s, w rad/s) that can be done before the tick's sends."""
+
+
+def _as_is(robot: str, v: float, w: float) -> Any:
+    return (v, w)
+
+
 Sent = Callable[[str, float, float, int], None]
 """Told (robot, v m/s, w rad/s, send time ns) after a tick's sends, e.g. to record them."""
 
@@ -89,6 +98,7 @@ class EmitterBuffer:
         on_timing: TimingSink = _ignore,
         topics: Mapping[str, str] | None = None,
         on_sent: Sent = _nothing_sent,
+        prepare: Prepare = _as_is,
     ) -> None:
         if tick_period_ns <= 0 or validity_ns <= 0:
             raise ValueError("tick period and validity must be positive")
@@ -100,6 +110,7 @@ class EmitterBuffer:
         self.validity_ns = validity_ns
         self.on_timing = on_timing
         self.on_sent = on_sent
+        self.prepare = prepare
         self.topics = dict(topics or {r: f"/{r}/cmd_vel" for r in self.robots})
         self._queues: dict[str, deque[Command]] = {r: deque(maxlen=64) for r in self.robots}
         self._lock = threading.Lock()
@@ -110,6 +121,8 @@ class EmitterBuffer:
         self.last_sent: dict[str, tuple[float, float]] = {r: (0.0, 0.0) for r in self.robots}
         self.error: BaseException | None = None
         self.grid_origin_ns = 0
+        self.realtime = False
+        """Whether the tick thread got a real-time scheduling priority (needs CAP_SYS_NICE or an rtprio limit)."""
 
     def command(self, robot: str, stamp_ns: int, v_mps: float, w_radps: float) -> None:
         """Queue a command for `robot` valid from `stamp_ns`."""
@@ -160,14 +173,14 @@ class EmitterBuffer:
         for robot in self.robots:
             cmd = chosen[robot]
             v, w = (0.0, 0.0) if cmd is None else self.clamp(robot, cmd.v_mps, cmd.w_radps)
-            planned.append((robot, v, w, 0 if cmd is None else cmd.stamp_ns))
+            planned.append((robot, v, w, 0 if cmd is None else cmd.stamp_ns, self.prepare(robot, v, w)))
         times = []
-        for robot, v, w, _ in planned:
-            self.publish(robot, v, w)
+        for robot, _, _, _, ready in planned:
+            self.publish(robot, ready)
             times.append(self.clock.now_ns())
         self.on_timing(TimingEvent("tick", "", "", t, tick=tick))
         sent = {}
-        for (robot, v, w, stamp), sent_ns in zip(planned, times, strict=True):
+        for (robot, v, w, stamp, _), sent_ns in zip(planned, times, strict=True):
             self._seq += 1
             self.on_timing(TimingEvent("send", robot, self.topics[robot], sent_ns, stamp, self._seq, tick))
             self.on_sent(robot, v, w, sent_ns)
@@ -185,6 +198,7 @@ class EmitterBuffer:
         self._thread.start()
 
     def _run(self) -> None:
+        self.realtime = _try_realtime_priority()
         try:
             next_t = self.grid_origin_ns
             while not self._stop.is_set():
@@ -207,6 +221,17 @@ class EmitterBuffer:
         if send_zero:
             self.clear()
             self.tick()
+
+
+def _try_realtime_priority(priority: int = 10) -> bool:
+    """Ask the OS to run the calling thread under SCHED_FIFO so ticks wake on time under load; False if refused."""
+    if not hasattr(os, "sched_setscheduler"):
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError):
+        return False
+    return True
 
 
 @dataclass(frozen=True)

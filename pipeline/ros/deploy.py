@@ -157,6 +157,7 @@ class DeployRunner:
             validity_ns=round(timing.command_validity_s * NS_PER_S),
             on_timing=self._timing,
             on_sent=self._sent,
+            prepare=self._prepare,
         )
         self._reset_pub = transport.publisher(T.FLEET_TOPICS["reset"])
         self._reset_done: dict[int, int] = {}
@@ -178,8 +179,11 @@ class DeployRunner:
     def _timing(self, e: TimingEvent) -> None:
         self.log.timing(e.local_ns, e.kind, e.robot, e.topic, e.source_stamp_ns, e.seq, e.tick)
 
-    def _send(self, ns: str, v: float, w: float) -> None:
-        self._cmd_pubs[ns].publish(C.twist(v, w, store=self.store))
+    def _prepare(self, ns: str, v: float, w: float) -> Any:
+        return self._cmd_pubs[ns].prepare(C.twist(v, w, store=self.store))
+
+    def _send(self, ns: str, prepared: Any) -> None:
+        self._cmd_pubs[ns].publish_prepared(prepared)
 
     def _sent(self, ns: str, v: float, w: float, t_ns: int) -> None:
         self.log.message(f"/{ns}/cmd_vel", C.twist(v, w, store=self.store), t_ns)

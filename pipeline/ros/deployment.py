@@ -30,7 +30,7 @@ from pipeline.ros.transport import open_transport
 from pipeline.settings import to_mapping
 
 TWIN_START_TIMEOUT_S = 60.0
-SWITCH_INTERVAL_S = 0.0002
+SWITCH_INTERVAL_S = 0.00005
 
 
 @dataclass(frozen=True)

@@ -171,6 +171,14 @@ class Publisher(ABC):
     def publish(self, msg: Any) -> None:
         """Sends `msg`, a message of ``spec.typename``; a wrong type or a closed publisher raises TransportError."""
 
+    def prepare(self, msg: Any) -> Any:
+        """Everything of sending `msg` that can be done ahead (checks, encoding); see :meth:`publish_prepared`."""
+        return msg
+
+    def publish_prepared(self, prepared: Any) -> None:
+        """Sends what :meth:`prepare` returned: time-critical senders prepare first, then send back to back."""
+        self.publish(prepared)
+
     @abstractmethod
     def close(self) -> None:
         """Withdraws the publisher from the network; idempotent."""

@@ -39,7 +39,7 @@ def emitter():
     sent: list[tuple[int, str, float, float]] = []
     events: list[TimingEvent] = []
     limits = {"robot_1": VelocityLimits(0.4, 0.2), "robot_2": VelocityLimits(0.3, 0.2)}
-    em = EmitterBuffer(limits, lambda r, v, w: sent.append((clock.t, r, v, w)), clock, on_timing=events.append)
+    em = EmitterBuffer(limits, lambda r, c: sent.append((clock.t, r, *c)), clock, on_timing=events.append)
     return em, clock, sent, events
 
 
@@ -105,7 +105,7 @@ def test_stop_sends_zero_to_everyone(emitter):
 def test_background_ticks_follow_the_grid():
     clock = ManualClock(1_000 * MS)
     sent: list[int] = []
-    em = EmitterBuffer({"robot_1": VelocityLimits(0.4, 0.2)}, lambda r, v, w: sent.append(clock.t), clock)
+    em = EmitterBuffer({"robot_1": VelocityLimits(0.4, 0.2)}, lambda r, c: sent.append(clock.t), clock)
     em.start()
     while len(sent) < 10:
         pass

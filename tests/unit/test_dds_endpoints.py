@@ -57,3 +57,21 @@ def test_one_topic_name_cannot_carry_two_types(transport: DdsTransport) -> None:
     transport.publisher(T.TopicSpec("/robot_1/thing", T.TWIST, T.QOS_COMMAND))
     with pytest.raises(TransportError, match="/robot_1/thing: already carries geometry_msgs/msg/Twist"):
         transport.publisher(T.TopicSpec("/robot_1/thing", T.CLOCK, T.QOS_SENSOR))
+
+
+def test_prepared_sends_are_the_bytes_the_writer_would_send():
+    """publish_prepared writes the store's CDR; it must be exactly what DataWriter.write serializes."""
+    from pipeline.messages import convert as C
+    from pipeline.messages.topics import robot_topics
+    from pipeline.ros.transport import NetworkSettings, open_transport
+
+    with open_transport("dds", NetworkSettings(domain_id=199)) as transport:
+        pub = transport.publisher(robot_topics("robot_1")["cmd_vel"])
+        msg = C.twist(0.123, -0.2)
+        sample = pub._dtype.to_dds(msg)  # what publish() would hand to DataWriter.write
+        wire = sample.serialize(use_version_2=False)
+        assert pub.prepare(msg) == wire.ljust((len(wire) + 3) & ~3, b"\0")
+        pub.publish_prepared(pub.prepare(msg))
+        pub.close()
+        with pytest.raises(TransportError, match="closed"):
+            pub.publish_prepared(pub.prepare(msg))
