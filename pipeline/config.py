@@ -198,6 +198,8 @@ class TrainConfig:
     seed: int = setting(0, ge=0)
     net_arch: tuple[int, ...] = setting((256, 256), min_len=1)
     learning_rate: float = setting(3e-4, gt=0.0, le=1.0)
+    learning_rate_schedule: Literal["constant", "linear"] = setting("constant")
+    """linear: decay to 0 over the budget, which steadies the final policy."""
     gamma: float = setting(0.99, gt=0.0, le=1.0)
     batch_size: int = setting(256, ge=1)
     buffer_size: int = setting(300_000, ge=1)

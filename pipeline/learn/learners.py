@@ -9,6 +9,7 @@ methods. Only transitions of robots that were active at the start of a step are 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import gymnasium
@@ -249,6 +250,18 @@ class OnPolicyLearner:
         self._mask[:] = False
 
 
+def learning_rate(cfg: TrainConfig) -> float | Callable[[float], float]:
+    """The configured learning rate: constant, or decaying linearly to 0 with SB3's progress_remaining (1 -> 0)."""
+    if cfg.learning_rate_schedule == "constant":
+        return cfg.learning_rate
+    start = cfg.learning_rate
+
+    def schedule(progress_remaining: float) -> float:
+        return start * progress_remaining
+
+    return schedule
+
+
 def _net_arch(cfg: TrainConfig) -> list[int]:
     return list(cfg.net_arch)
 
@@ -267,7 +280,7 @@ def build_learner(
         model = LoopPPO(
             "MlpPolicy",
             env,
-            learning_rate=cfg.learning_rate,
+            learning_rate=learning_rate(cfg),
             n_steps=ppo.n_steps,
             batch_size=min(ppo.minibatch_size, ppo.n_steps * n_streams),
             n_epochs=ppo.n_epochs,
@@ -286,7 +299,7 @@ def build_learner(
         return OnPolicyLearner(model, cfg)
     env = SpacesVecEnv(observation_space, action_space, 1)
     common: dict[str, Any] = {
-        "learning_rate": cfg.learning_rate,
+        "learning_rate": learning_rate(cfg),
         "buffer_size": cfg.buffer_size,
         "learning_starts": 0,
         "batch_size": cfg.batch_size,
