@@ -72,6 +72,19 @@ def _plan(n_src: int, angle_min: float, inc: float, n_out: int, method: Reductio
     return (member,)
 
 
+def uncovered_beams(geometry: ScanGeometry, n_beams: int) -> list[int]:
+    """The policy beams (indices) that no beam of a scan with `geometry` falls within half a sector of.
+
+    A scan with fewer beams or a narrower field of view than the policy was trained on leaves these
+    directions blind: `sector_min` reports them as "nothing seen" and `pick` repeats a neighbour.
+    """
+    geometry.check()
+    (member,) = _plan(
+        geometry.n_beams, float(geometry.angle_min_rad), float(geometry.angle_increment_rad), n_beams, "sector_min"
+    )
+    return [int(k) for k in np.flatnonzero(~member.any(axis=1))]
+
+
 def reduce_scan(
     ranges: np.ndarray,
     geometry: ScanGeometry,

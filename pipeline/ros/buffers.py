@@ -2,7 +2,8 @@
 
 **EmitterBuffer**: one timestamped command queue per robot. A single tick every `tick_period_ns`
 (20 ms) sends every robot's current command in the same tick. A command is valid for its
-execution window [stamp, stamp + validity) (100 ms); a robot without a valid command gets zero
+execution window [stamp, stamp + validity) (100 ms by default; the bundled fleets add one tick of
+grace, 120 ms, so a control step a little late never leaves a gap); a robot without a valid command gets zero
 velocity (the watchdog). Velocities are clamped to each robot's limits before they leave.
 
 **ReceiverBuffer**: per robot a bounded ring of timestamped scans, odometry and ground truth.

@@ -24,8 +24,9 @@ from tqdm import tqdm
 from pipeline.core.episode import EpisodeResult
 from pipeline.core.judge import EpisodeJudge, RewardWeights
 from pipeline.core.observe import ObservationBuilder
+from pipeline.core.scan import uncovered_beams
 from pipeline.core.scenario import Scenario
-from pipeline.errors import MrlError
+from pipeline.errors import MrlError, PolicyMismatch
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
@@ -126,6 +127,7 @@ class DeployRunner:
         self.namespaces = [r.namespace for r in fleet.robots]
         meta = runtime.meta
         self.builder = observation_builder(runtime, scenario)
+        self.policy_name = runtime.name
         judge = meta.get("judge", {})
         self.period_ns = round(float(meta.get("control_period_s", 0.1)) * NS_PER_S)
         self.max_steps = int(judge.get("max_steps", meta.get("max_steps", 350)))
@@ -258,6 +260,39 @@ class DeployRunner:
             while not self.clock.anchored:
                 if time.monotonic() > deadline:
                     raise FleetNotReady(f"no /clock message within {timeout_s:g} s although the fleet's time is scaled")
+                time.sleep(0.01)
+        self._check_scans(deadline, timeout_s)
+
+    def _check_scans(self, deadline: float, timeout_s: float) -> None:
+        """Wait for every robot's first scan; refuse a lidar that leaves some of the policy's beams blind."""
+        n_beams = self.builder.layout.n_beams
+        pending = list(self.fleet.robots)
+        while pending:
+            for robot in list(pending):
+                sample = self.receiver.latest("scan", robot.namespace)
+                if not isinstance(sample, ScanSample):
+                    continue
+                pending.remove(robot)
+                g = sample.geometry
+                blind = uncovered_beams(g, n_beams)
+                if blind:
+                    first, last = (
+                        np.degrees(g.angle_min_rad),
+                        np.degrees(g.angle_min_rad + g.angle_increment_rad * (g.n_beams - 1)),
+                    )
+                    raise PolicyMismatch(
+                        self.policy_name,
+                        [
+                            f"it reads {n_beams} lidar beams around the robot, but {robot.topics()['scan'].name} "
+                            f"has {g.n_beams} beams from {first:.0f} to {last:.0f} deg, which leave {len(blind)} "
+                            f"of them without a return (policy beams {blind})"
+                        ],
+                    )
+            if pending:
+                self._check_alive()
+                if time.monotonic() > deadline:
+                    names = ", ".join(f"{r.name} ({r.topics()['scan'].name})" for r in pending)
+                    raise FleetNotReady(f"no scan received within {timeout_s:g} s from {names}")
                 time.sleep(0.01)
 
     def _check_alive(self) -> None:

@@ -59,10 +59,8 @@ def test_episodes_on_the_twin_are_recorded_in_the_sim_layout(tiny_policy, tmp_pa
 
 def test_a_robot_that_never_appears_is_named(tiny_policy, tmp_path):
     fleet = write_fleet(tmp_path / "fleet.yaml", target="robots", timing={"discovery_timeout_s": 1.5})
-    started = time.monotonic()
     with pytest.raises(FleetNotReady, match=r"robot_1 \(/robot_1/scan\)"):
         deploy(tiny_policy, fleet, tmp_path)
-    assert time.monotonic() - started < 20
     # the recording made until then is a valid, finished file
     assert not McapLog(tmp_path / "session.mcap").salvaged
 
@@ -135,6 +133,22 @@ def test_a_dying_twin_stops_the_robots_and_finalizes_the_recording(tiny_policy, 
     log = McapLog(tmp_path / "session.mcap")
     assert not log.salvaged
     assert any(e == "abort" for e, _, _ in events(tmp_path / "session.mcap"))
+    # the last command each robot was sent is zero velocity
+    for ns in ("robot_1", "robot_2", "robot_3"):
+        last = list(log.messages([f"/{ns}/cmd_vel"]))[-1].msg
+        assert last.linear.x == 0.0 and last.angular.z == 0.0
+
+
+def test_a_lidar_that_leaves_policy_beams_blind_is_refused(tiny_policy, tmp_path):
+    profile = yaml.safe_load(Path("pipeline/twin/profiles/mild.yaml").read_text())
+    profile["lidar"]["beams"] = 10  # 36 deg apart: some of the policy's 15 sectors (24 deg) get no beam
+    (tmp_path / "sparse.yaml").write_text(yaml.safe_dump(profile))
+    fleet = write_fleet(tmp_path / "fleet.yaml", twin={"profile": str(tmp_path / "sparse.yaml")})
+    with pytest.raises(PolicyMismatch, match=r"reads 15 lidar beams.*/robot_1/scan has 10 beams") as err:
+        deploy(tiny_policy, fleet, tmp_path)
+    assert "without a return" in str(err.value)
+    log = McapLog(tmp_path / "session.mcap")
+    assert not log.salvaged and "/mrl/episode" not in log.message_counts()  # refused before any episode
 
 
 def test_a_policy_for_another_fleet_is_refused_before_anything_starts(tiny_policy, tmp_path):

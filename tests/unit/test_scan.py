@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.core.scan import ScanGeometry, reduce_scan
+from pipeline.core.scan import ScanGeometry, reduce_scan, uncovered_beams
 from pipeline.errors import ScanError
 
 FULL_360 = ScanGeometry(360, 0.0, math.radians(1.0), 0.12, 12.0)
@@ -92,3 +92,21 @@ def test_identity_when_geometries_match():
 def test_bad_scans_raise_scan_error(ranges, geom, beams, match):
     with pytest.raises(ScanError, match=match):
         reduce_scan(ranges, geom, beams, 0.055, 5.0)
+
+
+def test_uncovered_beams_finds_the_policy_directions_a_scan_cannot_see():
+    full = ScanGeometry(360, -math.pi, 2 * math.pi / 360, 0.05, 8.0)
+    assert uncovered_beams(full, 15) == []
+    # 15 beams where the policy reads 15: every sector has its own beam
+    assert uncovered_beams(ScanGeometry(15, 0.0, 2 * math.pi / 15, 0.05, 8.0), 15) == []
+    # 10 beams 36 deg apart leave 5 of the 24 deg sectors empty
+    sparse = ScanGeometry(10, 0.0, 2 * math.pi / 10, 0.05, 8.0)
+    blind = uncovered_beams(sparse, 15)
+    assert len(blind) == 5
+    ranges = np.full(10, 1.0)
+    out = reduce_scan(ranges, sparse, 15, 0.1, 3.5, "sector_min")
+    assert np.all(out[blind] == 3.5) and np.all(np.delete(out, blind) == 1.0)
+    # a front-facing 180 deg lidar leaves the rear half blind (policy beam 0 looks forward)
+    front = ScanGeometry(181, -math.pi / 2, math.pi / 180, 0.05, 8.0)
+    rear = uncovered_beams(front, 16)
+    assert rear == list(range(5, 12))
