@@ -25,12 +25,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from pipeline.analysis.timing import TimingFigures, timing_figures
 from pipeline.config import TrainConfig, world_config
 from pipeline.learn.trainer import train
-from pipeline.messages.convert import TIMING_CODES
 from pipeline.policy.export import export_policy, golden_observations
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.record import McapLog
 from pipeline.ros.clock import WallClock
 from pipeline.ros.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
@@ -136,43 +135,7 @@ def bare_timer_jitter_ms(seconds: float) -> float:
     return float(np.percentile(np.abs(periods - 20.0), 99))
 
 
-def timing_figures(path: Path) -> dict[str, float]:
-    ticks: list[int] = []
-    sends: dict[int, list[int]] = {}
-    receives: dict[tuple[str, str], list[int]] = {}
-    controls: list[int] = []
-    for m in McapLog(path).messages(["/mrl/timing"]):
-        t = m.msg
-        if t.kind == TIMING_CODES["tick"]:
-            ticks.append(t.local_ns)
-        elif t.kind == TIMING_CODES["send"]:
-            sends.setdefault(t.tick, []).append(t.local_ns)
-        elif t.kind == TIMING_CODES["receive"]:
-            channel = t.topic.rsplit("/", 1)[-1]
-            if channel in ("odom", "scan"):
-                receives.setdefault((t.robot, channel), []).append(t.local_ns)
-        elif t.kind == TIMING_CODES["control"]:
-            controls.append(t.local_ns)
-    periods = np.diff(np.array(ticks)) / 1e6
-    periods = periods[periods < 100.0]  # gaps between episodes' resets are not tick periods
-    skews = np.array([(max(v) - min(v)) / 1e6 for v in sends.values() if len(v) > 1])
-    ages = []
-    for stamps in receives.values():
-        arr = np.sort(np.array(stamps))
-        idx = np.searchsorted(arr, np.array(controls), side="right") - 1
-        ok = idx >= 0
-        ages.append((np.array(controls)[ok] - arr[idx[ok]]) / 1e6)
-    age = np.concatenate(ages) if ages else np.zeros(1)
-    return {
-        "tick_p50_ms": float(np.percentile(periods, 50)),
-        "jitter_p99_ms": float(np.percentile(np.abs(periods - 20.0), 99)),
-        "skew_p99_ms": float(np.percentile(skews, 99)),
-        "age_p99_ms": float(np.percentile(age, 99)),
-        "ticks": float(len(ticks)),
-    }
-
-
-def measure(n: int, seconds: float, folder: Path, domain: int) -> dict[str, float]:
+def measure(n: int, seconds: float, folder: Path, domain: int) -> TimingFigures:
     scenario = scenario_file(folder, n)
     max_steps = 100
     policy = tiny_policy(folder / f"p{n}", scenario, max_steps)
@@ -192,18 +155,18 @@ def main() -> None:
         folder = Path(tmp)
         bare = bare_timer_jitter_ms(min(args.seconds, 10.0))
         print(f"bare 20 ms timer loop: jitter p99 {bare:.3f} ms (the limit on this machine)")
-        first: dict[str, float] | None = None
+        first: TimingFigures | None = None
         for k, n in enumerate(args.robots):
             fig = measure(n, args.seconds, folder, 150 + k)
             first = first or fig
             print(
-                f"{n:2d} robots: tick p50 {fig['tick_p50_ms']:.3f} ms, jitter p99 {fig['jitter_p99_ms']:.3f} ms, "
-                f"send skew p99 {fig['skew_p99_ms']:.3f} ms, joint-state age p99 {fig['age_p99_ms']:.1f} ms "
-                f"({fig['ticks']:.0f} ticks)"
+                f"{n:2d} robots: tick p50 {fig.tick_p50_ms:.3f} ms, jitter p99 {fig.tick_jitter_p99_ms:.3f} ms, "
+                f"send skew p99 {fig.skew_p99_ms:.3f} ms, joint-state age p99 {fig.age_p99_ms:.1f} ms "
+                f"({fig.ticks} ticks, {fig.stale} stale records)"
             )
     assert first is not None
-    ratio = first["jitter_p99_ms"] / max(bare, 1e-6)
-    print(f"ratio={ratio:.2f} jitter_p99_ms={first['jitter_p99_ms']:.3f} skew_p99_ms={first['skew_p99_ms']:.3f}")
+    ratio = first.tick_jitter_p99_ms / max(bare, 1e-6)
+    print(f"ratio={ratio:.2f} jitter_p99_ms={first.tick_jitter_p99_ms:.3f} skew_p99_ms={first.skew_p99_ms:.3f}")
 
 
 if __name__ == "__main__":

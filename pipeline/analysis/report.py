@@ -5,8 +5,10 @@ calibrated round recorded in sim and on the fleet, optional training curves and 
 markdown section written elsewhere (e.g. the calibration results), and writes into one folder:
 
 - ``report.md``: sessions, success rates with 95 % Wilson intervals, sim-vs-real gaps with their
-  tests, per-robot rates, and the figures below;
-- ``metrics.json``: the flat metrics of :func:`pipeline.analysis.compare.compare` (NaN as null);
+  tests, per-robot rates, the deployments' timing (:mod:`pipeline.analysis.timing`), and the
+  figures below;
+- ``metrics.json``: the flat metrics of :func:`pipeline.analysis.compare.compare` (NaN as null)
+  and each deployment's timing figures (``real/<label>/tick_jitter_p99_ms``, ...);
 - ``success_rates.png``, ``trajectories.png`` and, given curves, ``learning_curves.png``.
 """
 
@@ -26,6 +28,7 @@ from pipeline.analysis import AnalysisError
 from pipeline.analysis.compare import WORLDS, Comparison, compare
 from pipeline.analysis.plots import plot_learning_curves, plot_success_rates, plot_trajectories, success_panels
 from pipeline.analysis.tables import Recording
+from pipeline.analysis.timing import TIMING_TOPIC, TimingFigures, timing_figures, timing_markdown
 
 REPORT_NAME = "report.md"
 METRICS_NAME = "metrics.json"
@@ -101,6 +104,7 @@ def write_report(
         table = recording.episodes_table().with_columns(pl.lit(item.label).alias("label"))
         tables[item.world].setdefault(item.label, []).append(table)
         recordings.append((item, recording))
+    _check_scenarios(recordings)
     pooled = {w: {label: pl.concat(parts) for label, parts in by_label.items()} for w, by_label in tables.items()}
     comparison = compare(pooled["sim"], pooled["real"])
     episodes = pl.concat([t for by_label in pooled.values() for t in by_label.values()], how="diagonal_relaxed")
@@ -119,14 +123,34 @@ def write_report(
     if curves:
         figures["learning_curves"] = plot_learning_curves(curves, out / "learning_curves.png")
 
+    timing: list[tuple[str, TimingFigures]] = []
+    metrics = dict(comparison.metrics)
+    for item, recording in recordings:
+        if item.world == "real" and TIMING_TOPIC in recording.topics():
+            figures_of = timing_figures(recording)
+            timing.append((f"{item.world} {item.label}", figures_of))
+            metrics.update(figures_of.as_metrics(f"{item.world}/{item.label}"))
+
     metrics_path = out / METRICS_NAME
-    metrics_path.write_text(
-        json.dumps(_json_safe(comparison.metrics), indent=2, sort_keys=True) + "\n", encoding="utf-8"
-    )
-    markdown = _markdown(title, recordings, comparison, figures, out, extra_title, extra_markdown)
+    metrics_path.write_text(json.dumps(_json_safe(metrics), indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    markdown = _markdown(title, recordings, comparison, figures, out, extra_title, extra_markdown, timing)
     report_path = out / REPORT_NAME
     report_path.write_text(markdown, encoding="utf-8")
     return Report(report_path, metrics_path, figures, comparison, episodes)
+
+
+def _check_scenarios(recordings: Sequence[tuple[LabelledSession, Recording]]) -> None:
+    """Sessions compared under one label must come from one scenario."""
+    first: dict[str, tuple[str, Path]] = {}
+    for item, recording in recordings:
+        scenario = recording.info.scenario
+        seen = first.setdefault(item.label, (scenario, item.path))
+        if seen[0] != scenario:
+            raise AnalysisError(
+                str(item.path),
+                f"recorded in scenario {scenario!r}, but {seen[1]} (label {item.label!r}) is from {seen[0]!r}; "
+                "the sim and real sessions of one label must share a scenario",
+            )
 
 
 def _label_order(items: Sequence[LabelledSession], label: str) -> int:
@@ -178,6 +202,7 @@ def _markdown(
     out: Path,
     extra_title: str,
     extra_markdown: str,
+    timing: Sequence[tuple[str, TimingFigures]] = (),
 ) -> str:
     parts = [f"# {title}", ""]
     sessions = pl.DataFrame(
@@ -274,6 +299,16 @@ def _markdown(
         "mean_time_to_goal_s",
     )
     parts += ["## Per robot", "", markdown_table(robots), ""]
+    if timing:
+        parts += [
+            "## Deployment timing",
+            "",
+            "On the runner's clock (simulated time when the twin runs time-scaled): emitter tick period and "
+            "jitter, last-minus-first send within a tick, the age of each robot's odometry and scan at the "
+            "control steps, and control steps at which a robot's data was stale.",
+            "",
+            timing_markdown(list(timing)),
+        ]
     parts += ["## Trajectories", "", f"![trajectories]({_relative(figures['trajectories'], out)})", ""]
     if "learning_curves" in figures:
         parts += ["## Training", "", f"![learning curves]({_relative(figures['learning_curves'], out)})", ""]

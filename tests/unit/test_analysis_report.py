@@ -78,10 +78,41 @@ def test_report_folder(recordings, tmp_path):
     assert metrics["sim/nominal/aborted_episodes"] == 3
     assert "gap/nominal/robot_success_p_value" in metrics
     assert metrics["gap/nominal/robot_success"] == 0.0
+    assert "## Deployment timing" not in text  # the real recording has no /mrl/timing
     assert metrics.keys() == report.comparison.metrics.keys()
     for key, value in report.comparison.metrics.items():
         assert metrics[key] == (None if math.isnan(value) else value)
     assert report.episodes.height == 20 and set(report.episodes["label"]) == {"nominal"}
+
+
+def test_report_shows_deployment_timing(recordings, tmp_path):
+    sim, _ = recordings
+    real = write_session(tmp_path / "timed.mcap", ground_truth=False, timing=True)
+    report = write_report(tmp_path / "report", [("nominal", "sim", sim), ("nominal", "real", real)])
+    text = report.markdown.read_text()
+    assert "## Deployment timing" in text
+    row = next(line for line in text.splitlines() if line.startswith("| real nominal |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == "20.000" and cells[3] == "0.000" and cells[4] == "0.050" and cells[5] == "5.0"
+    metrics = json.loads(report.metrics.read_text())
+    assert metrics["real/nominal/send_skew_p99_ms"] == pytest.approx(0.05)
+    assert metrics["real/nominal/state_age_p99_ms"] == pytest.approx(5.0)
+    assert metrics["real/nominal/stale_records"] == 0
+    assert not any(key.startswith("sim/nominal/tick") for key in metrics)
+    assert set(metrics) - set(report.comparison.metrics) == {
+        f"real/nominal/{name}"
+        for name in ("tick_jitter_p99_ms", "send_skew_p99_ms", "state_age_p99_ms", "stale_records")
+    }
+
+
+def test_sessions_of_one_label_from_different_scenarios_are_refused(recordings, tmp_path):
+    sim, _ = recordings
+    other = write_session(tmp_path / "boxes.mcap", ground_truth=False, scenario_name="obstacles")
+    with pytest.raises(AnalysisError, match=r"boxes\.mcap: recorded in scenario 'obstacles', but .*sim\.mcap"):
+        write_report(tmp_path / "out", [("nominal", "sim", sim), ("nominal", "real", other)])
+    # under different labels they may differ
+    report = write_report(tmp_path / "out", [("empty room", "sim", sim), ("boxes", "real", other)])
+    assert report.markdown.is_file()
 
 
 def test_undefined_metrics_are_null(tmp_path):

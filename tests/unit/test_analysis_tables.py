@@ -54,10 +54,17 @@ def write_session(
     chunk_size: int = 1 << 20,
     gap_pose: bool = True,
     episodes: list = EPISODES,
+    timing: bool = False,
+    scenario_name: str = "empty",
 ) -> Path:
-    """Two robots moving +0.1 m in x per control step; the events of `episodes` (EPISODES by default)."""
-    scenario = load_scenario("empty", n_robots=2)
-    session = session_metadata("real", "empty", ROBOTS, 0.1, profile="mild")
+    """Two robots moving +0.1 m in x per control step; the events of `episodes` (EPISODES by default).
+
+    With `timing`, the deploy buffers' records too: five 20 ms emitter ticks per step, each sending
+    both robots' commands 50 us apart, and a control step 5 ms after each robot's odometry and scan
+    arrived.
+    """
+    scenario = load_scenario(scenario_name, n_robots=2)
+    session = session_metadata("real", scenario_name, ROBOTS, 0.1, profile="mild")
     docs = {"scenario": dumps(to_mapping(scenario))}
     with SessionLog(path, ROBOTS, session, docs, chunk_size=chunk_size) as log:
         for k, (seed, steps, robot_events, team_events) in enumerate(episodes):
@@ -73,6 +80,17 @@ def write_session(
                         log.odom(t, ns, pose + np.array([0.01, 0.0, 0.0]), (0.1, 0.0))
                     log.scan(t, ns, np.full(8, 2.0 + step, dtype=np.float32), GEOMETRY)
                     log.cmd_vel(t, ns, 0.1, 0.05 * i)
+                    if timing:
+                        for channel in ("odom", "scan"):
+                            log.timing(t, "receive", ns, f"/{ns}/{channel}", 0, step, 0)
+                if timing:
+                    log.timing(t + 5_000_000, "control", "", "", 0, step, 0)
+                    for k_tick in range(5):
+                        t_tick = t + 10_000_000 + k_tick * 20_000_000
+                        tick = t_tick // 20_000_000  # one counter over the session, as the emitter keeps
+                        log.timing(t_tick, "tick", "", "", 0, 0, tick)
+                        for i, ns in enumerate(ROBOTS):
+                            log.timing(t_tick + 50_000 * i, "send", ns, f"/{ns}/cmd_vel", 0, tick, tick)
                 for when, event, robot in robot_events:
                     if when == step:
                         log.event(t, k, step, event, robot, detail="stale odom" if event == "abort" else "")
