@@ -45,9 +45,17 @@ class Agreement:
     max_abs_diff: float
 
 
+def check_scenario(log: McapLog, expected: str | None, what: str) -> None:
+    """Refuse a recording made in another scenario than `expected` (files without session metadata pass)."""
+    recorded = log.metadata().get("session", {}).get("scenario")
+    if expected and recorded and recorded != expected:
+        raise ReplayError(f"{log.path}: recorded in scenario {recorded!r}, but {what} is for {expected!r}")
+
+
 def action_agreement(path: Path, runtime: PolicyRuntime, tolerance: float = 1e-5) -> Agreement:
     """Re-run `runtime` on every recorded control step of `path`; steps need an observation for every robot."""
     log = McapLog(path)
+    check_scenario(log, runtime.meta.get("scenario", {}).get("name"), f"policy {runtime.name}")
     topics = log.topics()
     for needed in ("/mrl/observation", "/mrl/action"):
         if needed not in topics:
@@ -111,6 +119,7 @@ def open_loop_divergence(
 ) -> Divergence:
     """Drive `world` open loop with each recorded episode's commands; error against recorded ground truth."""
     log = McapLog(path)
+    check_scenario(log, scenario.name, "the replay world")
     names = scenario.robot_names
     topics = log.topics()
     for ns in names:
