@@ -173,10 +173,10 @@ class PpoConfig:
 
 @dataclass(frozen=True)
 class ConvergenceConfig:
-    """The convergence criterion: every robot's success over the last `window_episodes` >= `success_threshold`."""
+    """The convergence criterion: every robot's success over the last `window_episodes` above `success_threshold`."""
 
     window_episodes: int = setting(20, ge=1, le=10_000)
-    success_threshold: float = setting(0.8, gt=0.0, le=1.0)
+    success_threshold: float = setting(0.8, ge=0.0, lt=1.0)
     stop: bool = setting(False)
     """Stop training at convergence (else train the whole budget)."""
 

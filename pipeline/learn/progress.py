@@ -13,7 +13,8 @@ from pipeline.learn.worlds import EpisodeRecord
 
 
 class ConvergenceTracker:
-    """The paper's criterion: converged once every robot succeeded in >= `threshold` of the last `window` episodes.
+    """The paper's criterion: converged once every robot succeeded in more than `threshold` of the last `window`
+    episodes (with 20 episodes and 0.8: at least 17 successes each).
 
     Episodes are counted in the order worlds finish them. `converged_at` is the 1-based index of
     the first episode at which the criterion holds (None until then).
@@ -31,7 +32,7 @@ class ConvergenceTracker:
         """Add one episode's per-robot success (n_robots,); True when the criterion holds now."""
         self.episodes += 1
         self.history.append(np.asarray(success, dtype=bool))
-        holds = len(self.history) == self.window and bool((self.rates() >= self.threshold - 1e-12).all())
+        holds = len(self.history) == self.window and bool((self.rates() > self.threshold + 1e-12).all())
         if holds and self.converged_at is None:
             self.converged_at = self.episodes
         return holds
