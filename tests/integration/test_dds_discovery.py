@@ -6,7 +6,6 @@ import os
 import subprocess
 import sys
 import textwrap
-import time
 from typing import Any
 
 import pytest
@@ -107,8 +106,7 @@ def test_open_transport_does_not_hang_interpreter_exit(domain_id: int, ns: str) 
         print("LEAVING", flush=True)
         """
     )
-    started = time.monotonic()
-    done = subprocess.run(
+    done = subprocess.run(  # a hanging exit fails by the timeout
         [sys.executable, "-c", code],
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
@@ -118,4 +116,3 @@ def test_open_transport_does_not_hang_interpreter_exit(domain_id: int, ns: str) 
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "LEAVING"
-    assert time.monotonic() - started < 15.0
