@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from pipeline.calibration import (
+    CalibrationError,
     CalibrationSettings,
     MissingTopicError,
     ScenarioMismatchError,
@@ -15,7 +16,7 @@ from pipeline.calibration import (
     calibration_settings,
     write_calibration,
 )
-from pipeline.record import LogReadError
+from pipeline.record import LogReadError, McapLog
 from tests.calibration_helpers import simulate_session
 
 pytestmark = pytest.mark.integration
@@ -86,3 +87,40 @@ def test_a_file_that_is_not_a_recording_is_named(tmp_path):
         calibrate(bad)
     with pytest.raises(LogReadError, match="no such file"):
         calibrate(Path(tmp_path / "missing.mcap"))
+
+
+def rosbag2_copy(source: Path, folder: Path) -> Path:
+    """What ``ros2 bag record -s mcap`` on the robots would give: a rosbag2 folder (metadata.yaml and
+    an MCAP written by rosbags) with only the robots' standard topics, no session metadata, no
+    episode events, no scenario."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    log = McapLog(source)
+    kept = {t: ty for t, ty in log.topics().items() if t.count("/") == 2 and not t.startswith("/mrl/")}
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {t: writer.add_connection(t, ty, typestore=typestore) for t, ty in sorted(kept.items())}
+        for m in log.raw(list(kept)):
+            writer.write(connections[m.topic], m.log_time_ns, m.data)
+    (bag,) = folder.glob("*.mcap")
+    return bag
+
+
+def test_a_plain_rosbag2_recording_calibrates_with_the_scenario_given(tmp_path):
+    ours = simulate_session(tmp_path / "ours.mcap", MILD_WORLD, episodes=2, steps=60)
+    bag = rosbag2_copy(ours, tmp_path / "bag")
+    bag_log = McapLog(bag)
+    assert "session" not in bag_log.metadata() and "/mrl/episode" not in bag_log.topics()
+    assert {"/robot_1/scan", "/robot_1/odom", "/robot_1/ground_truth", "/robot_1/cmd_vel"} <= set(bag_log.topics())
+    with pytest.raises(CalibrationError, match="names no scenario"):
+        calibrate(bag, CalibrationSettings(bootstrap=20))
+    from_bag = calibrate(bag, CalibrationSettings(bootstrap=50, scenario="obstacles"))
+    from_ours = calibrate(ours, CalibrationSettings(bootstrap=50))
+    assert from_bag.values["lidar.beams"].value == 360
+    assert from_bag.values["lidar.noise_sigma_m"].value == pytest.approx(0.02, rel=0.1)
+    assert from_bag.values["actuation.linear_gain"].value == pytest.approx(0.95, rel=0.05)
+    assert from_bag.values["odometry.drift_per_m"].ok
+    # one episode instead of two (no /mrl/episode): the same data give nearly the same estimates
+    for key in ("lidar.noise_sigma_m", "lidar.bias_m", "actuation.linear_gain", "actuation.angular_gain"):
+        assert from_bag.values[key].value == pytest.approx(from_ours.values[key].value, rel=0.05), key

@@ -138,3 +138,35 @@ def test_overrides_merge_onto_defaults_and_validate():
 def test_booleans_are_not_numbers():
     with pytest.raises(ConfigError, match="max_steps = True"):
         world_config({"max_steps": True})
+
+
+@pytest.mark.parametrize(
+    ("train", "world", "dotted", "allowed"),
+    [
+        ({"algorithm": "sac"}, {"actions": {"kind": "discrete"}}, "world.actions.kind", "'continuous' for"),
+        ({"algorithm": "dqn"}, {"actions": {"kind": "continuous"}}, "world.actions.kind", "'discrete' for"),
+        ({"algorithm": "ppo", "mode": "shared"}, {"observation": "paper"}, "world.observation", "'rich' for"),
+    ],
+)
+def test_training_that_does_not_fit_the_world_is_refused(params_data, write_params, train, world, dotted, allowed):
+    params_data["train"].update(train)
+    for key, value in world.items():
+        if isinstance(value, dict):
+            params_data["world"][key].update(value)
+        else:
+            params_data["world"][key] = value
+    path = write_params(params_data)
+    with pytest.raises(ConfigError) as info:
+        load_params(path)
+    assert str(path) in str(info.value)
+    assert allowed in _problem_of(info.value, dotted).allowed
+
+
+@pytest.mark.parametrize(("key", "value"), [("algorithm", "td3"), ("mode", "swarm")])
+def test_unknown_algorithm_or_mode_lists_the_allowed_ones(params_data, write_params, key, value):
+    params_data["train"][key] = value
+    with pytest.raises(ConfigError) as info:
+        load_params(write_params(params_data))
+    allowed = _problem_of(info.value, f"train.{key}").allowed
+    expected = ("'sac'", "'dqn'", "'ppo'") if key == "algorithm" else ("'independent'", "'shared'", "'centralized'")
+    assert all(name in allowed for name in expected)

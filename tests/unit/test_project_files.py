@@ -29,6 +29,11 @@ def test_readme_opens_with_main_job_then_tests_and_ci_runs_the_test_command():
     assert tests in ci
 
 
+def test_readme_has_no_unfilled_figures():
+    text = (ROOT / "README.md").read_text()
+    assert not re.findall(r"\b[A-Z_]*PLACEHOLDER\b|\bTODO\b|\bTBD\b", text)
+
+
 def test_params_sections_match_config_and_dvc_stages():
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     assert set(params) == set(Params.__dataclass_fields__)
