@@ -182,6 +182,24 @@ class ConvergenceConfig:
 
 
 @dataclass(frozen=True)
+class SelectionConfig:
+    """Which weights training hands to export. Every `every_steps` world steps (0: never) the current
+    policy drives `episodes` deterministic episodes from the exact starts (seeds `seed`, `seed` + 1, ...,
+    apart from eval_sim's); `keep: best` exports the weights with the highest robot success there
+    (ties: team success, then the later), `keep: last` the final weights."""
+
+    keep: Literal["best", "last"] = setting("last")
+    every_steps: int = setting(0, ge=0, le=100_000_000)
+    episodes: int = setting(20, ge=1, le=10_000)
+    seed: int = setting(5_000, ge=0)
+
+    def check(self) -> list[tuple[str, object, str]]:
+        if self.keep == "best" and self.every_steps == 0:
+            return [("every_steps", 0, "> 0 with keep 'best' (the best needs evaluations)")]
+        return []
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """The `train` stage: algorithm, multi-agent mode, budget and hyperparameters."""
 
@@ -215,6 +233,7 @@ class TrainConfig:
     dqn: DqnConfig = setting(DqnConfig())
     ppo: PpoConfig = setting(PpoConfig())
     convergence: ConvergenceConfig = setting(ConvergenceConfig())
+    selection: SelectionConfig = setting(SelectionConfig())
     out_dir: str = setting("models")
 
     def check(self) -> list[tuple[str, object, str]]:

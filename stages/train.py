@@ -21,9 +21,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = train(scenario, world, params.train, out, extra_meta={"round": args.round})
     write_metrics(out / "train_metrics.json", result.metrics())
     converged = result.converged_at_episode
+    chosen = (
+        f"weights of step {result.selected_at_steps} (evaluation: robot success {result.selected_robot_success:.3f}, "
+        f"team {result.selected_team_success:.3f})"
+        if result.selected_at_steps is not None
+        else "final weights"
+    )
     print(
         f"train: {result.episodes} episodes, {result.world_steps} world steps in {result.wall_s:.0f} s; "
-        f"converged at episode {converged if converged is not None else '-'}; checkpoint {result.checkpoint}"
+        f"converged at episode {converged if converged is not None else '-'}; {chosen} -> {result.checkpoint}"
     )
     return 0
 

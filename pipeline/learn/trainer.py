@@ -19,6 +19,7 @@ from pipeline.learn.checkpoint import save_checkpoint
 from pipeline.learn.learners import OffPolicyLearner, OnPolicyLearner, build_learner
 from pipeline.learn.modes import StreamMap
 from pipeline.learn.progress import ConvergenceTracker, LearningCurve
+from pipeline.learn.selection import Selector, greedy_policy
 from pipeline.learn.worlds import VecWorlds
 from pipeline.settings import to_mapping
 
@@ -39,6 +40,10 @@ class TrainResult:
     wall_s: float
     digest: str
     window_success: np.ndarray
+    selected_at_steps: int | None = None
+    """World steps of the weights in the checkpoint when they were chosen by evaluation (keep: best)."""
+    selected_robot_success: float | None = None
+    selected_team_success: float | None = None
 
     def metrics(self) -> dict[str, float | None]:
         """Flat ``train/...`` metrics for dvc."""
@@ -53,6 +58,10 @@ class TrainResult:
         }
         for i, rate in enumerate(self.window_success):
             out[f"train/robot_{i + 1}_success_window"] = float(rate)
+        if self.selected_at_steps is not None:
+            out["train/selected_at_steps"] = float(self.selected_at_steps)
+            out["train/selected_eval_robot_success"] = self.selected_robot_success
+            out["train/selected_eval_team_success"] = self.selected_team_success
         return out
 
 
@@ -75,6 +84,8 @@ def train(
 ) -> TrainResult:
     """Train `cfg.algorithm` in `cfg.mode` on `scenario`; writes the checkpoint and the learning curve to `out_dir`.
 
+    With `cfg.selection.keep == "best"` the checkpoint holds the weights that did best in the periodic
+    deterministic evaluations (see :mod:`pipeline.learn.selection`), else the final ones.
     On KeyboardInterrupt the current weights are checkpointed and TrainingInterrupted is raised.
     """
     th.set_num_threads(cfg.torch_threads)
@@ -105,8 +116,13 @@ def train(
     }
     steps = 0
     digest = ""
+    selector = Selector(cfg.selection, scenario, world, out_dir)
+    models = [learner.model for learner in learners]
+    greedy = greedy_policy(
+        models, cfg.mode, scenario.n_robots, streams.codec.kind == "discrete", streams.codec.n_discrete
+    )
 
-    def checkpoint(interrupted: bool = False) -> str:
+    def checkpoint(interrupted: bool = False, final: bool = False) -> str:
         state = {
             **meta,
             "world_steps": steps,
@@ -114,7 +130,19 @@ def train(
             "converged_at_episode": tracker.converged_at,
             "interrupted": interrupted,
         }
-        return save_checkpoint(ckpt_dir, state, [learner.model.policy.state_dict() for learner in learners])
+        weights = [model.policy.state_dict() for model in models]
+        if final and selector.best is not None:
+            best = selector.best
+            state["selection"] = {
+                "keep": cfg.selection.keep,
+                "evaluations": len(selector.evaluations),
+                "best_at_steps": best.world_steps,
+                "best_robot_success": best.robot_success,
+                "best_team_success": best.team_success,
+            }
+            if selector.best_state is not None:
+                weights = selector.best_state
+        return save_checkpoint(ckpt_dir, state, weights)
 
     converged_steps: int | None = None
     bar = tqdm(
@@ -144,20 +172,30 @@ def train(
                 if tracker.episodes % cfg.checkpoint_every_episodes == 0:
                     curve.flush()
                     checkpoint()
-            if result.finished:
-                bar.set_postfix(episodes=tracker.episodes, success=f"{tracker.rates().mean():.2f}")
+            if selector.due(steps):
+                selector.offer(steps, greedy, models)
+            if result.finished or selector.best is not None:
+                postfix = {"episodes": tracker.episodes, "success": f"{tracker.rates().mean():.2f}"}
+                if selector.best is not None:
+                    postfix["eval_best"] = f"{selector.best.robot_success:.2f}@{selector.best.world_steps}"
+                bar.set_postfix(postfix, refresh=False)
             bar.update(worlds.n_worlds)
             obs = result.obs
             if cfg.convergence.stop and tracker.converged_at is not None:
                 break
+        if selector.enabled and (not selector.evaluations or selector.evaluations[-1].world_steps != steps):
+            selector.offer(steps, greedy, models)  # the final weights compete too
     except KeyboardInterrupt:
         curve.close()
+        selector.close()
         bar.close()
         checkpoint(interrupted=True)
         raise TrainingInterrupted(str(ckpt_dir), steps) from None
     curve.close()
+    selector.close()
     bar.close()
-    digest = checkpoint()
+    digest = checkpoint(final=True)
+    chosen = selector.best if cfg.selection.keep == "best" else None
     return TrainResult(
         checkpoint=ckpt_dir,
         curve=out_dir / CURVE_FILE,
@@ -168,4 +206,7 @@ def train(
         wall_s=time.perf_counter() - start,
         digest=digest,
         window_success=tracker.rates(),
+        selected_at_steps=None if chosen is None else chosen.world_steps,
+        selected_robot_success=None if chosen is None else chosen.robot_success,
+        selected_team_success=None if chosen is None else chosen.team_success,
     )
