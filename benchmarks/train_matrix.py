@@ -16,7 +16,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from pipeline.config import TrainConfig, load_params, world_config
+from pipeline.config import Params, TrainConfig, load_params, world_config
 from pipeline.core.episode import summarize
 from pipeline.learn.trainer import train
 from pipeline.policy.export import export_policy, golden_observations
@@ -64,8 +64,7 @@ class Row:
         )
 
 
-def run(algorithm: str, scenario_name: str, steps: int, episodes: int, out: Path, params_path: str) -> Row:
-    params = load_params(params_path)
+def run(algorithm: str, scenario_name: str, steps: int, episodes: int, out: Path, params: Params) -> Row:
     kind = "continuous" if algorithm == "sac" else "discrete"
     world = world_config({"scenario": scenario_name, "actions": {"kind": kind}}, base=params.world)
     scenario, world = make_world(world=world)
@@ -116,7 +115,8 @@ def main() -> None:
     parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--out", type=Path, default=Path("logs/train_matrix"))
     args = parser.parse_args()
-    default = load_params(args.params).train.total_steps
+    params = load_params(args.params)  # read once: the whole table is made with one set of parameters
+    default = params.train.total_steps
     budgets = {k: int(v) for k, _, v in (s.partition("=") for s in args.steps)}
     header = (
         "| algorithm (mode) | scenario | episodes to convergence | wall-clock to convergence (s) | "
@@ -126,7 +126,7 @@ def main() -> None:
     rows = []
     for algorithm in args.algorithms:
         for scenario in args.scenarios:
-            row = run(algorithm, scenario, budgets.get(algorithm, default), args.episodes, args.out, args.params)
+            row = run(algorithm, scenario, budgets.get(algorithm, default), args.episodes, args.out, params)
             rows.append(row)
             print(row.text(), flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
