@@ -72,7 +72,9 @@ def tiny_cfg(**selection: object) -> TrainConfig:
 def test_evaluations_do_not_change_training_and_best_weights_are_exported(tmp_path):
     scenario, world = make_world(world=world_config({**WORLD, "max_steps": 30}))
     plain = train(scenario, world, tiny_cfg(), tmp_path / "plain", progress=False)
-    watched = train(scenario, world, tiny_cfg(keep="last", every_steps=60, episodes=2), tmp_path / "last", progress=False)
+    watched = train(
+        scenario, world, tiny_cfg(keep="last", every_steps=60, episodes=2), tmp_path / "last", progress=False
+    )
     a, b = load_checkpoint(plain.checkpoint), load_checkpoint(watched.checkpoint)
     for wa, wb in zip(a.weights, b.weights, strict=True):
         assert all(th.equal(wa[k], wb[k]) for k in wa)  # bit for bit: evaluation touched no training state
