@@ -24,11 +24,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from pipeline.analysis.timing import TIMING_TOPIC, timing_figures
+from pipeline.analysis.timing import timing_figures
 from pipeline.core.episode import summarize
-from pipeline.messages.convert import TIMING_CODES
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.record import McapLog
 from pipeline.ros.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 
@@ -79,13 +77,8 @@ def main() -> int:
             )
             stale_share = t.stale / max(t.controls * len(fleet.robots), 1)
             baseline = stale_share if baseline is None else baseline
-            reasons = [
-                f"{m.msg.robot} {m.msg.topic}"
-                for m in McapLog(recording).messages([TIMING_TOPIC])
-                if m.msg.kind == TIMING_CODES["stale"]
-            ]
-            if reasons:
-                print(f"           stale: {stale_share:.3%} of robot steps, e.g. {'; '.join(reasons[:3])}")
+            if t.stale_examples:
+                print(f"           stale: {stale_share:.3%} of robot steps, e.g. {'; '.join(t.stale_examples)}")
             if aborted == 0 and stale_share <= baseline + STALE_MARGIN:
                 clean = (scale, achieved / scale)
     if clean is None:

@@ -49,6 +49,8 @@ class TimingFigures:
     stale: int
     """Control steps at which some robot's data was too old (one record per robot)."""
     stale_robots: tuple[str, ...]
+    stale_examples: tuple[str, ...] = ()
+    """The first few stale records as "<robot> <reason>"."""
 
     def as_metrics(self, prefix: str) -> dict[str, float]:
         return {
@@ -132,6 +134,7 @@ def timing_figures(source: str | os.PathLike[str] | McapLog | Recording) -> Timi
         age_p99_ms=_percentile(age, 99) * ms,
         stale=stale.height,
         stale_robots=tuple(sorted(set(stale["robot"].to_list()))),
+        stale_examples=tuple(f"{r} {why}" for r, why in stale.head(3).select("robot", "topic").iter_rows()),
     )
 
 

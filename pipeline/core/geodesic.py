@@ -10,6 +10,7 @@ are not part of the map.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from scipy import ndimage
@@ -86,37 +87,44 @@ class DistanceField:
 
     def direction(self, xy: np.ndarray) -> np.ndarray:
         """Heading (rad) of the shortest free path at points (n, 2): where a robot there should drive."""
-        p = np.asarray(xy, dtype=np.float64)
-        nx, ny = self.values.shape
-        fx = np.clip((p[:, 0] - self.x0) / self.resolution_m, 0.0, nx - 1.000001)
-        fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
-        ix, iy = fx.astype(int), fy.astype(int)
-        tx, ty = (fx - ix)[:, None], (fy - iy)[:, None]
+        ix, iy, tx, ty = _cells(self.x0, self.y0, self.resolution_m, self.values.shape, xy)
         u = self.unit
-        v = (
-            u[ix, iy] * (1 - tx) * (1 - ty)
-            + u[ix + 1, iy] * tx * (1 - ty)
-            + u[ix, iy + 1] * (1 - tx) * ty
-            + u[ix + 1, iy + 1] * tx * ty
-        )
+        v = _blend(lambda i, j: u[i, j], ix, iy, tx[:, None], ty[:, None])
         return np.asarray(np.arctan2(v[:, 1], v[:, 0]))
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         """Distances (m) at points (n, 2), bilinearly interpolated; points outside the room are clamped."""
-        p = np.asarray(xy, dtype=np.float64)
-        nx, ny = self.values.shape
-        fx = np.clip((p[:, 0] - self.x0) / self.resolution_m, 0.0, nx - 1.000001)
-        fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
-        ix, iy = fx.astype(int), fy.astype(int)
-        tx, ty = fx - ix, fy - iy
+        ix, iy, tx, ty = _cells(self.x0, self.y0, self.resolution_m, self.values.shape, xy)
         v = self.values
-        out = (
-            v[ix, iy] * (1 - tx) * (1 - ty)
-            + v[ix + 1, iy] * tx * (1 - ty)
-            + v[ix, iy + 1] * (1 - tx) * ty
-            + v[ix + 1, iy + 1] * tx * ty
-        )
-        return np.asarray(out)
+        return np.asarray(_blend(lambda i, j: v[i, j], ix, iy, tx, ty))
+
+
+def _cells(
+    x0: float, y0: float, resolution_m: float, shape: tuple[int, ...], xy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Grid cell (ix, iy) of each point (n, 2) and its position inside the cell (tx, ty in [0, 1)); clamped."""
+    p = np.asarray(xy, dtype=np.float64)
+    nx, ny = shape[0], shape[1]
+    fx = np.clip((p[:, 0] - x0) / resolution_m, 0.0, nx - 1.000001)
+    fy = np.clip((p[:, 1] - y0) / resolution_m, 0.0, ny - 1.000001)
+    ix, iy = fx.astype(int), fy.astype(int)
+    return ix, iy, fx - ix, fy - iy
+
+
+def _blend(
+    take: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    ix: np.ndarray,
+    iy: np.ndarray,
+    tx: np.ndarray,
+    ty: np.ndarray,
+) -> np.ndarray:
+    """Bilinear interpolation of the grid values `take(i, j)` at the four corners of each cell."""
+    return np.asarray(
+        take(ix, iy) * (1 - tx) * (1 - ty)
+        + take(ix + 1, iy) * tx * (1 - ty)
+        + take(ix, iy + 1) * (1 - tx) * ty
+        + take(ix + 1, iy + 1) * tx * ty
+    )
 
 
 class GoalFields:
@@ -129,34 +137,15 @@ class GoalFields:
         self.values = np.stack([f.values for f in fields])  # (n, nx, ny)
         self.unit = np.stack([f.unit for f in fields])  # (n, nx, ny, 2)
 
-    def _corners(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        p = np.asarray(xy, dtype=np.float64)
-        _, nx, ny = self.values.shape
-        fx = np.clip((p[:, 0] - self.x0) / self.resolution_m, 0.0, nx - 1.000001)
-        fy = np.clip((p[:, 1] - self.y0) / self.resolution_m, 0.0, ny - 1.000001)
-        ix, iy = fx.astype(int), fy.astype(int)
-        return np.arange(len(p)), ix, iy, fx - ix, fy - iy
-
     def distance(self, xy: np.ndarray) -> np.ndarray:
         """(n,) robot i's free-path distance (m) to its goal from point xy[i]."""
-        r, ix, iy, tx, ty = self._corners(xy)
-        v = self.values
-        return np.asarray(
-            v[r, ix, iy] * (1 - tx) * (1 - ty)
-            + v[r, ix + 1, iy] * tx * (1 - ty)
-            + v[r, ix, iy + 1] * (1 - tx) * ty
-            + v[r, ix + 1, iy + 1] * tx * ty
-        )
+        ix, iy, tx, ty = _cells(self.x0, self.y0, self.resolution_m, self.values.shape[1:], xy)
+        r, v = np.arange(len(ix)), self.values
+        return np.asarray(_blend(lambda i, j: v[r, i, j], ix, iy, tx, ty))
 
     def direction(self, xy: np.ndarray) -> np.ndarray:
         """(n,) heading (rad) of robot i's free path to its goal at point xy[i]."""
-        r, ix, iy, tx, ty = self._corners(xy)
-        u = self.unit
-        tx, ty = tx[:, None], ty[:, None]
-        v = (
-            u[r, ix, iy] * (1 - tx) * (1 - ty)
-            + u[r, ix + 1, iy] * tx * (1 - ty)
-            + u[r, ix, iy + 1] * (1 - tx) * ty
-            + u[r, ix + 1, iy + 1] * tx * ty
-        )
+        ix, iy, tx, ty = _cells(self.x0, self.y0, self.resolution_m, self.values.shape[1:], xy)
+        r, u = np.arange(len(ix)), self.unit
+        v = _blend(lambda i, j: u[r, i, j], ix, iy, tx[:, None], ty[:, None])
         return np.asarray(np.arctan2(v[:, 1], v[:, 0]))

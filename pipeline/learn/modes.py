@@ -11,6 +11,7 @@ significant digit), one stream per world, reward summed over robots.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -132,3 +133,26 @@ def joint_to_robot_actions(index: np.ndarray, k: int, n_robots: int) -> np.ndarr
     idx = np.asarray(index, dtype=np.int64).reshape(-1)
     powers = k ** np.arange(n_robots - 1, -1, -1, dtype=np.int64)
     return np.asarray((idx[:, None] // powers[None, :]) % k)
+
+
+def deterministic_actions(
+    policies: Sequence[Any], mode: str, n_robots: int, discrete: bool, n_discrete: int, obs: np.ndarray
+) -> np.ndarray:
+    """Per-robot actions (samples, n_robots, 2) or (samples, n_robots) of the learners' policies for
+    observations (samples, n_robots, obs_size), as the training library's deterministic ``predict``
+    gives them (continuous actions clipped to the Box)."""
+
+    def predict(policy: Any, x: np.ndarray) -> np.ndarray:
+        actions, _ = policy.predict(np.asarray(x, dtype=np.float32), deterministic=True)
+        return np.asarray(actions)
+
+    samples = len(obs)
+    if mode == "independent":
+        return np.stack([predict(policies[i], obs[:, i, :]) for i in range(n_robots)], axis=1)
+    if mode == "shared":
+        flat = predict(policies[0], obs.reshape(samples * n_robots, -1))
+        return flat.reshape(samples, n_robots) if discrete else flat.reshape(samples, n_robots, 2)
+    joint = predict(policies[0], obs.reshape(samples, -1))
+    if discrete:
+        return joint_to_robot_actions(joint.reshape(-1), n_discrete, n_robots).reshape(samples, n_robots)
+    return joint.reshape(samples, n_robots, 2)

@@ -23,7 +23,7 @@ import torch as th
 from pipeline.config import SelectionConfig, WorldConfig
 from pipeline.core.episode import summarize
 from pipeline.core.scenario import Scenario
-from pipeline.learn.modes import joint_to_robot_actions
+from pipeline.learn.modes import deterministic_actions
 from pipeline.sim.env import MultiRobotSim
 from pipeline.sim.evaluate import evaluate
 
@@ -35,20 +35,11 @@ def greedy_policy(
     models: Sequence[Any], mode: str, n_robots: int, discrete: bool, n_discrete: int
 ) -> Callable[[np.ndarray], np.ndarray]:
     """The learners' deterministic policy as ``obs (n_robots, obs_size) -> actions`` for the simulator."""
+    policies = [m.policy for m in models]
 
     def act(obs: np.ndarray) -> np.ndarray:
-        obs = np.asarray(obs, dtype=np.float32)
-        if mode == "independent":
-            parts = [np.asarray(m.policy.predict(obs[i : i + 1], deterministic=True)[0]) for i, m in enumerate(models)]
-            out = np.concatenate(parts, axis=0)
-        elif mode == "shared":
-            out = np.asarray(models[0].policy.predict(obs, deterministic=True)[0])
-        else:
-            joint = np.asarray(models[0].policy.predict(obs.reshape(1, -1), deterministic=True)[0])
-            if discrete:
-                return joint_to_robot_actions(joint.reshape(1), n_discrete, n_robots).reshape(n_robots)
-            out = joint.reshape(n_robots, 2)
-        return out.reshape(n_robots) if discrete else out.reshape(n_robots, 2)
+        batch = deterministic_actions(policies, mode, n_robots, discrete, n_discrete, np.asarray(obs)[None])
+        return np.asarray(batch[0])
 
     return act
 

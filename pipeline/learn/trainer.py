@@ -172,9 +172,10 @@ def train(
                 if tracker.episodes % cfg.checkpoint_every_episodes == 0:
                     curve.flush()
                     checkpoint()
-            if selector.due(steps):
+            evaluated = selector.due(steps)
+            if evaluated:
                 selector.offer(steps, greedy, models)
-            if result.finished or selector.best is not None:
+            if result.finished or evaluated:
                 postfix = {"episodes": tracker.episodes, "success": f"{tracker.rates().mean():.2f}"}
                 if selector.best is not None:
                     postfix["eval_best"] = f"{selector.best.robot_success:.2f}@{selector.best.world_steps}"

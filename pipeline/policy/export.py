@@ -23,7 +23,7 @@ import torch as th
 
 from pipeline.errors import PolicyError
 from pipeline.learn.checkpoint import load_checkpoint
-from pipeline.learn.modes import joint_to_robot_actions
+from pipeline.learn.modes import deterministic_actions
 from pipeline.policy.networks import ActionNetwork, action_network
 from pipeline.policy.onnx_graph import INPUT, policy_graph
 
@@ -72,12 +72,6 @@ def _torch_policy(
     return policy
 
 
-def _torch_actions(policy: Any, obs: np.ndarray) -> np.ndarray:
-    """Deterministic actions as the training library's ``predict`` returns them (clipped to the Box)."""
-    actions, _ = policy.predict(np.asarray(obs, dtype=np.float32), deterministic=True)
-    return np.asarray(actions)
-
-
 def learner_spaces(meta: dict[str, Any]) -> tuple[int, gymnasium.Space[Any]]:
     """(input size, action space) of each learner network of a checkpoint description."""
     n = len(meta["robots"])
@@ -96,19 +90,15 @@ def learner_spaces(meta: dict[str, Any]) -> tuple[int, gymnasium.Space[Any]]:
 
 def _reference_actions(nets: list[Any], meta: dict[str, Any], obs: np.ndarray) -> np.ndarray:
     """Per-robot actions (samples, n_robots, 2) or (samples, n_robots) from the torch networks."""
-    mode, n = meta["mode"], len(meta["robots"])
-    discrete = meta["actions"]["kind"] == "discrete"
-    samples = len(obs)
-    if mode == "independent":
-        cols = [_torch_actions(nets[i], obs[:, i, :]) for i in range(n)]
-        return np.stack(cols, axis=1)
-    if mode == "shared":
-        flat = _torch_actions(nets[0], obs.reshape(samples * n, -1))
-        return flat.reshape(samples, n) if discrete else flat.reshape(samples, n, 2)
-    joint = _torch_actions(nets[0], obs.reshape(samples, -1))
-    if discrete:
-        return joint_to_robot_actions(joint.reshape(-1), len(meta["actions"]["discrete_set"]), n).reshape(samples, n)
-    return joint.reshape(samples, n, 2)
+    actions = meta["actions"]
+    return deterministic_actions(
+        nets,
+        meta["mode"],
+        len(meta["robots"]),
+        actions["kind"] == "discrete",
+        len(actions["discrete_set"]),
+        obs,
+    )
 
 
 def _check_sizes(networks: list[ActionNetwork], meta: dict[str, Any], where: str) -> None:

@@ -127,7 +127,6 @@ class DeployRunner:
         self.namespaces = [r.namespace for r in fleet.robots]
         meta = runtime.meta
         self.builder = observation_builder(runtime, scenario)
-        self.policy_name = runtime.name
         judge = meta.get("judge", {})
         self.period_ns = round(float(meta.get("control_period_s", 0.1)) * NS_PER_S)
         self.max_steps = int(judge.get("max_steps", meta.get("max_steps", 350)))
@@ -281,7 +280,7 @@ class DeployRunner:
                         np.degrees(g.angle_min_rad + g.angle_increment_rad * (g.n_beams - 1)),
                     )
                     raise PolicyMismatch(
-                        self.policy_name,
+                        self.runtime.name,
                         [
                             f"it reads {n_beams} lidar beams around the robot, but {robot.topics()['scan'].name} "
                             f"has {g.n_beams} beams from {first:.0f} to {last:.0f} deg, which leave {len(blind)} "

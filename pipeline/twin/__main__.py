@@ -69,6 +69,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise MrlError(
                     f"--silence {args.silence!r}: expected NAMESPACE@START[+DURATION], e.g. robot_2@3.5+0.6"
                 ) from None
+            namespaces = [r.namespace for r in fleet.robots]
+            if robot not in namespaces:
+                raise MrlError(f"--silence {args.silence!r}: no robot {robot!r} in the fleet; its robots: {namespaces}")
         clock: Clock = WallClock() if scale == 1.0 else ScaledClock(scale, time.time_ns())
         transport = open_transport(fleet.transport, fleet.network_settings(args.fleet))
     except MrlError as exc:

@@ -44,3 +44,11 @@ def test_twin_refuses_bad_input_with_a_clear_message(tmp_path):
     proc = start_twin("--fleet", str(tmp_path / "nowhere.yaml"))
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and "nowhere.yaml" in err and "Traceback" not in err
+    for bad in ("robot_2@soon", "robot_2@1.0+long"):
+        proc = start_twin("--fleet", str(fleet), "--silence", bad)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 2 and "Traceback" not in err
+        assert f"--silence {bad!r}" in err and "NAMESPACE@START[+DURATION]" in err
+    proc = start_twin("--fleet", str(fleet), "--silence", "robot_9@1.0")
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "no robot 'robot_9' in the fleet" in err and "Traceback" not in err

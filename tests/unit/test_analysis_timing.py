@@ -73,6 +73,7 @@ def test_figures_match_the_planted_timing(tmp_path: Path) -> None:
     assert f.receives == 20 * 6
     assert f.age_p99_ms == pytest.approx(np.percentile(planted["age"], 99) / MS)
     assert f.stale == 1 and f.stale_robots == ("robot_2",)
+    assert f.stale_examples == ("robot_2 odom: 0.4 s old",)
     assert f.as_metrics("real/nominal")["real/nominal/stale_records"] == 1.0
     table = timing_markdown([("real nominal", f)])
     assert "| real nominal | 100 |" in table and "(robot_2)" in table
