@@ -9,11 +9,9 @@ from pathlib import Path
 
 from pipeline.cli import run_stage, stage_arguments
 from pipeline.config import load_params
-from pipeline.core.episode import summarize
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.ros.deployment import DeployRequest, deploy_policy
+from pipeline.ros.deployment import DeployRequest, check_scenario_agrees, deploy_session
 from pipeline.ros.fleet import load_fleet
-from pipeline.sim.outputs import write_episodes, write_metrics
 
 
 def operator_reset(episode: int) -> None:
@@ -25,6 +23,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     params = load_params(args.params)
     cfg = params.deploy
     fleet = load_fleet(cfg.fleet)
+    check_scenario_agrees(params.world.scenario, args.params, fleet, cfg.fleet)
     runtime = PolicyRuntime(Path(params.export.out_dir) / args.round / "policy")
     out = Path(cfg.out_dir) / args.round
     request = DeployRequest(
@@ -36,16 +35,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         chunk_size_bytes=cfg.chunk_size_bytes,
         params_text=Path(args.params).read_text(encoding="utf-8"),
     )
-    results, profile = deploy_policy(runtime, fleet, cfg.fleet, request, confirm_reset=operator_reset)
-    metrics = summarize(results, prefix="real")
-    write_metrics(out / "metrics.json", metrics)
-    write_episodes(out / "episodes.csv", results)
+    outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset)
+    metrics = outcome.metrics
     nan = float("nan")
     print(
         f"deploy: robot success {metrics.get('real/robot_success', nan):.3f} "
         f"[{metrics.get('real/robot_success_ci_low', nan):.3f}, {metrics.get('real/robot_success_ci_high', nan):.3f}], "
-        f"team success {metrics.get('real/team_success', nan):.3f} over {len(results)} episodes "
-        f"({metrics['real/aborted_episodes']:.0f} aborted) on {fleet.target} ({profile}) -> {out}"
+        f"team success {metrics.get('real/team_success', nan):.3f} over {len(outcome.results)} episodes "
+        f"({metrics['real/aborted_episodes']:.0f} aborted) on {fleet.target} ({outcome.profile}) -> {out}"
     )
     return 0
 

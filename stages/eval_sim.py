@@ -10,8 +10,7 @@ from pipeline.cli import run_stage, stage_arguments
 from pipeline.config import load_params, round_world
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.sim import make_world
-from pipeline.sim.evaluate import evaluate_policy
-from pipeline.sim.outputs import write_episodes, write_metrics, write_paths_picture
+from pipeline.sim.evaluate import evaluate_session
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -21,12 +20,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     runtime = PolicyRuntime(Path(params.export.out_dir) / args.round / "policy")
     cfg = params.eval_sim
     out = Path(cfg.out_dir) / args.round
-    results, metrics = evaluate_policy(
-        scenario, world, runtime, cfg, out / "session.mcap", Path(args.params).read_text(encoding="utf-8")
+    results, metrics = evaluate_session(
+        scenario, world, runtime, cfg, out, Path(args.params).read_text(encoding="utf-8")
     )
-    write_metrics(out / "metrics.json", metrics)
-    write_episodes(out / "episodes.csv", results)
-    write_paths_picture(out / "paths.png", scenario, results)
     print(
         f"eval_sim: robot success {metrics['eval/robot_success']:.3f} "
         f"[{metrics['eval/robot_success_ci_low']:.3f}, {metrics['eval/robot_success_ci_high']:.3f}], "

@@ -41,6 +41,19 @@ class ActionCodec:
         if unknown:
             raise ActionError(f"unknown discrete action(s) {unknown}; allowed: {', '.join(DISCRETE_COMMANDS)}")
 
+    def differences(self, other: ActionCodec) -> list[str]:
+        """Each setting (by its `actions.` key) in which `other` decodes actions differently, with both values."""
+        out = []
+        if self.kind != other.kind:
+            out.append(f"actions.kind {self.kind!r} vs {other.kind!r}")
+        for key in ("v_max_mps", "w_max_radps"):
+            a, b = getattr(self, key), getattr(other, key)
+            if abs(a - b) > 1e-9:
+                out.append(f"actions.{key} {a:g} vs {b:g}")
+        if self.kind == other.kind == "discrete" and self.discrete_set != other.discrete_set:
+            out.append(f"actions.discrete_set {list(self.discrete_set)} vs {list(other.discrete_set)}")
+        return out
+
     @property
     def n_discrete(self) -> int:
         return len(self.discrete_set)

@@ -46,3 +46,84 @@ class TruncatedLogWarning(UserWarning):
 
 class UndecodableMessageWarning(UserWarning):
     """A message was skipped because its bytes do not decode under its schema."""
+
+
+# -- bag import (pipeline.record.bags) ---------------------------------------------------------
+
+
+class BagError(MrlError):
+    """A bag (MCAP file, rosbag2 folder, ROS 1 .bag) cannot be imported; names the path and what is wrong."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
+
+
+class NotABagError(BagError):
+    """The path is missing, or is neither an MCAP file, a rosbag2 folder nor a ROS 1 bag."""
+
+
+class BagReadError(BagError):
+    """A bag of a known format cannot be read: unreadable, damaged, or refused by its reader."""
+
+
+class EmptyBagError(BagError):
+    """A bag holds no messages."""
+
+
+class NoRobotsError(BagError):
+    """No robot (a namespace with ``scan`` or ``odom`` topics), or not the robots asked for; lists the topics seen."""
+
+    def __init__(self, path: str, problem: str, topics: dict[str, str]) -> None:
+        self.topics = dict(topics)
+        seen = ", ".join(f"{name} ({typename})" for name, typename in sorted(self.topics.items())) or "none"
+        super().__init__(path, f"{problem}; topics in the bag: {seen}")
+
+
+class UnknownMessageTypeError(BagError):
+    """A needed topic's message type has no definition: none in the bag, none in ROS 2 Jazzy or schemas/."""
+
+    def __init__(self, path: str, topic: str, typename: str, problem: str) -> None:
+        self.topic = topic
+        self.typename = typename
+        super().__init__(path, f"topic {topic}: message type {typename} {problem}")
+
+
+class TopicTypeError(BagError):
+    """A robot topic carries another message type than the ROS 2 contract gives it."""
+
+    def __init__(self, path: str, topic: str, found: str, expected: str, source: str = "") -> None:
+        self.topic = topic
+        self.found = found
+        self.expected = expected
+        where = f"topic {topic}" + (f" (from {source})" if source and source != topic else "")
+        super().__init__(path, f"{where} carries {found}; a robot's topic of that name carries {expected}")
+
+
+class RemapError(BagError):
+    """A topic remapping cannot be applied to a bag (target taken, kind ambiguous, robot count wrong)."""
+
+
+class RemapTopicMissingError(RemapError):
+    """A remapping names a bag topic that the bag does not have; lists the topics it has."""
+
+    def __init__(self, path: str, mapping: str, topic: str, topics: dict[str, str]) -> None:
+        self.mapping = mapping
+        self.topic = topic
+        self.topics = dict(topics)
+        seen = ", ".join(sorted(self.topics)) or "none"
+        super().__init__(path, f"--topic {mapping}: the bag has no topic {topic}; its topics: {seen}")
+
+
+class TopicMapError(MrlError):
+    """A topic remapping is malformed (``--topic OURS=BAG``); names the item and what is allowed."""
+
+    def __init__(self, item: str, problem: str) -> None:
+        self.item = item
+        self.problem = problem
+        super().__init__(f"--topic {item!r}: {problem}")
+
+
+class BagImportWarning(UserWarning):
+    """A topic of an imported bag was left out (its message type cannot be defined or converted)."""

@@ -57,6 +57,21 @@ def session_metadata(
     return out
 
 
+def clock_metadata(time_scale: float | None) -> dict[str, str]:
+    """What the recording's log times are, for the ``session`` record: one clock per recording.
+
+    `time_scale` None: simulated time (eval_sim), 0 ns at the first episode's start, running on across
+    episodes; 1: Unix time of the deploying host; otherwise the twin's ``/clock`` (Unix time at its
+    start, then `time_scale` times faster than wall time); messages that arrive before the first
+    ``/clock`` are not recorded.
+    """
+    if time_scale is None:
+        return {"clock": "sim", "clock_epoch": "session", "clock_rate": "1"}
+    if time_scale == 1.0:
+        return {"clock": "wall", "clock_epoch": "unix", "clock_rate": "1"}
+    return {"clock": "ros_clock", "clock_epoch": "unix", "clock_rate": repr(float(time_scale))}
+
+
 class SessionLog:
     """Writes one session in the shared layout; `robots` are the robots' namespaces in fleet order."""
 

@@ -125,6 +125,9 @@ class DeployRunner:
         self.confirm_reset = confirm_reset
         self.store = message_store()
         self.namespaces = [r.namespace for r in fleet.robots]
+        self._episode = 0
+        self._step = 0
+        self.unrecorded_before_clock = 0
         meta = runtime.meta
         self.builder = observation_builder(runtime, scenario)
         judge = meta.get("judge", {})
@@ -174,6 +177,7 @@ class DeployRunner:
         if isinstance(clock, ScaledClock):
             self._subs.append(transport.subscribe(T.FLEET_TOPICS["clock"], self._on_clock))
         self._origin = np.zeros((len(self.namespaces), 3))
+        self._last_known: dict[str, dict[str, Any]] = {}
 
     # -- transport callbacks (transport thread) --------------------------------------------
 
@@ -189,8 +193,21 @@ class DeployRunner:
     def _sent(self, ns: str, v: float, w: float, t_ns: int) -> None:
         self.log.message(f"/{ns}/cmd_vel", C.twist(v, w, store=self.store), t_ns)
 
+    def _on_timeline(self) -> bool:
+        """False until the session clock exists: under a scaled clock, before the first ``/clock``.
+
+        Messages received before then are neither recorded nor used (they would be logged on another
+        clock than the rest of the recording); the count goes to the ``unrecorded`` metadata record.
+        """
+        if isinstance(self.clock, ScaledClock) and not self.clock.anchored:
+            self.unrecorded_before_clock += 1
+            return False
+        return True
+
     def _on_scan(self, ns: str) -> Callable[[Any, Any, int], None]:
         def callback(spec: Any, msg: Any, receive_ns: int) -> None:
+            if not self._on_timeline():
+                return
             now = self.clock.now_ns()
             sample = scan_sample(msg, now)
             self.log.message(spec.name, msg, now, sample.stamp_ns)
@@ -200,6 +217,8 @@ class DeployRunner:
 
     def _on_odom(self, ns: str) -> Callable[[Any, Any, int], None]:
         def callback(spec: Any, msg: Any, receive_ns: int) -> None:
+            if not self._on_timeline():
+                return
             now = self.clock.now_ns()
             sample = odom_sample(msg, now)
             self.log.message(spec.name, msg, now, sample.stamp_ns)
@@ -209,6 +228,8 @@ class DeployRunner:
 
     def _on_truth(self, ns: str) -> Callable[[Any, Any, int], None]:
         def callback(spec: Any, msg: Any, receive_ns: int) -> None:
+            if not self._on_timeline():
+                return
             now = self.clock.now_ns()
             stamp = C.time_ns(msg.header.stamp)
             self.log.message(spec.name, msg, now, stamp)
@@ -218,11 +239,14 @@ class DeployRunner:
 
     def _on_clock(self, spec: Any, msg: Any, receive_ns: int) -> None:
         t = C.time_ns(msg.clock)
-        assert isinstance(self.clock, ScaledClock)
-        self.clock.follow(t, receive_ns)
-        self.log.message(spec.name, msg, t)
+        clock = self.clock
+        if isinstance(clock, ScaledClock):
+            clock.follow(t, receive_ns)
+            self.log.message(spec.name, msg, t)
 
     def _on_reset_done(self, spec: Any, msg: Any, receive_ns: int) -> None:
+        if not self._on_timeline():
+            return
         self.log.message(spec.name, msg, self.clock.now_ns(), C.time_ns(msg.header.stamp))
         if msg.done:
             with self._reset_cv:
@@ -337,21 +361,36 @@ class DeployRunner:
                 )
             self._check_alive()
             time.sleep(0.005)
+        self._last_known = {}
         odom = np.stack([state.robots[ns].odom.pose for ns in self.namespaces])  # type: ignore[union-attr]
         # odometry may count from anywhere: rebase it so that it starts at the known start poses
         self._origin = _compose(self.scenario.starts, _inverse(odom))
 
     def _arrays(self, state: JointState) -> tuple[list[np.ndarray], list[Any], np.ndarray, np.ndarray | None]:
-        scans, geoms, odom, truth = [], [], [], []
+        """Every robot's scan, scan geometry, odometry (map frame) and ground truth at `state`.
+
+        A robot whose sample is missing (stale robots stand still) keeps its last sample of the episode;
+        one that has sent none since the reset stops the episode with the topic named.
+        """
+        missing = []
         for ns in self.namespaces:
             s = state.robots[ns]
-            assert s.scan is not None and s.odom is not None
-            scans.append(s.scan.ranges)
-            geoms.append(s.scan.geometry)
-            odom.append(s.odom.pose)
+            last = self._last_known.setdefault(ns, {})
+            for kind, sample in (("scan", s.scan), ("odom", s.odom), ("ground_truth", s.truth)):
+                if sample is not None:
+                    last[kind] = sample
+                elif (kind != "ground_truth" or self.use_truth) and kind not in last:
+                    missing.append(f"/{ns}/{kind}")
+        if missing:
+            raise FleetNotReady(f"no message since the episode's reset on {', '.join(missing)}")
+        scans, geoms, odom, truth = [], [], [], []
+        for ns in self.namespaces:
+            last = self._last_known[ns]
+            scans.append(last["scan"].ranges)
+            geoms.append(last["scan"].geometry)
+            odom.append(last["odom"].pose)
             if self.use_truth:
-                assert s.truth is not None
-                truth.append(s.truth.pose)
+                truth.append(last["ground_truth"].pose)
         odom_map = _compose(self._origin, np.stack(odom))
         return scans, geoms, odom_map, np.stack(truth) if self.use_truth else None
 
@@ -367,6 +406,7 @@ class DeployRunner:
         return origin + k * self.period_ns
 
     def run_episode(self, episode: int, seed: int) -> EpisodeResult:
+        self._episode, self._step = episode, 0
         self._reset(episode, seed)
         n = len(self.namespaces)
         t_start = self.next_control_time(self.clock.now_ns())
@@ -385,6 +425,7 @@ class DeployRunner:
         judged = None
         stale_since: dict[str, int] = {}
         while True:
+            self._step = step
             if not self.clock.sleep_until(next_t):
                 break
             t = self.clock.now_ns()
@@ -471,8 +512,10 @@ class DeployRunner:
                 bar.set_postfix(robot_success=f"{rate:.3f}", aborted=sum(r.aborted for r in results))
         except DeployAborted as exc:
             raise DeployAborted(exc.reason, results, exc.interrupted) from None
+        except MrlError as exc:  # e.g. a reset the fleet never confirmed: the finished episodes still count
+            raise DeployAborted(str(exc), results) from exc
         except KeyboardInterrupt:
-            self.log.event(self.clock.now_ns(), len(results), 0, "abort", detail="interrupted")
+            self.log.event(self.clock.now_ns(), self._episode, self._step, "abort", detail="interrupted")
             raise DeployAborted("interrupted", results, interrupted=True) from None
         finally:
             bar.close()
@@ -480,6 +523,8 @@ class DeployRunner:
         return results
 
     def close(self) -> None:
+        if self.unrecorded_before_clock:
+            self.log.add_metadata("unrecorded", {"before_first_clock": str(self.unrecorded_before_clock)})
         for sub in self._subs:
             sub.close()
         for pub in self._cmd_pubs.values():

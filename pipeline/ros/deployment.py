@@ -14,19 +14,24 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from pipeline.core.episode import EpisodeResult
+from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.observation import ObservationLayout
 from pipeline.core.scenario import Scenario, load_scenario
-from pipeline.errors import PolicyMismatch
+from pipeline.errors import MrlError, PolicyMismatch
+from pipeline.messages import topics as T
+from pipeline.messages.topics import TopicSpec
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.record.session import SessionLog, dumps, session_metadata
+from pipeline.record import McapLog
+from pipeline.record.results import SessionFolder, write_episodes, write_metrics
+from pipeline.record.rosbag2 import write_rosbag2_metadata
+from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
-from pipeline.ros.deploy import DeployRunner, FleetNotReady
+from pipeline.ros.deploy import DeployAborted, DeployRunner, FleetNotReady
 from pipeline.ros.fleet import Fleet
-from pipeline.ros.transport import open_transport
+from pipeline.ros.transport import Transport, open_transport
 from pipeline.settings import to_mapping
 
 TWIN_START_TIMEOUT_S = 60.0
@@ -54,9 +59,16 @@ class TwinProcess:
 
     def __init__(self, fleet_source: str, profile: str, time_scale: float, seed: int, extra: list[str] | None = None):
         cmd = [sys.executable, "-m", "pipeline.twin", "--fleet", fleet_source, "--profile", profile]
-        cmd += ["--time-scale", repr(time_scale), "--seed", str(seed), *(extra or [])]
+        cmd += ["--time-scale", repr(time_scale), "--seed", str(seed), "--exit-with-parent", *(extra or [])]
+        # its own session keeps a terminal's Ctrl-C for the runner, which stops the robots first; the
+        # lifeline (its stdin, whose other end only this process holds) stops it when this process dies
         self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+            cmd,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
         )
         self.lines: deque[str] = deque(maxlen=50)
         self.ready = threading.Event()
@@ -80,10 +92,12 @@ class TwinProcess:
         code = self.proc.poll()
         if code is None:
             return None
-        tail = " | ".join(list(self.lines)[-3:])
+        tail = " | ".join(line.strip() for line in list(self.lines)[-20:])
         return f"the hardware twin exited with code {code}" + (f" ({tail})" if tail else "")
 
     def stop(self, timeout_s: float = 5.0) -> None:
+        if self.proc.stdin is not None and not self.proc.stdin.closed:
+            self.proc.stdin.close()
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
             try:
@@ -93,14 +107,85 @@ class TwinProcess:
                 self.proc.wait()
 
 
+class FleetConflict(MrlError):
+    """Robots that this deployment did not start publish on the fleet's topics (a stray twin, another user)."""
+
+    def __init__(self, domain_id: int, seen: list[str], hint: str) -> None:
+        self.domain_id = domain_id
+        self.seen = tuple(seen)
+        super().__init__(f"DDS domain {domain_id} already has {'; '.join(seen)}: {hint}")
+
+
+STRAY_WATCH_S = 1.0
+"""How long the domain is watched for robots that are already there before the twin is started."""
+SETTLE_S = 0.3
+"""Time for late discovery replies before publishers per topic are counted."""
+
+
 def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scenario) -> None:
-    """Refuse a policy trained for other robots, another layout or beam count, or another scenario."""
+    """Refuse a policy trained for other robots, another layout, beam count or scenario, or that commands
+    more than a robot's velocity limits (its commands would be clamped: another action space)."""
     lidar = runtime.meta["noise"]["lidar"]
     runtime.check_fits(fleet.names, ObservationLayout(runtime.layout.name, int(lidar["beams"])))
+    problems = []
     trained = runtime.meta.get("scenario", {}).get("name")
     if trained is not None and trained != scenario.name:
-        raise PolicyMismatch(
-            runtime.name, [f"it was trained in scenario {trained!r}, the fleet drives in {scenario.name!r}"]
+        problems.append(f"it was trained in scenario {trained!r}, the fleet drives in {scenario.name!r}")
+    codec = runtime.codec
+    for robot in fleet.robots:
+        if codec.v_max_mps > robot.v_max_mps + 1e-9 or codec.w_max_radps > robot.w_max_radps + 1e-9:
+            problems.append(
+                f"it commands up to {codec.v_max_mps:g} m/s and {codec.w_max_radps:g} rad/s (policy.json "
+                f"actions.v_max_mps, actions.w_max_radps), the fleet limits {robot.name} to {robot.v_max_mps:g} m/s "
+                f"and {robot.w_max_radps:g} rad/s (fleet file robots[{robot.name}].v_max_mps, w_max_radps): its "
+                "commands would be clamped; retrain with world.actions within the fleet's limits"
+            )
+    if problems:
+        raise PolicyMismatch(runtime.name, problems)
+
+
+def _publishers(transport: Transport, specs: list[TopicSpec]) -> dict[str, int]:
+    return {spec.name: transport.matched_count(spec) for spec in specs}
+
+
+def check_domain_is_free(transport: Transport, fleet: Fleet, watch_s: float = STRAY_WATCH_S) -> None:
+    """Before the twin starts: refuse a domain where the fleet's robots (or a twin) already publish."""
+    specs = [r.topics()["scan"] for r in fleet.robots] + [r.topics()["odom"] for r in fleet.robots]
+    specs.append(T.FLEET_TOPICS["reset_done"])
+    subs = [transport.subscribe(spec, lambda *_: None) for spec in specs]
+    try:
+        deadline = time.monotonic() + watch_s
+        seen: dict[str, int] = {}
+        while time.monotonic() < deadline:
+            seen = {k: n for k, n in _publishers(transport, specs).items() if n}
+            if seen:
+                time.sleep(SETTLE_S)
+                seen = {k: n for k, n in _publishers(transport, specs).items() if n}
+                break
+            time.sleep(0.05)
+    finally:
+        for sub in subs:
+            sub.close()
+    if seen:
+        raise FleetConflict(
+            fleet.network.domain_id,
+            [f"{n} publisher(s) on {topic}" for topic, n in sorted(seen.items())],
+            "robots this deployment did not start (a twin left running, or another user on this domain); stop "
+            "them, or give the fleet file another network.domain_id",
+        )
+
+
+def check_one_publisher_each(transport: Transport, fleet: Fleet) -> None:
+    """After discovery: every robot's scan and odometry come from exactly one publisher."""
+    time.sleep(SETTLE_S)
+    specs = [r.topics()["scan"] for r in fleet.robots] + [r.topics()["odom"] for r in fleet.robots]
+    crowded = {k: n for k, n in _publishers(transport, specs).items() if n > 1}
+    if crowded:
+        raise FleetConflict(
+            fleet.network.domain_id,
+            [f"{n} publishers on {topic}" for topic, n in sorted(crowded.items())],
+            "each robot's topics must have one publisher; another robot or twin on this domain uses the same "
+            "namespaces: stop it, or give the fleet file another network.domain_id",
         )
 
 
@@ -112,7 +197,12 @@ def deploy_policy(
     confirm_reset: Callable[[int], None] | None = None,
     twin_extra_args: list[str] | None = None,
 ) -> tuple[list[EpisodeResult], str]:
-    """Run a deployment session; returns the episodes and the reality profile name ('robots' on hardware)."""
+    """Run a deployment session; returns the episodes and the reality profile name ('robots' on hardware).
+
+    Everything that can be checked is checked before the recording is created: the policy against the
+    fleet, the domain for robots already there, and the twin's own inputs (it reports ready only after
+    reading its fleet, profile and scenario).
+    """
     scenario = load_scenario(fleet.scenario, len(fleet.robots))
     # a thread that wants the interpreter waits at most this long: the emitter's tick stays on time
     sys.setswitchinterval(SWITCH_INTERVAL_S)
@@ -121,16 +211,18 @@ def deploy_policy(
     twin: TwinProcess | None = None
     profile = "robots"
     scale = 1.0
-    if fleet.target == "twin":
-        profile = request.profile or fleet.twin.profile
-        scale = request.time_scale or fleet.twin.time_scale
-        twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, twin_extra_args)
-        profile = Path(profile).stem
     transport = None
     log = None
     runner = None
     try:
         transport = open_transport(fleet.transport, settings)
+        if fleet.target == "twin":
+            check_domain_is_free(transport, fleet)
+            profile = request.profile or fleet.twin.profile
+            scale = request.time_scale or fleet.twin.time_scale
+            twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, twin_extra_args)
+            profile = Path(profile).stem
+            twin.wait_ready(TWIN_START_TIMEOUT_S)
         clock: Clock = ScaledClock(scale) if scale != 1.0 else WallClock()
         session = session_metadata(
             "real",
@@ -139,7 +231,12 @@ def deploy_policy(
             float(runtime.meta.get("control_period_s", 0.1)),
             runtime.meta,
             profile=profile,
-            extra={"target": fleet.target, "time_scale": repr(scale), "fleet": fleet_source},
+            extra={
+                "target": fleet.target,
+                "time_scale": repr(scale),
+                "fleet": fleet_source,
+                **clock_metadata(scale),
+            },
         )
         documents = {
             "params": request.params_text,
@@ -150,8 +247,6 @@ def deploy_policy(
         log = SessionLog(
             request.recording, [r.namespace for r in fleet.robots], session, documents, request.chunk_size_bytes
         )
-        if twin is not None:
-            twin.wait_ready(TWIN_START_TIMEOUT_S)
         runner = DeployRunner(
             runtime,
             fleet,
@@ -163,6 +258,7 @@ def deploy_policy(
             confirm_reset=confirm_reset if fleet.target == "robots" else None,
         )
         runner.wait_for_fleet(fleet.timing.discovery_timeout_s)
+        check_one_publisher_each(transport, fleet)
         results = runner.run(request.episodes, request.seed, request.progress)
         return results, profile
     finally:
@@ -174,3 +270,93 @@ def deploy_policy(
             transport.close()
         if twin is not None:
             twin.stop()
+
+
+SESSION_FILES = ("session.mcap", "metadata.yaml", "episodes.csv", "metrics.json")
+"""The files of a deployment's output folder; all of them describe the same session."""
+
+
+@dataclass(frozen=True)
+class DeploymentOutcome:
+    """A finished (or partly finished) deployment: its episodes, metrics and the files now in place."""
+
+    results: list[EpisodeResult]
+    profile: str
+    metrics: dict[str, float]
+    files: list[Path]
+
+
+def check_scenario_agrees(world_scenario: str, params_source: str, fleet: Fleet, fleet_source: str) -> None:
+    """Refuse a deployment whose params `world.scenario` names another map than the fleet file drives in."""
+    ours = load_scenario(world_scenario)
+    theirs = load_scenario(fleet.scenario, len(fleet.robots))
+    if ours.name != theirs.name:
+        raise FleetConfigMismatch(
+            f"{params_source}: world.scenario is {world_scenario!r} (scenario {ours.name!r}), but the fleet "
+            f"{fleet_source!r} drives in {fleet.scenario!r} (scenario {theirs.name!r}); the fleet file's "
+            "`scenario` is the map the robots are in: make the two agree"
+        )
+
+
+class FleetConfigMismatch(MrlError):
+    """The parameters and the fleet file describe different worlds."""
+
+
+def _holds_an_episode(recording: Path) -> bool:
+    if not recording.exists() or recording.stat().st_size == 0:
+        return False
+    try:
+        return McapLog(recording).message_counts().get("/mrl/episode", 0) > 0
+    except MrlError:
+        return False
+
+
+def deploy_session(
+    runtime: PolicyRuntime,
+    fleet: Fleet,
+    fleet_source: str,
+    request: DeployRequest,
+    out_dir: Path,
+    confirm_reset: Callable[[int], None] | None = None,
+    twin_extra_args: list[str] | None = None,
+) -> DeploymentOutcome:
+    """A deployment into `out_dir`: session.mcap (+ rosbag2 metadata.yaml), episodes.csv and metrics.json.
+
+    The session is recorded in a staging folder and moved into place with its results when at least
+    one episode finished; a deployment that stops partway publishes the finished episodes and then
+    raises DeployAborted. One that stops before its first episode leaves `out_dir` as it was (an
+    episode under way is kept in ``interrupted-<time>``, the staging folder of a killed run too).
+    """
+    scenario = load_scenario(fleet.scenario, len(fleet.robots))
+    check_policy_fits_fleet(runtime, fleet, scenario)
+    folder = SessionFolder(out_dir, owned=SESSION_FILES).open()
+    staged = replace(request, recording=folder.staged("session.mcap"))
+    failure: DeployAborted | None = None
+    try:
+        results, profile = deploy_policy(runtime, fleet, fleet_source, staged, confirm_reset, twin_extra_args)
+    except DeployAborted as exc:
+        if not exc.results:
+            _drop(folder)
+            raise
+        failure, results, profile = exc, exc.results, ""
+    except BaseException:
+        _drop(folder)
+        raise
+    metrics = summarize(results, prefix="real")
+    write_metrics(folder.staged("metrics.json"), metrics)
+    write_episodes(folder.staged("episodes.csv"), results)
+    write_rosbag2_metadata(folder.staged("session.mcap"))
+    files = folder.publish()
+    if failure is not None:
+        raise DeployAborted(
+            f"{failure.reason}; the {len(results)} finished episode(s) are in {out_dir}", results, failure.interrupted
+        ) from failure
+    return DeploymentOutcome(results, profile, metrics, files)
+
+
+def _drop(folder: SessionFolder) -> None:
+    """No episode finished: keep a recording that holds an episode under way, discard one that does not."""
+    if _holds_an_episode(folder.staged("session.mcap")):
+        folder.keep_as_interrupted()
+    else:
+        folder.discard()

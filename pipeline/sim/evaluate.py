@@ -11,11 +11,14 @@ from tqdm import tqdm
 from pipeline.config import EvalSimConfig, WorldConfig
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario
-from pipeline.errors import MrlError
+from pipeline.errors import MrlError, PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.record.session import SessionLog, dumps, session_metadata
+from pipeline.record.results import SessionFolder, write_episodes, write_metrics
+from pipeline.record.rosbag2 import write_rosbag2_metadata
+from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
 from pipeline.settings import to_mapping
 from pipeline.sim.env import MultiRobotSim
+from pipeline.sim.outputs import write_paths_picture
 
 NS_PER_S = 1_000_000_000
 EPISODE_GAP_NS = NS_PER_S
@@ -142,6 +145,18 @@ def evaluate(
     return results
 
 
+def check_action_codec(runtime: PolicyRuntime, world: WorldConfig) -> None:
+    """Refuse a world whose actions (kind, limits, discrete set) decode the policy's outputs otherwise than in
+    training: the same output would be another command (e.g. saturated at a lower limit)."""
+    differences = runtime.codec.differences(world.codec())
+    if differences:
+        raise PolicyMismatch(
+            runtime.name,
+            [f"the policy (policy.json) and params world.actions differ: {d}" for d in differences]
+            + ["evaluate in the world it was trained in, or retrain with these world.actions"],
+        )
+
+
 def evaluate_policy(
     scenario: Scenario,
     world: WorldConfig,
@@ -157,11 +172,18 @@ def evaluate_policy(
     recording is opened (and its path checked) before any episode runs and closed on every exit.
     """
     runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
+    check_action_codec(runtime, world)
     sim = MultiRobotSim(scenario, world)
     log = None
     if cfg.record:
         session = session_metadata(
-            "sim", scenario.name, scenario.robot_names, world.control_period_s, runtime.meta, profile="sim"
+            "sim",
+            scenario.name,
+            scenario.robot_names,
+            world.control_period_s,
+            runtime.meta,
+            profile="sim",
+            extra=clock_metadata(None),
         )
         documents = {
             "params": params_text,
@@ -176,3 +198,45 @@ def evaluate_policy(
         if log is not None:
             log.close()
     return results, summarize(results, prefix="eval")
+
+
+SESSION_FILES = ("session.mcap", "metadata.yaml", "episodes.csv", "metrics.json", "paths.png")
+"""The files of an evaluation's output folder; all of them describe the same session."""
+
+
+def evaluate_session(
+    scenario: Scenario,
+    world: WorldConfig,
+    runtime: PolicyRuntime,
+    cfg: EvalSimConfig,
+    out_dir: Path,
+    params_text: str = "",
+    progress: bool = True,
+) -> tuple[list[EpisodeResult], dict[str, float]]:
+    """`evaluate_policy` into `out_dir` (session.mcap with its rosbag2 metadata.yaml, episodes.csv,
+    metrics.json, paths.png), staged and moved into place together (see pipeline.record.results)."""
+    folder = SessionFolder(out_dir, owned=SESSION_FILES).open()
+    recording = folder.staged("session.mcap")
+    failure: EvaluationInterrupted | None = None
+    try:
+        results, metrics = evaluate_policy(scenario, world, runtime, cfg, recording, params_text, progress)
+    except EvaluationInterrupted as exc:
+        if not exc.results:
+            if recording.exists():
+                folder.keep_as_interrupted()
+            else:
+                folder.discard()
+            raise
+        failure, results, metrics = exc, exc.results, summarize(exc.results, prefix="eval")
+    except BaseException:
+        folder.discard()
+        raise
+    write_metrics(folder.staged("metrics.json"), metrics)
+    write_episodes(folder.staged("episodes.csv"), results)
+    write_paths_picture(folder.staged("paths.png"), scenario, results)
+    if cfg.record:
+        write_rosbag2_metadata(recording)
+    folder.publish()
+    if failure is not None:
+        raise failure
+    return results, metrics

@@ -3,11 +3,16 @@
 Example: ``python -m pipeline.twin --fleet twin --profile harsh --time-scale 4``. It prints one
 line ``twin: ready ...`` when its topics are up, and exits 0 after a clean shutdown, 2 on bad
 input (fleet, profile or scenario files).
+
+With ``--exit-with-parent`` (the deploy runner starts it so) the twin also stops when its standard
+input closes: the runner holds the other end of that pipe, so a runner that dies in any way, even
+by SIGKILL, takes its twin with it instead of leaving robots publishing on the domain.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -38,7 +43,38 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         metavar="NS@START[+DURATION]",
         help="fault injection: robot NS stops publishing START seconds after the first reset (for DURATION seconds)",
     )
+    parser.add_argument(
+        "--exit-with-parent",
+        action="store_true",
+        help="stop when standard input closes (the starting process holds the other end of the pipe)",
+    )
     return parser.parse_args(argv)
+
+
+def watch_lifeline(stop: threading.Event) -> None:
+    """Set `stop` when standard input reaches end of file: the process holding its other end is gone."""
+
+    fd = sys.stdin.fileno()
+
+    def read() -> None:
+        # os.read on the descriptor, not sys.stdin: a daemon thread blocked inside a buffered reader
+        # aborts the interpreter at exit (it cannot take the reader's lock)
+        try:
+            while os.read(fd, 4096):
+                pass
+        except OSError:
+            pass
+        stop.set()
+
+    threading.Thread(target=read, name="twin-lifeline", daemon=True).start()
+
+
+def say(line: str) -> None:
+    """One line to the starting process; nothing if it is gone (a closed pipe)."""
+    try:
+        print(line, flush=True)
+    except (BrokenPipeError, OSError):
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - stays open until exit, so the final flush succeeds
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -51,6 +87,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    if args.exit_with_parent:
+        watch_lifeline(stop)
     try:
         fleet = load_fleet(args.fleet)
         name, profile = load_profile(args.profile or fleet.twin.profile)
@@ -82,14 +120,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             fleet, scenario, profile, transport, clock, seed, publish_clock=scale != 1.0, silence=silence
         )
         robots = ", ".join(r.namespace for r in fleet.robots)
-        print(f"twin: ready, profile {name}, {len(fleet.robots)} robots ({robots}), time scale {scale}", flush=True)
+        say(f"twin: ready, profile {name}, {len(fleet.robots)} robots ({robots}), time scale {scale}")
         try:
             twin.run(stop)
         finally:
             twin.close()
     finally:
         transport.close()
-    print(f"twin: stopped after {twin.ticks} ticks ({twin.link.sent} messages sent, {twin.link.lost} lost)", flush=True)
+    say(f"twin: stopped after {twin.ticks} ticks ({twin.link.sent} messages sent, {twin.link.lost} lost)")
     return 0
 
 

@@ -16,6 +16,7 @@ import yaml
 from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.messages.convert import EVENT_NAMES
 from pipeline.record import McapLog
+from pipeline.record.results import STAGING
 from tests.integration.conftest import write_fleet
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -81,15 +82,19 @@ def test_ctrl_c_during_sim_evaluation_closes_a_valid_recording(tiny_policy, tmp_
     (tmp_path / "models" / "nominal" / "policy").symlink_to(tiny_policy)
     params_in(tmp_path, world={"max_steps": 30}, eval_sim={"episodes": 100_000, "chunk_size_bytes": 4096})
     proc = start("eval_sim", tmp_path)
-    mcap = tmp_path / "logs" / "sim" / "nominal" / "session.mcap"
-    wait_for(lambda: mcap.exists() and mcap.stat().st_size > 200_000)
+    out = tmp_path / "logs" / "sim" / "nominal"
+    staged = out / STAGING / "session.mcap"
+    wait_for(lambda: staged.exists() and staged.stat().st_size > 200_000)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
-    log = McapLog(mcap)
-    assert not log.salvaged
+    # the finished episodes are published with their results, the staging folder is gone
+    log = McapLog(out / "session.mcap")
+    assert not log.salvaged and not (out / STAGING).exists()
     events = [EVENT_NAMES[m.msg.event] for m in log.messages(["/mrl/episode"])]
     assert events.count("end") >= 1 and events[-1] == "abort"
+    with (out / "episodes.csv").open() as f:
+        assert len({row.split(",")[0] for row in list(f)[1:]}) == events.count("end")
 
 
 def test_ctrl_c_during_deployment_stops_robots_and_closes_the_recording(tiny_policy, tmp_path):
@@ -98,9 +103,10 @@ def test_ctrl_c_during_deployment_stops_robots_and_closes_the_recording(tiny_pol
     fleet = write_fleet(tmp_path / "fleet.yaml")
     params_in(tmp_path, deploy={"fleet": str(fleet), "episodes": 1000})
     proc = start("deploy", tmp_path)
+    staged = tmp_path / "logs" / "real" / "nominal" / STAGING / "session.mcap"
     mcap = tmp_path / "logs" / "real" / "nominal" / "session.mcap"
-    wait_for(lambda: mcap.exists() and mcap.stat().st_size > 50_000)
-    time.sleep(1.0)
+    wait_for(lambda: staged.exists() and staged.stat().st_size > 50_000)
+    time.sleep(4.0)  # past the first episode (30 steps at 2x)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err

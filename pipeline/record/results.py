@@ -1,0 +1,132 @@
+"""A session's result files and how they are put in place.
+
+`write_metrics` (JSON for dvc metrics) and `write_episodes` (one CSV row per episode and robot)
+describe the episodes of one recording. `SessionFolder` keeps them together with it: a session
+is written into a staging folder inside its output folder and moved into place file by file only
+when it holds data, so the recording, episodes.csv and metrics.json in an output folder always
+come from the same session, and a session that fails before its first episode leaves the previous
+one untouched.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import shutil
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.core.episode import EpisodeResult
+from pipeline.record.errors import RecordError
+
+STAGING = ".session.partial"
+"""The staging folder inside an output folder (hidden from globs of results)."""
+
+
+def write_metrics(path: Path, metrics: dict[str, float]) -> None:
+    """JSON with NaN written as null (JSON has no NaN)."""
+    clean = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in metrics.items()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+
+
+def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
+    """One row per (episode, robot): seed, success, collision, time to goal, path length."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="", encoding="utf-8") as f:
+        out = csv.writer(f)
+        out.writerow(
+            [
+                "episode",
+                "seed",
+                "robot",
+                "success",
+                "reached",
+                "collided",
+                "time_to_goal_s",
+                "path_length_m",
+                "steps",
+                "team_success",
+            ]
+        )
+        for r in results:
+            for i in range(len(r.reached)):
+                t = r.time_to_goal_s[i]
+                out.writerow(
+                    [
+                        r.episode,
+                        r.seed,
+                        f"robot_{i + 1}",
+                        int(r.success[i]),
+                        int(r.reached[i]),
+                        int(r.collided[i]),
+                        "" if np.isnan(t) else f"{t:.3f}",
+                        f"{r.path_length_m[i]:.4f}",
+                        r.steps,
+                        int(r.team_success),
+                    ]
+                )
+
+
+class SessionFolder:
+    """The output folder of one session, written through a staging folder.
+
+    ``staged(name)`` is where a file of the new session is written; ``publish()`` moves every staged
+    file into the folder (``os.replace``: each file is replaced atomically) and removes files of
+    `owned` that the new session did not write, so nothing of an older session stays beside it.
+    A staging folder left by a killed run is kept under ``interrupted-<time>`` rather than reused.
+    """
+
+    def __init__(self, out_dir: str | Path, owned: Iterable[str] = ()) -> None:
+        self.out_dir = Path(out_dir)
+        self.staging = self.out_dir / STAGING
+        self.owned = tuple(owned)
+        self.kept_interrupted: Path | None = None
+
+    def open(self) -> SessionFolder:
+        """Create the staging folder (keeping one left by a killed run)."""
+        try:
+            if self.staging.exists():
+                self.keep_as_interrupted()
+            self.staging.mkdir(parents=True)
+        except OSError as exc:
+            raise RecordError(str(self.out_dir), f"cannot write the session's output folder ({exc.strerror})") from exc
+        return self
+
+    def keep_as_interrupted(self) -> Path:
+        """Move the staging folder aside as ``interrupted-<time of its last change>``; returns its new path."""
+        stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(self.staging.stat().st_mtime))
+        target = self.out_dir / f"interrupted-{stamp}"
+        n = 1
+        while target.exists():
+            n += 1
+            target = self.out_dir / f"interrupted-{stamp}-{n}"
+        self.staging.rename(target)
+        self.kept_interrupted = target
+        return target
+
+    def staged(self, name: str) -> Path:
+        return self.staging / name
+
+    def publish(self) -> list[Path]:
+        """Move the staged files into the output folder; returns their final paths."""
+        written = sorted(p.name for p in self.staging.iterdir() if p.is_file())
+        for name in self.owned:
+            if name not in written:
+                (self.out_dir / name).unlink(missing_ok=True)
+        out = []
+        for name in written:
+            target = self.out_dir / name
+            os.replace(self.staging / name, target)
+            out.append(target)
+        shutil.rmtree(self.staging, ignore_errors=True)
+        return out
+
+    def discard(self) -> None:
+        """Drop the staged files (nothing of the session is worth keeping)."""
+        shutil.rmtree(self.staging, ignore_errors=True)

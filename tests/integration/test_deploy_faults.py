@@ -1,0 +1,234 @@
+"""Faults a first user meets when deploying: a killed runner, a stray twin, two clocks, limits that do not
+match, bad input after a good session, a deployment that stops partway. Real processes, DDS on loopback."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+import yaml
+
+from pipeline.messages.convert import EVENT_NAMES
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record import McapLog
+from pipeline.record.results import STAGING
+from pipeline.ros.deploy import DeployAborted, FleetNotReady
+from pipeline.ros.deployment import DeployRequest, FleetConflict, deploy_session
+from pipeline.ros.fleet import load_fleet
+from tests.integration.conftest import write_fleet
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).resolve().parents[2]
+NS_PER_S = 1_000_000_000
+
+
+def stage_params(tmp_path: Path, policy: Path, fleet: Path, **deploy: object) -> Path:
+    """A params.yaml for stages/deploy.py that deploys `policy` (as the nominal round) on `fleet`."""
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    shutil.copytree(policy, tmp_path / "models" / "nominal" / "policy")
+    params["export"]["out_dir"] = str(tmp_path / "models")
+    params["deploy"].update(
+        {"fleet": str(fleet), "episodes": 1, "time_scale": 0.0, "out_dir": str(tmp_path / "real"), **deploy}
+    )
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(params))
+    return path
+
+
+def run_stage(params: Path, timeout: float = 180) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "stages/deploy.py", "--params", str(params)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def twins_of(proc: psutil.Process) -> list[psutil.Process]:
+    return [p for p in proc.children(recursive=True) if "pipeline.twin" in " ".join(p.cmdline())]
+
+
+def deploy_into(policy: Path, fleet_file: Path, out: Path, episodes: int = 1, **kwargs):
+    request = DeployRequest(episodes=episodes, seed=5, recording=out / "session.mcap", progress=False)
+    fleet = load_fleet(fleet_file)
+    return deploy_session(PolicyRuntime(policy), fleet, str(fleet_file), request, out, **kwargs)
+
+
+def summary_span(path: Path) -> tuple[int, int]:
+    """(message_start_time, message_end_time) of the MCAP's statistics record, as other tools read them."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    return summary.statistics.message_start_time, summary.statistics.message_end_time
+
+
+def digests(folder: Path) -> dict[str, str]:
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+def test_a_killed_runner_takes_its_twin_along_and_the_next_deploy_runs(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    params = stage_params(tmp_path, tiny_policy, fleet, episodes=50)
+    stage = subprocess.Popen(
+        [sys.executable, "stages/deploy.py", "--params", str(params)],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    runner = psutil.Process(stage.pid)
+    staged = tmp_path / "real" / "nominal" / STAGING / "session.mcap"
+    deadline = time.monotonic() + 120
+    twins: list[psutil.Process] = []
+    while time.monotonic() < deadline and not (twins and staged.exists() and staged.stat().st_size > 0):
+        twins = twins or twins_of(runner)
+        assert stage.poll() is None, "the deploy stage ended before it could be killed"
+        time.sleep(0.1)
+    assert twins, "the deploy stage never started its twin"
+    time.sleep(2.0)  # mid-episode
+    stage.kill()
+    stage.wait()
+    _, alive = psutil.wait_procs(twins, timeout=15)
+    assert not alive, f"twin process(es) {[p.pid for p in alive]} outlived their runner"
+    # the next deploy on the same domain runs, and keeps the killed run's recording aside
+    done = run_stage(params)
+    assert done.returncode == 0, done.stderr
+    out = tmp_path / "real" / "nominal"
+    assert {"session.mcap", "episodes.csv", "metrics.json", "metadata.yaml"} <= {p.name for p in out.iterdir()}
+    (kept,) = out.glob("interrupted-*")
+    assert (kept / "session.mcap").stat().st_size > 0
+    assert not (out / STAGING).exists()
+
+
+def test_robots_that_this_deploy_did_not_start_are_refused(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    domain = load_fleet(fleet).network.domain_id
+    stray = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.twin", "--fleet", str(fleet)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert stray.stdout is not None and stray.stdout.readline().startswith("twin: ready")
+        with pytest.raises(FleetConflict) as err:
+            deploy_into(tiny_policy, fleet, tmp_path / "out")
+        text = str(err.value)
+        assert f"DDS domain {domain}" in text and "/robot_1/scan" in text and "did not start" in text
+        assert not (tmp_path / "out" / "session.mcap").exists() and not (tmp_path / "out" / STAGING).exists()
+        # the stage says the same in one line, without a traceback
+        done = run_stage(stage_params(tmp_path, tiny_policy, fleet))
+        assert done.returncode == 2 and f"DDS domain {domain}" in done.stderr and "Traceback" not in done.stderr
+    finally:
+        stray.send_signal(signal.SIGINT)
+        stray.communicate(timeout=20)
+
+
+@pytest.mark.parametrize("scale", [1.0, 3.0])
+def test_a_deployment_recording_has_one_clock_and_spans_the_session(tiny_policy, tmp_path, scale):
+    fleet = write_fleet(tmp_path / "fleet.yaml", twin={"time_scale": scale})
+    out = tmp_path / "out"
+    wall0 = time.time_ns()
+    outcome = deploy_into(tiny_policy, fleet, out, episodes=2)
+    wall = time.time_ns() - wall0
+    log = McapLog(out / "session.mcap")
+    session = log.metadata()["session"]
+    assert session["clock_epoch"] == "unix" and session["clock"] == ("wall" if scale == 1.0 else "ros_clock")
+    times = sorted(m.log_time_ns for m in log.raw())
+    start, end = times[0], times[-1]
+    # every message on the Unix-epoch clock: nothing logged on a clock that starts near zero
+    assert start > 1_600_000_000 * NS_PER_S
+    # the span is the session's length: at least its control steps, at most its wall time on the twin's clock
+    steps = sum(r.steps for r in outcome.results)
+    assert steps * 0.1 * NS_PER_S <= end - start <= wall * scale * 1.05
+    assert summary_span(out / "session.mcap") == (start, end)
+
+
+def test_a_policy_beyond_the_fleet_limits_is_refused(tiny_policy, tmp_path):
+    edited = tmp_path / "policy"
+    shutil.copytree(tiny_policy, edited)
+    meta = json.loads((edited / "policy.json").read_text())
+    meta["actions"]["v_max_mps"] = 4.0
+    (edited / "policy.json").write_text(json.dumps(meta))
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    with pytest.raises(Exception) as err:
+        deploy_into(edited, fleet, tmp_path / "out")
+    text = str(err.value)
+    assert "up to 4 m/s" in text and "robot_1 to 0.4 m/s" in text and "clamped" in text
+    assert not (tmp_path / "out" / "session.mcap").exists()
+
+
+def test_a_bad_profile_after_a_good_session_leaves_that_session_in_place(tiny_policy, tmp_path):
+    out = tmp_path / "out"
+    good = write_fleet(tmp_path / "fleet.yaml")
+    deploy_into(tiny_policy, good, out)
+    before = digests(out)
+    assert {"session.mcap", "episodes.csv", "metrics.json", "metadata.yaml"} <= set(before)
+    (tmp_path / "bad.yaml").write_text("lidar: {beams: 0}\n")
+    bad = write_fleet(tmp_path / "bad_fleet.yaml", twin={"profile": str(tmp_path / "bad.yaml")})
+    with pytest.raises(FleetNotReady, match=r"lidar.beams = 0"):
+        deploy_into(tiny_policy, bad, out)
+    assert digests(out) == before
+    assert not (out / STAGING).exists() and not list(out.glob("interrupted-*"))
+
+
+def test_a_deployment_that_stops_partway_publishes_its_finished_episodes(tiny_policy, tmp_path):
+    out = tmp_path / "out"
+    # robot_2 falls silent for good: episode 0 aborts, the reset of episode 1 never gets its data
+    fleet = write_fleet(tmp_path / "fleet.yaml", timing={"reset_timeout_s": 2.0})
+    with pytest.raises(DeployAborted, match=r"after 1 finished episode.*robot_2.*finished episode\(s\) are in") as err:
+        deploy_into(tiny_policy, fleet, out, episodes=3, twin_extra_args=["--silence", "robot_2@0.3"])
+    assert len(err.value.results) == 1 and err.value.results[0].aborted
+    with (out / "episodes.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {r["episode"] for r in rows} == {"0"} and len(rows) == 3
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["real/aborted_episodes"] == 1
+    log = McapLog(out / "session.mcap")
+    assert not log.salvaged
+    events = [(EVENT_NAMES[m.msg.event], m.msg.episode, m.msg.step) for m in log.messages(["/mrl/episode"])]
+    assert ("start", 0, 0) in events and ("end", 0) in {(e, ep) for e, ep, _ in events}
+
+
+def test_an_interrupted_deploy_records_the_step_it_stopped_at(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    params = stage_params(tmp_path, tiny_policy, fleet, episodes=50)
+    stage = subprocess.Popen(
+        [sys.executable, "stages/deploy.py", "--params", str(params)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    staged = tmp_path / "real" / "nominal" / STAGING / "session.mcap"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (staged.exists() and staged.stat().st_size > 0):
+        time.sleep(0.1)
+    time.sleep(6.0)  # a few episodes of 30 steps at 2x, and part of the next
+    stage.send_signal(signal.SIGINT)
+    _, err = stage.communicate(timeout=60)
+    assert stage.returncode == 130, err
+    out = tmp_path / "real" / "nominal"
+    log = McapLog(out / "session.mcap")
+    events = [(EVENT_NAMES[m.msg.event], m.msg.episode, m.msg.step) for m in log.messages(["/mrl/episode"])]
+    starts = [ep for e, ep, _ in events if e == "start"]
+    aborts = [(ep, step) for e, ep, step in events if e == "abort"]
+    assert aborts and aborts[-1][0] == starts[-1]
+    with (out / "episodes.csv").open() as f:
+        finished = {int(r["episode"]) for r in csv.DictReader(f)}
+    assert finished == set(range(len(finished))) and len(finished) >= 1
+    # the abort names the step the interrupted episode was at: its last recorded control step or the next
+    steps = [m.msg.step for m in log.messages(["/mrl/action"]) if m.msg.episode == starts[-1]]
+    assert aborts[-1][1] in ({max(steps), max(steps) + 1} if steps else {0})
