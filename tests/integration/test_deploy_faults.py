@@ -232,3 +232,15 @@ def test_an_interrupted_deploy_records_the_step_it_stopped_at(tiny_policy, tmp_p
     # the abort names the step the interrupted episode was at: its last recorded control step or the next
     steps = [m.msg.step for m in log.messages(["/mrl/action"]) if m.msg.episode == starts[-1]]
     assert aborts[-1][1] in ({max(steps), max(steps) + 1} if steps else {0})
+
+
+def test_a_world_scenario_other_than_the_fleets_is_refused_not_ignored(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    params = stage_params(tmp_path, tiny_policy, fleet)
+    data = yaml.safe_load(params.read_text())
+    data["world"]["scenario"] = "empty"
+    params.write_text(yaml.safe_dump(data))
+    done = run_stage(params)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "world.scenario is 'empty'" in done.stderr and "drives in 'obstacles'" in done.stderr
+    assert not (tmp_path / "real").exists()
