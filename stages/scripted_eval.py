@@ -7,21 +7,24 @@ observation layout; everything else comes from params.yaml `world`.
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
+from pipeline.cli import run_stage, stage_arguments
 from pipeline.config import load_params, world_config
-from pipeline.errors import MrlError
+from pipeline.core.episode import summarize
 from pipeline.policy.scripted import GoToGoalController
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate, summarize
+from pipeline.sim.evaluate import evaluate
 from pipeline.sim.outputs import write_episodes, write_metrics, write_paths_picture
 
 
-def main(params_path: str = "params.yaml") -> int:
-    params = load_params(params_path)
+def main(argv: Sequence[str] | None = None) -> int:
+    args = stage_arguments(__doc__ or "", argv, rounds=False)
+    params = load_params(args.params)
     cfg = params.scripted_eval
-    world = world_config({"observation": "rich"}, base=params.world, source=params_path)
+    world = world_config({"observation": "rich"}, base=params.world, source=args.params)
     scenario, world = make_world(world=world)
     sim = MultiRobotSim(scenario, world)
     results = evaluate(sim, GoToGoalController(world.layout(), world.codec()), cfg.episodes, cfg.seed)
@@ -39,8 +42,4 @@ def main(params_path: str = "params.yaml") -> int:
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main(*sys.argv[1:]))
-    except MrlError as exc:
-        print(f"scripted_eval: {exc}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(run_stage("scripted_eval", main))

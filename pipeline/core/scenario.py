@@ -126,8 +126,19 @@ class Scenario:
             raise ScenarioError(self.name, f"n_robots = {n}: this scenario defines 1 to {self.n_robots} robots")
         return dataclasses.replace(self, robots=self.robots[:n])
 
-    def validate(self) -> None:
-        """Raise ScenarioError for geometry that cannot be simulated."""
+    def validate(self, source: str = "") -> None:
+        """Raise ScenarioError for geometry that cannot be simulated or in which the team cannot succeed.
+
+        `source` (the scenario file) is named in the message.
+        """
+        try:
+            self._check_geometry()
+        except ScenarioError as exc:
+            if source:
+                raise ScenarioError(exc.scenario, f"{exc.problem} (scenario file {source})") from None
+            raise
+
+    def _check_geometry(self) -> None:
         r = self.robot.radius_m
         room = self.room
         half = self.goal_size_m / 2
@@ -168,6 +179,7 @@ class Scenario:
                         f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
                         f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap",
                     )
+        self._check_goals_apart()
         for k, box in enumerate(self.obstacles):
             corners = box_corners(box)
             if (
@@ -177,6 +189,38 @@ class Scenario:
                 or corners[:, 1].max() > room.y_max_m
             ):
                 raise ScenarioError(self.name, f"obstacle {k} at ({box.x_m}, {box.y_m}) reaches outside the room")
+
+    def _check_goals_apart(self) -> None:
+        """Refuse goal squares that overlap, or that are too close for two robots to stand one in each.
+
+        A robot is in its goal when its centre is inside its square, and it stops there; the team
+        succeeds when every robot has arrived. A robot in a shared part of two squares would be in
+        another's goal too, and two squares whose farthest points are closer than two robot radii
+        cannot hold both robots at once.
+        """
+        size = self.goal_size_m
+        reach = 2 * self.robot.radius_m
+        goals = self.goals
+        for i in range(self.n_robots):
+            for j in range(i + 1, self.n_robots):
+                dx, dy = (float(v) for v in np.abs(goals[i] - goals[j]))
+                both = (
+                    f"the goal squares of robot_{i + 1} at ({goals[i][0]:g}, {goals[i][1]:g}) and "
+                    f"robot_{j + 1} at ({goals[j][0]:g}, {goals[j][1]:g})"
+                )
+                if dx < size - 1e-9 and dy < size - 1e-9:
+                    raise ScenarioError(
+                        self.name,
+                        f"{both} overlap: with goal_size_m {size:g} their centres must be at least {size:g} m "
+                        f"apart in x or in y (they are {dx:.3g} m and {dy:.3g} m apart)",
+                    )
+                farthest = math.hypot(dx + size, dy + size)
+                if farthest < reach:
+                    raise ScenarioError(
+                        self.name,
+                        f"{both} are too close for both robots to stand in them at once: their farthest points "
+                        f"are {farthest:.3f} m apart, less than two robot radii ({reach:.3f} m)",
+                    )
 
 
 def box_corners(box: Box) -> np.ndarray:
@@ -207,6 +251,7 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
 
     `n_robots` keeps the first n robots of the scenario.
     """
+    source = ""
     if isinstance(spec, Scenario):
         scenario = spec
     elif isinstance(spec, dict):
@@ -217,8 +262,10 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
             ref = resources.files("pipeline.core") / "scenarios" / f"{text}.yaml"
             with resources.as_file(ref) as path:
                 scenario = from_mapping(Scenario, read_yaml(path), str(path))
+                source = str(path)
         elif text.endswith((".yaml", ".yml")) or Path(text).exists():
             scenario = from_mapping(Scenario, read_yaml(text), text)
+            source = text
         else:
             raise ConfigError(
                 "<scenario>",
@@ -234,7 +281,7 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
             )
     if n_robots is not None:
         scenario = scenario.with_robots(n_robots)
-    scenario.validate()
+    scenario.validate(source)
     return scenario
 
 

@@ -22,6 +22,8 @@ from pipeline.errors import PolicyError, PolicyMismatch
 
 FORMAT = "mrl-policy/1"
 META_FILE = "policy.json"
+_OUTPUT_KINDS = {"tensor(float)": "continuous", "tensor(int64)": "discrete"}
+"""The kind of actions an ONNX policy's output element type carries."""
 _REQUIRED = ("format", "onnx", "algorithm", "mode", "robots", "observation", "actions", "training")
 
 
@@ -67,8 +69,27 @@ class PolicyRuntime:
             raise PolicyError(
                 str(meta_path), f"observation size {obs['size']} does not match layout {self.layout.name}"
             )
+        self._check_output_kind(onnx_path)
         if verify:
             self.verify_golden()
+
+    def _check_output_kind(self, onnx_path: Path) -> None:
+        """Refuse a policy.json whose actions.kind is not the kind of actions its ONNX graph outputs."""
+        output = self._session.get_outputs()[0]
+        graph_kind = _OUTPUT_KINDS.get(output.type)
+        if graph_kind is None:
+            raise PolicyError(
+                str(onnx_path),
+                f"its output {output.name!r} is {output.type}; a policy outputs float (continuous) "
+                "or int64 (discrete) actions",
+            )
+        if graph_kind != self.codec.kind:
+            raise PolicyError(
+                str(self.meta_path),
+                f"actions.kind is {self.codec.kind!r} but the policy was trained with {graph_kind!r} "
+                f"(its ONNX graph outputs {output.type} actions of shape {output.shape}); "
+                "export it again instead of editing actions.kind",
+            )
 
     @staticmethod
     def _read_meta(path: Path) -> dict[str, Any]:
@@ -124,16 +145,31 @@ class PolicyRuntime:
             tol = float(golden["tolerance"])
         except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise PolicyError(str(path), f"missing or malformed golden set ({exc})") from exc
+        want = (len(obs), self.n_robots) + ((2,) if self.codec.kind == "continuous" else ())
+        if expected.shape != want:
+            raise PolicyError(
+                str(path),
+                f"actions have shape {expected.shape}; {len(obs)} golden observations of a {self.codec.kind} "
+                f"policy for {self.n_robots} robot(s) need {want}",
+            )
         for k, o in enumerate(obs):
             got = self.actions(o)
             if self.codec.kind == "discrete":
-                bad = not np.array_equal(got, expected[k])
-            else:
-                bad = bool(np.abs(got - expected[k]).max() > tol)
-            if bad:
+                if not np.array_equal(got, expected[k]):
+                    raise PolicyError(
+                        str(path),
+                        f"golden observation {k}: the ONNX graph picks actions {got.tolist()}, "
+                        f"golden.json has {expected[k].tolist()}",
+                    )
+                continue
+            diff = np.nan_to_num(np.abs(got - expected[k]), nan=np.inf)
+            if diff.max() > tol:
+                robot = int(diff.max(axis=1).argmax())
                 raise PolicyError(
                     str(path),
-                    f"golden observation {k}: the ONNX graph gives {got.tolist()}, expected {expected[k].tolist()}",
+                    f"golden observation {k}: the ONNX graph's actions differ from golden.json's by up to "
+                    f"{float(diff.max()):.3g}, beyond its tolerance {tol:g} (robot {self.robots[robot]}: "
+                    f"{np.round(got[robot], 6).tolist()} vs {np.round(expected[k][robot], 6).tolist()})",
                 )
         return len(obs)
 
@@ -156,7 +192,11 @@ class PolicyRuntime:
         if layout.n_beams != self.layout.n_beams:
             problems.append(f"it reads {self.layout.n_beams} lidar beams, the world gives {layout.n_beams}")
         if action_kind is not None and action_kind != self.codec.kind:
-            problems.append(f"its actions are {self.codec.kind}, the world expects {action_kind}")
+            kind = self.codec.kind
+            problems.append(
+                f"world.actions.kind is {action_kind!r} but the policy was trained with {kind!r} "
+                f"(policy.json actions.kind): its actions are {kind}; set world.actions.kind: {kind}, or retrain"
+            )
         if limits is not None and (
             limits[0] < self.codec.v_max_mps - 1e-9 or limits[1] < self.codec.w_max_radps - 1e-9
         ):

@@ -15,6 +15,7 @@ from pipeline.record.errors import (
     BagError,
     BagImportWarning,
     BagReadError,
+    DamagedLogWarning,
     EmptyBagError,
     LogDecodeError,
     LogFormatError,
@@ -30,7 +31,7 @@ from pipeline.record.errors import (
     UndecodableMessageWarning,
     UnknownMessageTypeError,
 )
-from pipeline.record.reader import LogMessage, McapLog, RawMessage
+from pipeline.record.reader import LogMessage, LostRange, McapLog, RawMessage
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.writer import DEFAULT_CHUNK_SIZE, LIBRARY, McapRecorder, versions_metadata
 
@@ -42,12 +43,14 @@ __all__ = [
     "BagImportWarning",
     "BagReadError",
     "BagTopic",
+    "DamagedLogWarning",
     "EmptyBagError",
     "ImportedBag",
     "LogDecodeError",
     "LogFormatError",
     "LogMessage",
     "LogReadError",
+    "LostRange",
     "McapLog",
     "McapRecorder",
     "NoRobotsError",

@@ -44,6 +44,14 @@ class TruncatedLogWarning(UserWarning):
     """A recording has no summary (its writer was killed); its complete chunks were salvaged."""
 
 
+class DamagedLogWarning(TruncatedLogWarning):
+    """Part of a recording is damaged (a chunk fails its CRC, a record's length is garbage); the rest was salvaged.
+
+    A subclass of TruncatedLogWarning, so code that handles salvaged files handles both; the lost
+    byte ranges are listed in the message and in :attr:`pipeline.record.McapLog.lost`.
+    """
+
+
 class UndecodableMessageWarning(UserWarning):
     """A message was skipped because its bytes do not decode under its schema."""
 

@@ -59,3 +59,28 @@ def test_stage_reports_impossible_scenario(params_data, tmp_path):
     done = run_stage(params_data, tmp_path)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "robot_1 and robot_2 start" in done.stderr
+
+
+def test_stage_answers_help_with_its_usage(tmp_path):
+    done = subprocess.run(
+        [sys.executable, str(STAGE), "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: scripted_eval.py [-h] [--params PARAMS]")
+    assert "scripted go-to-goal controller" in done.stdout and done.stderr == ""
+
+
+def test_stage_reads_the_params_file_it_is_given(params_data, tmp_path):
+    params_data["scripted_eval"].update(episodes=1, out_dir="elsewhere/scripted")
+    params_data["world"]["scenario"] = "empty"
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params_data))
+    done = subprocess.run(
+        [sys.executable, str(STAGE), "--params", "p.yaml"], cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "params.yaml").exists()
+    assert json.loads((tmp_path / "elsewhere/scripted/metrics.json").read_text())["scripted/episodes"] == 1
+    done = subprocess.run(
+        [sys.executable, str(STAGE), "--params", "missing.yaml"], cwd=tmp_path, capture_output=True, text=True
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr and "missing.yaml" in done.stderr

@@ -56,6 +56,14 @@ def _broken(mutate) -> dict:
         ),
         (lambda d: d["robots"][2]["start"].update(x_m=6.5), "robot_3 starts at .* outside the room"),
         (lambda d: d["obstacles"][0].update(x_m=5.95), "obstacle 0 .* reaches outside the room"),
+        (
+            lambda d: d["robots"][2]["goal"].update(x_m=4.3, y_m=0.7),
+            r"the goal squares of robot_1 at \(4.5, 0.5\) and robot_3 at \(4.3, 0.7\) overlap",
+        ),
+        (
+            lambda d: d.update(goal_size_m=0.05) or d["robots"][1]["goal"].update(x_m=4.56, y_m=0.5),
+            r"robot_1 at \(4.5, 0.5\) and robot_2 at \(4.56, 0.5\) are too close for both robots to stand in them",
+        ),
     ],
 )
 def test_impossible_geometry_fails_before_simulation(mutate, match):
@@ -80,3 +88,27 @@ def test_bad_scenario_data_names_the_key(tmp_path):
 def test_unknown_scenario_name_lists_bundled_ones():
     with pytest.raises(ConfigError, match=r"bundled scenario .*obstacles"):
         load_scenario("warehouse")
+
+
+def test_overlapping_goal_squares_name_the_file_and_both_goals(tmp_path):
+    data = to_mapping(load_scenario("six"))
+    data["robots"][4]["goal"] = {"x_m": 0.75, "y_m": 0.4}  # robot_5 onto robot_4's square at (0.6, 0.5)
+    path = tmp_path / "crowded.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    text = str(info.value)
+    assert "robot_4 at (0.6, 0.5) and robot_5 at (0.75, 0.4) overlap" in text
+    assert "goal_size_m 0.4" in text and f"(scenario file {path})" in text and "\n" not in text
+
+
+@pytest.mark.parametrize("apart", [0.4, 0.41])
+def test_goal_squares_that_touch_or_stand_apart_are_accepted(apart):
+    data = to_mapping(load_scenario("empty"))
+    data["robots"][2]["goal"] = {"x_m": 4.5 - apart, "y_m": 0.5}
+    assert load_scenario(data).goals[2][0] == pytest.approx(4.5 - apart)
+
+
+def test_bundled_scenarios_keep_their_goals_apart():
+    for name in bundled_scenarios():
+        assert load_scenario(name).n_robots >= 3

@@ -1,0 +1,96 @@
+"""The policy runtime refuses a policy.json, golden set or world whose action kind disagrees, saying which and how."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.core.observation import ObservationLayout
+from pipeline.errors import PolicyError, PolicyMismatch
+from pipeline.policy.networks import ActionNetwork, Dense
+from pipeline.policy.onnx_graph import INPUT, policy_graph
+from pipeline.policy.runtime import FORMAT, PolicyRuntime
+
+ROBOTS = ["robot_1", "robot_2"]
+LAYOUT = ObservationLayout("rich", 15)
+
+
+def write_policy(folder: Path, kind: str) -> Path:
+    """A shared-mode policy of one random layer for two robots, with its golden set: what export writes."""
+    rng = np.random.default_rng(0)
+    discrete = kind == "discrete"
+    n_out = 3 if discrete else 2
+    hidden = Dense(rng.normal(size=(8, LAYOUT.size)).astype(np.float32), np.zeros(8, np.float32))
+    out = Dense(rng.normal(size=(n_out, 8)).astype(np.float32) * 0.1, np.zeros(n_out, np.float32))
+    net = ActionNetwork((hidden,), "relu", out, "argmax" if discrete else "tanh")
+    model = policy_graph([net], "shared", len(ROBOTS), LAYOUT.size, discrete, 3)
+    data = model.SerializeToString()
+    obs = rng.normal(size=(4, len(ROBOTS), LAYOUT.size)).astype(np.float32)
+    actions = [net.forward(o).tolist() for o in obs]  # float64 reference: ONNX agrees to ~1e-7, not to the bit
+    folder.mkdir()
+    (folder / "policy.onnx").write_bytes(data)
+    golden = {"observations": obs.tolist(), "actions": actions, "tolerance": 1e-5}
+    (folder / "golden.json").write_text(json.dumps(golden))
+    meta = {
+        "format": FORMAT,
+        "onnx": {"file": "policy.onnx", "sha256": hashlib.sha256(data).hexdigest(), "input": INPUT},
+        "golden": "golden.json",
+        "algorithm": "dqn" if discrete else "sac",
+        "mode": "shared",
+        "robots": ROBOTS,
+        "observation": {"layout": LAYOUT.name, "n_beams": LAYOUT.n_beams, "size": LAYOUT.size},
+        "actions": {"kind": kind, "v_max_mps": 0.4, "w_max_radps": 0.2, "discrete_set": ["forward", "left", "right"]},
+        "training": {},
+    }
+    (folder / "policy.json").write_text(json.dumps(meta))
+    return folder
+
+
+def edit(folder: Path, name: str, change) -> None:
+    path = folder / name
+    doc = json.loads(path.read_text())
+    change(doc)
+    path.write_text(json.dumps(doc))
+
+
+@pytest.mark.parametrize(("trained", "edited"), [("continuous", "discrete"), ("discrete", "continuous")])
+def test_an_edited_actions_kind_names_the_key_and_both_kinds(tmp_path, trained, edited):
+    folder = write_policy(tmp_path / "policy", trained)
+    assert PolicyRuntime(folder).codec.kind == trained
+    edit(folder, "policy.json", lambda meta: meta["actions"].update(kind=edited))
+    for verify in (True, False):
+        with pytest.raises(PolicyError) as err:
+            PolicyRuntime(folder, verify=verify)
+        message = str(err.value)
+        assert message.startswith(f"{folder / 'policy.json'}: actions.kind is {edited!r}")
+        assert f"the policy was trained with {trained!r}" in message
+        assert "[[" not in message and "\n" not in message  # no arrays of numbers to compare by eye
+
+
+def test_a_world_of_the_other_kind_names_world_actions_kind(tmp_path):
+    runtime = PolicyRuntime(write_policy(tmp_path / "policy", "continuous"))
+    with pytest.raises(PolicyMismatch) as err:
+        runtime.check_fits(ROBOTS, LAYOUT, "discrete")
+    assert "world.actions.kind is 'discrete' but the policy was trained with 'continuous'" in str(err.value)
+    runtime.check_fits(ROBOTS, LAYOUT, "continuous")
+
+
+def test_golden_actions_off_by_more_than_the_tolerance_give_the_difference_not_two_arrays(tmp_path):
+    folder = write_policy(tmp_path / "policy", "continuous")
+    edit(folder, "golden.json", lambda g: g["actions"][2][1].__setitem__(0, g["actions"][2][1][0] + 0.01))
+    with pytest.raises(PolicyError) as err:
+        PolicyRuntime(folder)
+    message = str(err.value)
+    assert "golden observation 2" in message and "by up to 0.01, beyond its tolerance 1e-05 (robot robot_2:" in message
+    assert "[[" not in message
+
+
+def test_golden_actions_of_the_wrong_shape_are_a_policy_error(tmp_path):
+    folder = write_policy(tmp_path / "policy", "continuous")
+    edit(folder, "golden.json", lambda g: g.update(actions=[row[0] for row in g["actions"]]))
+    with pytest.raises(PolicyError, match=r"golden.json: actions have shape \(4, 2\); .* need \(4, 2, 2\)"):
+        PolicyRuntime(folder)
