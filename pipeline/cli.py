@@ -10,9 +10,14 @@ import argparse
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from pipeline.errors import MrlError
+
+if TYPE_CHECKING:
+    from pipeline.ros.deployment import DeploymentOutcome
 
 ROUNDS = ("nominal", "calibrated")
 EXIT_BAD_INPUT = 2
@@ -45,3 +50,20 @@ def run_stage(name: str, body: Callable[[], int]) -> int:
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def operator_reset(episode: int) -> None:
+    """Ask the operator to put the robots at their start poses (the deploy runner's reset on real fleets)."""
+    input(f"deploy: put every robot at its start pose for episode {episode}, then press Enter ")
+
+
+def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
+    """One line on a finished deployment: robot and team success with 95 % intervals, episodes, where it went."""
+    metrics = outcome.metrics
+    nan = float("nan")
+    return (
+        f"robot success {metrics.get('real/robot_success', nan):.3f} "
+        f"[{metrics.get('real/robot_success_ci_low', nan):.3f}, {metrics.get('real/robot_success_ci_high', nan):.3f}], "
+        f"team success {metrics.get('real/team_success', nan):.3f} over {len(outcome.results)} episodes "
+        f"({metrics['real/aborted_episodes']:.0f} aborted) on {target} ({outcome.profile}) -> {out}"
+    )

@@ -7,15 +7,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.cli import run_stage, stage_arguments
+from pipeline.cli import deploy_summary, operator_reset, run_stage, stage_arguments
 from pipeline.config import load_params
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.ros.deployment import DeployRequest, check_scenario_agrees, deploy_session
 from pipeline.ros.fleet import load_fleet
-
-
-def operator_reset(episode: int) -> None:
-    input(f"deploy: put every robot at its start pose for episode {episode}, then press Enter ")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -36,14 +32,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         params_text=Path(args.params).read_text(encoding="utf-8"),
     )
     outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset)
-    metrics = outcome.metrics
-    nan = float("nan")
-    print(
-        f"deploy: robot success {metrics.get('real/robot_success', nan):.3f} "
-        f"[{metrics.get('real/robot_success_ci_low', nan):.3f}, {metrics.get('real/robot_success_ci_high', nan):.3f}], "
-        f"team success {metrics.get('real/team_success', nan):.3f} over {len(outcome.results)} episodes "
-        f"({metrics['real/aborted_episodes']:.0f} aborted) on {fleet.target} ({outcome.profile}) -> {out}"
-    )
+    print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
     return 0
 
 

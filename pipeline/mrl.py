@@ -1,0 +1,670 @@
+"""``mrl``: the pipeline's verbs for recordings brought from elsewhere, without the dvc layout.
+
+Each verb calls the same library function as its dvc stage (stages/), with options instead of
+params.yaml:
+
+- ``mrl info BAG...``: topics, types, counts, times, robots, source format, what the other verbs can do;
+- ``mrl episodes BAG [--out FILE.csv|FILE.parquet]``: the episodes table (one row per episode and robot);
+- ``mrl compare SIM REAL [--out DIR]``: the sim-vs-real report of two recordings;
+- ``mrl calibrate BAG... [--scenario S] [--out DIR]``: the calibration file and its fit report;
+- ``mrl replay RECORDING --policy DIR [--out DIR]``: the policy on the recorded observations, and the
+  recorded commands open loop in the policy's simulator;
+- ``mrl twin ...``: the hardware twin (the options of ``python -m pipeline.twin``);
+- ``mrl deploy --policy DIR --fleet FLEET [--out DIR]``: a recorded deployment on a fleet.
+
+A BAG is an MCAP file, a rosbag2 folder (``metadata.yaml`` with mcap or sqlite3 storage) or a ROS 1
+``.bag``; anything but a session recording of this project is imported into the session layout in
+a temporary folder (:func:`pipeline.record.import_bag`), removed when the command ends. Messages
+about an imported bag name the bag as given, not the temporary copy.
+
+Exit codes (:mod:`pipeline.cli`): 0 done, 2 bad input (one line ``mrl <verb>: <message>`` on stderr),
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import sys
+import tempfile
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+from pipeline.cli import deploy_summary, operator_reset, run_stage
+from pipeline.errors import MrlError
+
+if TYPE_CHECKING:
+    from pipeline.record import ImportedBag
+
+PROG = "mrl"
+NS_PER_S = 1_000_000_000
+UNIX_TIME_FROM_NS = 946_684_800 * NS_PER_S
+"""Log times from 2000-01-01 on are shown as dates (Unix time); earlier ones are a session clock."""
+TABLE_SUFFIXES = (".csv", ".parquet")
+EPISODE_COLUMNS = (
+    "episode",
+    "robot",
+    "success",
+    "collided",
+    "timeout",
+    "aborted",
+    "time_to_goal_s",
+    "path_length_m",
+    "steps",
+    "team_success",
+)
+"""Columns of the episodes table printed by ``mrl episodes`` (a file gets every column)."""
+BAG_HELP = "an MCAP file, a rosbag2 folder (mcap or sqlite3 storage) or a ROS 1 .bag"
+
+
+class CommandError(MrlError):
+    """Bad input to a verb (an option, an output path), or a library error reworded for the command line."""
+
+    def __init__(self, message: str, interrupted: bool = False) -> None:
+        self.interrupted = interrupted
+        super().__init__(message)
+
+
+# -- bags ---------------------------------------------------------------------------------------
+
+
+def _robot_list(text: str) -> list[str]:
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected robot names separated by commas, e.g. robot_1,robot_2")
+    return names
+
+
+def _bag_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--robots",
+        type=_robot_list,
+        default=None,
+        metavar="A,B,...",
+        help="the robots' namespaces to keep, in this order (default: every robot found); one name for a bag "
+        "whose topics carry no namespace",
+    )
+    parser.add_argument(
+        "--topic",
+        action="append",
+        default=[],
+        metavar="OURS=BAG",
+        help="where the bag keeps a topic of ours (repeatable): a kind of the single robot (scan, odom, cmd_vel, "
+        "ground_truth) or a full topic, e.g. --topic scan=/base_scan or --topic /robot_1/scan=/r1/base_scan",
+    )
+
+
+@contextlib.contextmanager
+def _imported(args: argparse.Namespace, paths: Sequence[str]) -> Iterator[list[ImportedBag]]:
+    """The bags of `paths` imported into a temporary folder (removed afterwards); errors name the bags as given."""
+    from tqdm import tqdm
+
+    from pipeline.record import import_bag, parse_topic_map
+
+    topic_map = parse_topic_map(args.topic)
+    with tempfile.TemporaryDirectory(prefix="mrl-") as work:
+        bags: list[ImportedBag] = []
+        with _as_given(bags):
+            for path in tqdm(paths, desc="import", unit="bag", disable=None if len(paths) > 1 else True):
+                bags.append(import_bag(path, robots=args.robots, topic_map=topic_map, work_dir=work))
+            yield bags
+
+
+@contextlib.contextmanager
+def _as_given(bags: Sequence[ImportedBag]) -> Iterator[None]:
+    """Reword MrlErrors raised inside so that they name each converted bag by its source path."""
+    try:
+        yield
+    except MrlError as exc:
+        text = str(exc)
+        for bag in bags:
+            if bag.converted:
+                text = text.replace(str(bag.path), str(bag.source)).replace(str(bag.path.parent), str(bag.source))
+        if text == str(exc):
+            raise
+        raise CommandError(text, bool(getattr(exc, "interrupted", False))) from exc
+
+
+def _source_name(bag: ImportedBag) -> str:
+    """The bag's name for tables and reports: its file name without suffix (a folder's name)."""
+    return bag.source.resolve().stem if bag.source.is_file() else bag.source.resolve().name
+
+
+# -- info ---------------------------------------------------------------------------------------
+
+
+def _when(t_ns: int) -> str:
+    if t_ns >= UNIX_TIME_FROM_NS:
+        stamp = datetime.fromtimestamp(t_ns / NS_PER_S, tz=UTC).isoformat(timespec="milliseconds")
+        return f"{stamp} ({t_ns} ns)"
+    return f"{t_ns / NS_PER_S:.3f} s on the session clock ({t_ns} ns)"
+
+
+def _recorded_scenario(meta: dict[str, dict[str, str]]) -> str:
+    """The scenario a recording names (its ``scenario`` document or its session's ``scenario``), else ''."""
+    import json
+
+    text = meta.get("scenario", {}).get("text")
+    if text:
+        try:
+            return str(json.loads(text).get("name", "")) or "(a scenario document)"
+        except (ValueError, AttributeError):
+            return "(an unreadable scenario document)"
+    return meta.get("session", {}).get("scenario", "")
+
+
+def describe(bag: ImportedBag) -> str:
+    """What ``mrl info`` prints about one imported bag."""
+    from pipeline.analysis.tables import EPISODE_TOPIC, Recording
+    from pipeline.calibration import PARTS
+    from pipeline.calibration.recording import TOPICS_FOR
+
+    log = bag.log()
+    meta = log.metadata()
+    topics = bag.topic_types()
+    counts = bag.message_counts()
+    robots = bag.robots
+    session = meta.get("session")
+    scenario = _recorded_scenario(meta)
+    how = "a session recording of this project, read as it is" if not bag.converted else "imported"
+    lines = [
+        f"bag: {bag.source}",
+        f"  format: {bag.source_format} ({how})",
+        f"  start: {_when(bag.start_ns)}",
+        f"  end: {_when(bag.end_ns)}",
+        f"  duration: {bag.duration_ns / NS_PER_S:.3f} s",
+        f"  messages: {bag.message_count} on {len(topics)} topics",
+        f"  robots: {', '.join(robots)} ({len(robots)})",
+    ]
+    if session:
+        facts = ", ".join(f"{k} {session[k]}" for k in ("world", "profile", "policy") if session.get(k))
+        lines.append(f"  session metadata: yes ({facts or 'no details'})")
+    else:
+        lines.append("  session metadata: no (not recorded by this project)")
+    lines.append(f"  scenario: {scenario or 'not named'}")
+    episodes = 0
+    if EPISODE_TOPIC in topics:
+        episodes = Recording(log).episodes().height
+        lines.append(f"  episode events: yes ({episodes} episodes on {EPISODE_TOPIC})")
+    else:
+        lines.append(f"  episode events: no ({EPISODE_TOPIC} absent)")
+    truth = [r for r in robots if f"/{r}/ground_truth" in topics]
+    if truth:
+        which = "every robot" if len(truth) == len(robots) else ", ".join(truth)
+        lines.append(f"  ground truth: yes ({which})")
+    else:
+        lines.append("  ground truth: no")
+    lines.append("  topics:")
+    width = max(len(t) for t in topics)
+    type_width = max(len(t) for t in topics.values())
+    renamed = {t.name: t.source for t in bag.topics if t.source != t.name}
+    for name in sorted(topics):
+        origin = f"  (from {renamed[name]})" if name in renamed else ""
+        lines.append(f"    {name:<{width}}  {topics[name]:<{type_width}}  {counts[name]:>8}{origin}")
+    if bag.skipped:
+        lines.append("  left out:")
+        lines += [f"    {topic}: {why}" for topic, why in bag.skipped.items()]
+
+    lines.append("  what the verbs can do with it:")
+    usable: list[tuple[str, list[str]]] = []
+    missing: list[tuple[str, list[str]]] = []
+    for part in PARTS:
+        absent = [f"/{r}/{kind}" for kind in TOPICS_FOR[part] for r in robots if f"/{r}/{kind}" not in topics]
+        (missing if absent else usable).append((part, absent))
+    if usable:
+        text = ", ".join(part for part, _ in usable) + " (ground truth present)"
+        text += f"; scenario {scenario} recorded" if scenario else "; needs --scenario since the bag names none"
+        if missing:
+            text += "; not " + "; not ".join(f"{part} (no {', '.join(absent)})" for part, absent in missing)
+    else:
+        text = "nothing: needs /<robot>/ground_truth (motion capture or the twin) and the sensor topics"
+    lines.append(f"    calibrate: {text}")
+    episodes_text = (
+        f"{episodes} episodes x {len(robots)} robots"
+        if EPISODE_TOPIC in topics
+        else f"needs {EPISODE_TOPIC} (recorded by this project)"
+    )
+    lines.append(f"    episodes: {episodes_text}")
+    lines.append(f"    compare: {'as SIM or REAL' if EPISODE_TOPIC in topics else episodes_text}")
+    agreement = [t for t in ("/mrl/observation", "/mrl/action") if t not in topics]
+    open_loop = [f"/{r}/{k}" for r in robots for k in ("cmd_vel", "ground_truth") if f"/{r}/{k}" not in topics]
+    open_loop += [] if EPISODE_TOPIC in topics else [EPISODE_TOPIC]
+    if not agreement and not open_loop:
+        lines.append("    replay: policy re-run on the observations and open-loop commands (needs --policy)")
+    else:
+        lines.append(f"    replay: needs {', '.join(dict.fromkeys(agreement + open_loop))}")
+    return "\n".join(lines)
+
+
+def _info(args: argparse.Namespace) -> int:
+    with _imported(args, args.bags) as bags:
+        print("\n\n".join(describe(bag) for bag in bags))
+    return 0
+
+
+# -- episodes -----------------------------------------------------------------------------------
+
+
+def _table_path(text: str | None) -> Path | None:
+    if text is None:
+        return None
+    path = Path(text)
+    if path.suffix.lower() not in TABLE_SUFFIXES:
+        raise CommandError(f"--out {text}: the file name must end in .csv or .parquet (that picks the format)")
+    return path
+
+
+def _world_of(table: Any) -> str:
+    worlds = set(table["world"].to_list())
+    return "sim" if worlds == {"sim"} else "real"
+
+
+def _summary(table: Any, world: str) -> str:
+    from pipeline.analysis.compare import compare
+
+    m = compare(table, None) if world == "sim" else compare(None, table)
+    metrics = m.metrics
+
+    def rate(key: str) -> str:
+        value = metrics.get(f"{world}/{key}", math.nan)
+        if math.isnan(value):
+            return "-"
+        low, high = metrics[f"{world}/{key}_ci_low"], metrics[f"{world}/{key}_ci_high"]
+        return f"{100 * value:.1f} % [{100 * low:.1f}, {100 * high:.1f}]"
+
+    return (
+        f"{metrics.get(f'{world}/episodes', 0):.0f} episodes ({metrics.get(f'{world}/aborted_episodes', 0):.0f} "
+        f"aborted): robot success {rate('robot_success')}, team success {rate('team_success')}, "
+        f"collisions {rate('collision_rate')}"
+    )
+
+
+def _write_table(table: Any, path: Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if path.suffix.lower() == ".csv":
+            table.write_csv(path)
+        else:
+            table.write_parquet(path)
+    except OSError as exc:
+        raise CommandError(f"--out {path}: cannot write ({exc.strerror or exc})") from exc
+
+
+def _episodes(args: argparse.Namespace) -> int:
+    import polars as pl
+
+    from pipeline.analysis.tables import Recording
+
+    out = _table_path(args.out)
+    with _imported(args, [args.bag]) as (bag,):
+        table = Recording(bag.path, session=_source_name(bag)).episodes_table()
+        if bag.converted:
+            table = table.with_columns(pl.lit(str(bag.source)).alias("path"))
+    if out is not None:
+        _write_table(table, out)
+    else:
+        with pl.Config(tbl_rows=-1, tbl_cols=-1, tbl_hide_dataframe_shape=True, tbl_width_chars=160):
+            print(table.select(EPISODE_COLUMNS))
+    summary = _summary(table, _world_of(table))
+    print(f"episodes: {summary}" + (f" -> {out}" if out is not None else ""))
+    return 0
+
+
+# -- compare ------------------------------------------------------------------------------------
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from pipeline.analysis.report import write_report
+
+    out = Path(args.out)
+    with _imported(args, [args.sim, args.real]) as (sim, real):
+        report = write_report(
+            out, [("", "sim", sim.path), ("", "real", real.path)], trajectory_episodes=args.trajectory_episodes
+        )
+    metrics = report.comparison.metrics
+
+    def show(key: str) -> str:
+        value = metrics.get(key, math.nan)
+        return "-" if math.isnan(value) else f"{value:.3f}"
+
+    for name in ("robot_success", "team_success", "collision_rate"):
+        print(
+            f"compare: {name} sim {show(f'sim/{name}')} real {show(f'real/{name}')} "
+            f"gap {show(f'gap/{name}')} [{show(f'gap/{name}_ci_low')}, {show(f'gap/{name}_ci_high')}] "
+            f"(Fisher p {show(f'gap/{name}_p_value')})"
+        )
+    print(f"compare: {report.markdown} and {report.metrics}")
+    return 0
+
+
+# -- calibrate ----------------------------------------------------------------------------------
+
+
+def _parts(text: str) -> list[str]:
+    from pipeline.calibration import PARTS
+
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    bad = [p for p in parts if p not in PARTS]
+    if bad or not parts:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected some of {','.join(PARTS)} separated by commas")
+    return parts
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from pipeline.calibration import PARTS, calibrate, calibration_settings, write_calibration
+
+    options: dict[str, Any] = {"parts": list(args.parts or PARTS), "scenario": args.scenario}
+    options.update({k: v for k, v in (("bootstrap", args.bootstrap), ("seed", args.seed)) if v is not None})
+    settings = calibration_settings(options, source="command-line options")
+    with _imported(args, args.bags) as bags:
+        calibration = calibrate([bag.path for bag in bags], settings)
+        given = {str(bag.path): str(bag.source) for bag in bags}
+        sources = tuple(replace(s, path=given.get(s.path, s.path)) for s in calibration.sources)
+        path = write_calibration(replace(calibration, sources=sources), args.out)
+    for key, reason in calibration.unidentified().items():
+        print(f"calibrate: {key} unidentifiable: {reason}")
+    print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
+    return 0
+
+
+# -- replay -------------------------------------------------------------------------------------
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from pipeline.analysis.replay_report import run_replay, write_replay
+    from pipeline.config import ReplayConfig, calibrated_world, world_config
+    from pipeline.core.scenario import load_scenario
+    from pipeline.policy.runtime import PolicyRuntime
+    from pipeline.settings import from_mapping, merge, to_mapping
+
+    cfg = from_mapping(
+        ReplayConfig,
+        merge(
+            to_mapping(ReplayConfig()),
+            {"horizon_s": args.horizon_s, "max_episodes": args.max_episodes, "tolerance": args.tolerance},
+        ),
+        "command-line options",
+    )
+    runtime = PolicyRuntime(args.policy)
+    meta = runtime.meta
+    where = f"{runtime.meta_path} (the world the policy was trained in)"
+    try:
+        scenario = load_scenario(meta["scenario"])
+        trained = {key: meta["noise"][key] for key in ("lidar", "odometry", "actuation")}
+        trained.update(control_period_s=meta["control_period_s"], max_steps=meta["max_steps"])
+    except (KeyError, TypeError) as exc:
+        raise CommandError(f"{where}: lacks {exc}; re-export the policy") from exc
+    worlds = {"trained": world_config(trained, source=where)}
+    if args.calibration:
+        worlds["calibrated"] = calibrated_world(worlds["trained"], Path(args.calibration))
+    with _imported(args, [args.recording]) as (bag,):
+        label = _source_name(bag)
+        result = run_replay(
+            {label: bag.path},
+            {label: runtime},
+            scenario,
+            worlds,
+            label,
+            cfg.horizon_s,
+            cfg.max_episodes,
+            cfg.tolerance,
+        )
+    metrics = write_replay(result, label, Path(args.out))
+    for key, value in sorted(metrics.items()):
+        print(f"replay: {key} = {value}")
+    print(f"replay: {Path(args.out) / 'replay.md'}")
+    return 0
+
+
+# -- twin and deploy ----------------------------------------------------------------------------
+
+
+def _twin(args: argparse.Namespace, rest: list[str]) -> int:
+    from pipeline.twin.__main__ import main as twin_main
+
+    return twin_main(rest)
+
+
+def _deploy(args: argparse.Namespace) -> int:
+    from pipeline.config import DeployConfig
+    from pipeline.policy.runtime import PolicyRuntime
+    from pipeline.ros.deployment import DeployRequest, deploy_session
+    from pipeline.ros.fleet import load_fleet
+    from pipeline.settings import from_mapping, merge, to_mapping
+
+    options = {"fleet": args.fleet, "episodes": args.episodes, "seed": args.seed, "out_dir": args.out}
+    options.update(time_scale=args.time_scale, profile=args.profile)
+    cfg = from_mapping(DeployConfig, merge(to_mapping(DeployConfig()), options), "command-line options")
+    fleet = load_fleet(cfg.fleet)
+    runtime = PolicyRuntime(args.policy)
+    out = Path(cfg.out_dir)
+    request = DeployRequest(
+        episodes=cfg.episodes,
+        seed=cfg.seed,
+        recording=out / "session.mcap",
+        time_scale=cfg.time_scale,
+        profile=cfg.profile,
+        chunk_size_bytes=cfg.chunk_size_bytes,
+    )
+    outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset)
+    print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
+    return 0
+
+
+# -- the command --------------------------------------------------------------------------------
+
+
+def _verb(subparsers: Any, name: str, summary: str, description: str, **kwargs: Any) -> argparse.ArgumentParser:
+    parser: argparse.ArgumentParser = subparsers.add_parser(
+        name, help=summary, description=description, formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs
+    )
+    return parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``mrl`` argument parser with every verb."""
+    from pipeline.config import DeployConfig, ReplayConfig
+
+    deploy_defaults = DeployConfig()
+    replay_defaults = ReplayConfig()
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Recordings of multi-robot sessions (ROS 2 bags, ROS 1 bags, MCAP): inspect, tabulate, compare, "
+        "calibrate the simulator, replay; run the hardware twin and deploy policies.",
+        epilog="Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted. "
+        "`mrl VERB --help` for a verb's options.",
+    )
+    subparsers = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    info = _verb(
+        subparsers,
+        "info",
+        "topics, counts, times, robots and what the other verbs can do with a bag",
+        "Topics, message types and counts, start, end and duration, robots, source format, whether the bag has\n"
+        "this project's session metadata, episode events and ground truth, and what each verb can do with it.",
+    )
+    info.add_argument("bags", nargs="+", metavar="BAG", help=BAG_HELP)
+    _bag_options(info)
+
+    episodes = _verb(
+        subparsers,
+        "episodes",
+        "the episodes table: one row per episode and robot",
+        "One row per episode and robot: success, collision, time to goal, path length, ... (needs the\n"
+        "/mrl/episode events this project records). Printed, or written whole to --out.",
+    )
+    episodes.add_argument("bag", metavar="BAG", help=BAG_HELP)
+    episodes.add_argument("--out", default=None, metavar="FILE", help="write the table to FILE.csv or FILE.parquet")
+    _bag_options(episodes)
+
+    compare = _verb(
+        subparsers,
+        "compare",
+        "the sim-vs-real report of two recordings",
+        "Success rates with 95 % intervals, their sim - real gaps and tests, time to goal, collisions,\n"
+        "trajectories: report.md, metrics.json and figures in --out.",
+    )
+    compare.add_argument("sim", metavar="SIM", help="the simulated session (" + BAG_HELP + ")")
+    compare.add_argument("real", metavar="REAL", help="the real (or twin) session")
+    compare.add_argument("--out", default="report", metavar="DIR", help="the report folder (default: report)")
+    compare.add_argument(
+        "--trajectory-episodes", type=int, default=3, metavar="N", help="episodes drawn per session (default: 3)"
+    )
+    _bag_options(compare)
+
+    calibrate = _verb(
+        subparsers,
+        "calibrate",
+        "estimate lidar noise, actuation, odometry and network from recordings",
+        "Estimates of the reality profile (lidar, actuation, odometry, network) with uncertainties from\n"
+        "recordings of one scenario with ground truth: calibration.yaml (read by training) and a fit\n"
+        "report (calibration.md with plots) in --out.",
+    )
+    calibrate.add_argument("bags", nargs="+", metavar="BAG", help=BAG_HELP + "; several are pooled")
+    calibrate.add_argument(
+        "--scenario",
+        default="",
+        metavar="S",
+        help="the scenario the robots drove in (a bundled name or a YAML file); needed when the bags name none",
+    )
+    calibrate.add_argument(
+        "--out", default="calibration", metavar="DIR", help="the output folder (default: calibration)"
+    )
+    calibrate.add_argument(
+        "--parts",
+        type=_parts,
+        default=None,
+        metavar="P,...",
+        help="what to estimate, of lidar,actuation,odometry,network (default: all)",
+    )
+    calibrate.add_argument(
+        "--bootstrap",
+        type=int,
+        default=None,
+        metavar="N",
+        help="bootstrap resamples of the uncertainties (default: 200)",
+    )
+    calibrate.add_argument("--seed", type=int, default=None, metavar="N", help="seed of the bootstrap (default: 0)")
+    _bag_options(calibrate)
+
+    replay = _verb(
+        subparsers,
+        "replay",
+        "a policy on a recording's observations, and its commands open loop in the simulator",
+        "Re-runs the policy on the recorded observations (does it give the recorded actions?) and drives\n"
+        "the simulator the policy was trained in (and a calibrated one) open loop with the recorded\n"
+        "commands, measuring the drift from the recorded ground truth: replay.md, replay.json, divergence.png.",
+    )
+    replay.add_argument(
+        "recording", metavar="RECORDING", help="a session with observations and actions (" + BAG_HELP + ")"
+    )
+    replay.add_argument("--policy", required=True, metavar="DIR", help="the exported policy folder (policy.json)")
+    replay.add_argument("--out", default="replay", metavar="DIR", help="the output folder (default: replay)")
+    replay.add_argument(
+        "--calibration", default=None, metavar="FILE", help="calibration.yaml: also replay in the calibrated simulator"
+    )
+    replay.add_argument(
+        "--horizon-s", type=float, default=replay_defaults.horizon_s, metavar="S", help="seconds replayed per episode"
+    )
+    replay.add_argument(
+        "--max-episodes", type=int, default=replay_defaults.max_episodes, metavar="N", help="episodes replayed"
+    )
+    replay.add_argument(
+        "--tolerance",
+        type=float,
+        default=replay_defaults.tolerance,
+        metavar="X",
+        help="largest |replayed - recorded| policy output counted as agreement",
+    )
+    _bag_options(replay)
+
+    _verb(
+        subparsers,
+        "twin",
+        "run the hardware twin (options of python -m pipeline.twin; mrl twin --help lists them)",
+        "The hardware twin: plays the robots' drivers over DDS until Ctrl-C.",
+        add_help=False,
+    )
+
+    deploy = _verb(
+        subparsers,
+        "deploy",
+        "episodes of a policy on a fleet (the twin by default), recorded to MCAP",
+        "Episodes of an exported policy on a fleet, every message recorded: session.mcap (a rosbag2 folder),\n"
+        "episodes.csv and metrics.json in --out. A fleet with `target: twin` starts the twin itself.",
+    )
+    deploy.add_argument("--policy", required=True, metavar="DIR", help="the exported policy folder (policy.json)")
+    deploy.add_argument(
+        "--fleet", required=True, metavar="FLEET", help="a bundled fleet (twin, spark_lab) or a YAML file"
+    )
+    deploy.add_argument(
+        "--episodes",
+        type=int,
+        default=deploy_defaults.episodes,
+        metavar="N",
+        help=f"(default: {deploy_defaults.episodes})",
+    )
+    deploy.add_argument(
+        "--seed", type=int, default=deploy_defaults.seed, metavar="N", help=f"(default: {deploy_defaults.seed})"
+    )
+    deploy.add_argument(
+        "--time-scale", type=float, default=0.0, metavar="X", help="the twin's time scale (default: the fleet's)"
+    )
+    deploy.add_argument("--profile", default="", metavar="P", help="the twin's reality profile (default: the fleet's)")
+    deploy.add_argument("--out", default="deployment", metavar="DIR", help="the output folder (default: deployment)")
+    return parser
+
+
+VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "info": _info,
+    "episodes": _episodes,
+    "compare": _compare,
+    "calibrate": _calibrate,
+    "replay": _replay,
+    "deploy": _deploy,
+}
+
+
+def _warning_line(verb: str, stream: TextIO) -> Callable[..., None]:
+    def show(message: Warning | str, category: type[Warning], *args: object, **kwargs: object) -> None:
+        print(f"mrl {verb}: warning: {message}", file=stream)
+
+    return show
+
+
+def _one_line(verb: str, body: Callable[[], int]) -> Callable[[], int]:
+    """`body` with every MrlError's message put on one line."""
+
+    def run() -> int:
+        try:
+            return body()
+        except MrlError as exc:
+            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            if len(lines) <= 1:
+                raise
+            text = lines[0].rstrip(":") + ": " + "; ".join(lines[1:])
+            raise CommandError(text, bool(getattr(exc, "interrupted", False))) from exc
+
+    return run
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``mrl`` with `argv` (default: the command line); the exit code."""
+    parser = build_parser()
+    args, rest = parser.parse_known_args(argv)
+    verb: str = args.verb
+    if verb == "twin":
+        return run_stage("mrl twin", lambda: _twin(args, rest))
+    if rest:
+        parser.parse_args(argv)  # reports the unknown arguments and exits 2
+    warnings.showwarning = _warning_line(verb, sys.stderr)
+    return run_stage(f"mrl {verb}", _one_line(verb, lambda: VERBS[verb](args)))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

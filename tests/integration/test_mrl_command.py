@@ -1,0 +1,245 @@
+"""The installed ``mrl`` command, run as a process on real files: help, info, calibrate, episodes, bad input.
+
+The calibration bags hold only what ``ros2 bag record`` on the robots would: the robots' scan, odom,
+cmd_vel and ground_truth, plus /tf and /clock; no /mrl/* topics, no session metadata, no scenario.
+They are copies of one simulated session (known lidar noise, actuation gain and odometry drift) as a
+plain MCAP file, a rosbag2 folder with MCAP storage and one with sqlite3 storage.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+import yaml
+from rosbags.rosbag2 import StoragePlugin
+
+from pipeline.analysis.tables import EPISODES_SCHEMA
+from pipeline.messages import convert as C
+from pipeline.messages import message_store
+from pipeline.messages import topics as T
+from pipeline.record import McapLog, RawMessage
+from tests.calibration_helpers import simulate_session
+from tests.golden.make_golden import GOLDEN_MCAP
+from tests.integration.test_calibration_inputs import MILD_WORLD
+from tests.unit.test_record_bags import STANDARD, golden_raw, write_plain_mcap, write_ros1, write_rosbag2
+
+pytestmark = pytest.mark.integration
+
+MRL = Path(sys.executable).parent / "mrl"
+VERBS = ("info", "episodes", "compare", "calibrate", "replay", "twin", "deploy")
+ROBOT_KINDS = ("scan", "odom", "cmd_vel", "ground_truth")
+BAG_KINDS = ("mcap", "rosbag2-mcap", "rosbag2-sqlite3")
+EPISODES, STEPS = 3, 60
+
+
+def mrl(*args: str | Path, cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run the installed command; its exit code, stdout and stderr."""
+    assert MRL.is_file(), f"{MRL} is missing: pip install -e . installs the mrl script"
+    return subprocess.run(
+        [str(MRL), *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=cwd, check=False
+    )
+
+
+def refused(proc: subprocess.CompletedProcess[str], verb: str, *names: str) -> str:
+    """The one stderr line of a bad-input exit (rc 2); it names every one of `names`."""
+    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f"mrl {verb}: "), lines[0]
+    for name in names:
+        assert name in lines[0], (name, lines[0])
+    return lines[0]
+
+
+def standard_messages(session: Path) -> list[RawMessage]:
+    """The robots' standard topics of `session`, with /tf and /clock at 10 Hz added, in log-time order."""
+    log = McapLog(session)
+    robots = [t for t in log.topics() if not t.startswith("/mrl/") and t.rsplit("/", 1)[-1] in ROBOT_KINDS]
+    messages = list(log.raw(robots))
+    store = message_store()
+    names = sorted({t.split("/")[1] for t in robots})
+    start, end = messages[0].log_time_ns, messages[-1].log_time_ns
+    for t in range(start, end, 100_000_000):
+        clock = store.serialize(C.clock(t, store=store), T.CLOCK)
+        tf = C.tf_message(t, [("map", f"{ns}/odom", np.zeros(3)) for ns in names], store=store)
+        messages.append(RawMessage("/clock", T.CLOCK, t, t, 0, clock))
+        messages.append(RawMessage("/tf", T.TF_MESSAGE, t, t, 0, store.serialize(tf, T.TF_MESSAGE)))
+    return sorted(messages, key=lambda m: m.log_time_ns)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A simulated session recording (this project's layout): 3 robots, MILD_WORLD's noise and drift."""
+    root = tmp_path_factory.mktemp("mrl_session")
+    return simulate_session(root / "session.mcap", MILD_WORLD, episodes=EPISODES, steps=STEPS)
+
+
+@pytest.fixture(scope="module")
+def bags(session: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The session's standard topics as a plain MCAP, a rosbag2 MCAP folder and a rosbag2 sqlite3 folder."""
+    root = tmp_path_factory.mktemp("mrl_bags")
+    messages = standard_messages(session)
+    return {
+        "mcap": write_plain_mcap(root / "robots.mcap", messages),
+        "rosbag2-mcap": write_rosbag2(root / "robots_mcap", messages, StoragePlugin.MCAP),
+        "rosbag2-sqlite3": write_rosbag2(root / "robots_db3", messages, StoragePlugin.SQLITE3),
+    }
+
+
+@pytest.fixture(scope="module")
+def calibrations(bags: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
+    """``mrl calibrate --scenario obstacles`` on each bag: the parsed calibration.yaml per bag kind."""
+    root = tmp_path_factory.mktemp("mrl_calibrations")
+    out = {}
+    for kind, bag in bags.items():
+        folder = root / kind
+        proc = mrl("calibrate", bag, "--scenario", "obstacles", "--bootstrap", "20", "--out", folder)
+        assert proc.returncode == 0, (kind, proc.stderr)
+        assert "Traceback" not in proc.stderr
+        assert f"{folder / 'calibration.yaml'} from {bag}" in proc.stdout
+        assert (folder / "calibration.md").is_file()
+        out[kind] = yaml.safe_load((folder / "calibration.yaml").read_text())
+    return out
+
+
+# -- help -----------------------------------------------------------------------------------------
+
+
+def test_help_lists_every_verb_and_each_verb_has_usage():
+    top = mrl("--help")
+    assert top.returncode == 0 and top.stdout.startswith("usage: mrl")
+    for verb in VERBS:
+        assert re.search(rf"^\s+{verb}\b", top.stdout, re.MULTILINE), verb
+        proc = mrl(verb, "--help")
+        assert proc.returncode == 0, (verb, proc.stderr)
+        assert proc.stdout.startswith("usage:") and "--help" in proc.stdout, verb
+    assert "--fleet" in mrl("twin", "--help").stdout  # the twin's own options
+    for option in ("--robots", "--topic"):
+        assert option in mrl("calibrate", "--help").stdout
+
+
+# -- info -----------------------------------------------------------------------------------------
+
+
+def topic_line(text: str, topic: str, typename: str, count: int) -> bool:
+    return re.search(rf"^\s+{re.escape(topic)}\s+{re.escape(typename)}\s+{count}\b", text, re.MULTILINE) is not None
+
+
+def test_info_on_a_session_a_rosbag2_sqlite3_copy_and_a_ros1_copy(tmp_path):
+    golden = McapLog(GOLDEN_MCAP)
+    counts, types = golden.message_counts(), golden.topics()
+    db3 = write_rosbag2(tmp_path / "fleet_db3", golden_raw(), StoragePlugin.SQLITE3)
+    ros1 = write_ros1(tmp_path / "fleet.bag", golden_raw(STANDARD))
+    proc = mrl("info", GOLDEN_MCAP, db3, ros1)
+    assert proc.returncode == 0, proc.stderr
+    sections = proc.stdout.split("\n\n")
+    assert len(sections) == 3
+    for text, topics, fmt in (
+        (sections[0], list(types), "mcap (a session recording"),
+        (sections[1], list(types), "rosbag2-sqlite3 (imported)"),
+        (sections[2], STANDARD, "ros1 (imported)"),
+    ):
+        assert f"format: {fmt}" in text
+        assert "robots: robot_1, robot_2 (2)" in text
+        assert f"messages: {sum(counts[t] for t in topics)} on {len(topics)} topics" in text
+        for topic in topics:
+            assert topic_line(text, topic, types[topic], counts[topic]), (fmt, topic)
+        assert "ground truth: yes (every robot)" in text
+    assert "session metadata: yes (world sim)" in sections[0]
+    assert "episode events: yes" in sections[0] and "episode events: yes" in sections[1]
+    assert "session metadata: no" in sections[2] and "episode events: no" in sections[2]
+    assert "episodes: needs /mrl/episode (recorded by this project)" in sections[2]
+
+
+def test_info_on_a_bag_of_standard_topics_says_what_calibrate_needs(bags):
+    proc = mrl("info", bags["rosbag2-mcap"])
+    assert proc.returncode == 0, proc.stderr
+    text = proc.stdout
+    assert "robots: robot_1, robot_2, robot_3 (3)" in text
+    assert topic_line(text, "/robot_2/scan", T.LASER_SCAN, EPISODES * STEPS)
+    assert topic_line(text, "/robot_2/odom", T.ODOMETRY, EPISODES * STEPS * 5)
+    assert "calibrate: lidar, actuation, odometry, network (ground truth present); needs --scenario" in text
+    assert "episodes: needs /mrl/episode" in text
+
+
+# -- calibrate ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", BAG_KINDS)
+def test_calibrate_recovers_lidar_noise_and_linear_gain(calibrations, bags, kind):
+    data = calibrations[kind]
+    assert data["scenario"] == "obstacles"
+    assert data["profile"]["lidar"]["beams"] == 360
+    assert data["profile"]["lidar"]["noise_sigma_m"] == pytest.approx(MILD_WORLD["lidar"]["noise_sigma_m"], rel=0.10)
+    assert data["profile"]["actuation"]["linear_gain"] == pytest.approx(
+        MILD_WORLD["actuation"]["linear_gain"], rel=0.05
+    )
+    assert [r["path"] for r in data["source"]["recordings"]] == [str(bags[kind])]  # the bag as given
+
+
+def test_the_three_bag_formats_calibrate_to_the_same_values(calibrations):
+    first = calibrations["mcap"]
+    for kind in BAG_KINDS[1:]:
+        assert calibrations[kind]["profile"] == first["profile"], kind
+        assert calibrations[kind]["world"] == first["world"], kind
+
+
+def test_calibrate_recovers_odometry_drift(calibrations):
+    """Within 15 % of the simulated drift (MILD_WORLD odometry.drift_per_m)."""
+    truth = MILD_WORLD["odometry"]["drift_per_m"]
+    for kind in BAG_KINDS:
+        estimate = calibrations[kind]["uncertainty"]["odometry"]["drift_per_m"]
+        assert estimate["status"] == "ok", (kind, estimate)
+        measured = estimate["value"]
+        assert measured == pytest.approx(truth, rel=0.15), (
+            f"{kind}: odometry.drift_per_m measured {measured:.5f}, simulated {truth} "
+            f"({100 * (measured / truth - 1):+.1f} %, bar 15 %)"
+        )
+
+
+# -- bad input ------------------------------------------------------------------------------------
+
+
+def test_bad_input_is_one_line_naming_the_path_or_option(tmp_path, bags):
+    missing = tmp_path / "nowhere.mcap"
+    refused(mrl("info", missing), "info", str(missing), "no such file")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a bag\n")
+    refused(mrl("calibrate", notes, "--scenario", "obstacles"), "calibrate", str(notes), "not a bag")
+    refused(mrl("info", bags["mcap"], "--topic", "scan"), "info", "--topic 'scan'", "OURS=BAG")
+    line = refused(mrl("calibrate", bags["rosbag2-sqlite3"], "--bootstrap", "20"), "calibrate", "names no scenario")
+    assert str(bags["rosbag2-sqlite3"]) in line and "mrl-" not in line  # the bag as given, not the imported copy
+    refused(mrl("episodes", bags["mcap"]), "episodes", str(bags["mcap"]), "/mrl/episode")
+    refused(mrl("episodes", bags["mcap"], "--out", tmp_path / "table.txt"), "episodes", "--out", ".csv or .parquet")
+
+
+# -- episodes -------------------------------------------------------------------------------------
+
+
+def test_episodes_table_printed_and_written_as_csv_and_parquet(session, tmp_path):
+    printed = mrl("episodes", session)
+    assert printed.returncode == 0, printed.stderr
+    assert "time_to_goal_s" in printed.stdout and "path_length_m" in printed.stdout
+    assert f"episodes: {EPISODES} episodes (0 aborted)" in printed.stdout
+    tables = {}
+    for suffix in (".csv", ".parquet"):
+        out = tmp_path / "tables" / f"episodes{suffix}"
+        proc = mrl("episodes", session, "--out", out)
+        assert proc.returncode == 0, proc.stderr
+        assert f"-> {out}" in proc.stdout
+        tables[suffix] = pl.read_csv(out) if suffix == ".csv" else pl.read_parquet(out)
+    for suffix, table in tables.items():
+        assert table.columns == list(EPISODES_SCHEMA), suffix
+        assert table.height == EPISODES * 3, suffix
+        pairs = set(zip(table["episode"].to_list(), table["robot"].to_list(), strict=True))
+        assert pairs == {(e, f"robot_{r}") for e in range(EPISODES) for r in (1, 2, 3)}, suffix
+        assert (table["path_length_m"] > 0).all() and table["steps"].to_list() == [STEPS] * table.height
+    assert tables[".parquet"].schema == pl.Schema(EPISODES_SCHEMA)
+    assert tables[".csv"]["path_length_m"].to_list() == pytest.approx(tables[".parquet"]["path_length_m"].to_list())
