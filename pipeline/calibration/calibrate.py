@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -337,6 +337,8 @@ def calibrate(
     if "odometry" in parts:
         values["odometry.rate_hz"] = rate_estimate(odom_stamps)
         odometry = estimate_odometry(episodes, settings)
+        inferred = tuple(note for d in sessions for note in d.notes)
+        odometry = replace(odometry, notes=inferred + odometry.notes)
         values["odometry.drift_per_m"] = odometry.drift_per_m
     if "network" in parts:
         network = estimate_network(streams, settings, rng)

@@ -13,6 +13,8 @@ Both work on chunks of `CHUNK_S` seconds rather than on single intervals between
 chunk's true displacement and turn are differences of two smoothed poses, so errors of the
 smoothed truth (timing jitter, motion-capture noise) enter only at the chunk's ends and do not
 pile up along the path or leak into the regressors (which would bias k and h towards -1 and 0).
+A jump of the odometry that no motion explains (its driver restarting; see
+:func:`pipeline.calibration.recording.pose_jumps`) also separates chunks, as a gap in the truth does.
 Distances are chord lengths of the chunks for both odometry and truth, so the chord-vs-arc
 shortening cancels in the ratio; the distance regressor of h is the odometry's own path length
 over the chunk divided by (1 + s).
@@ -31,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.calibration.estimates import Estimate, chi_interval
+from pipeline.calibration.recording import pose_jumps
 from pipeline.calibration.settings import CalibrationSettings
 
 MIN_DRAWS = 3
@@ -44,7 +47,7 @@ class OdometryEpisode:
     """One robot's odometry and true poses (n, 3) (x m, y m, yaw rad) at the same times `t_ns` (n,) in one episode.
 
     `piece` (n,) numbers the stretches of continuous truth (None: one stretch); nothing is compared
-    across a gap between two stretches.
+    across a gap between two stretches, nor across a jump of the odometry.
     """
 
     robot: str
@@ -121,9 +124,20 @@ def _chunks(t_ns: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.asarray(starts, dtype=np.int64), np.asarray(ends, dtype=np.int64)
 
 
+def _pieces(episode: OdometryEpisode) -> np.ndarray:
+    """(n,) stretch numbers: the episode's pieces of continuous truth, cut again where the odometry jumps."""
+    piece = episode.piece if episode.piece is not None else np.zeros(len(episode.t_ns), dtype=np.int64)
+    restarts = np.zeros(len(piece), dtype=np.int64)
+    restarts[pose_jumps(episode.t_ns, episode.odom)] = 1
+    if not restarts.any():
+        return piece
+    changed = np.r_[0, (np.diff(piece) != 0).astype(np.int64)] | restarts
+    return np.cumsum(changed)
+
+
 def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> EpisodeDrift:
     """The draws of one robot-episode (see the module's description)."""
-    piece = episode.piece if episode.piece is not None else np.zeros(len(episode.t_ns), dtype=np.int64)
+    piece = _pieces(episode)
     a, b = _chunks(episode.t_ns, piece)
     same = piece[1:] == piece[:-1]
     fo, lo, to = _increments(episode.odom)

@@ -2,7 +2,16 @@
 
 Per robot namespace ``ns``: ``/<ns>/ground_truth`` (PoseStamped), ``/<ns>/scan`` (LaserScan),
 ``/<ns>/odom`` (Odometry) and ``/<ns>/cmd_vel`` (Twist, logged when sent); ``/mrl/episode``
-delimits episodes when present (a recording without it is one episode).
+delimits episodes when present.
+
+A recording without ``/mrl/episode`` (a plain ``ros2 bag record``) has its episodes inferred from
+the data: a reset puts the robots back at their starts and restarts their odometry, which shows
+as a jump of the ground-truth and odometry poses that no motion could produce between two
+messages (see :func:`pose_jumps`); jumps on at least `RESET_MIN_STREAMS` streams within
+`RESET_CLUSTER_S` of each other are one reset (see :func:`reset_boundaries`). A single stream's
+jump is not: a motion-capture glitch, or one robot's odometry restarting (which the odometry
+estimate handles by not comparing across it). A reset that moves no robot by `RESET_MIN_JUMP_M`
+nor turns one by `RESET_MIN_TURN_RAD` cannot be seen, and its two episodes stay one.
 
 Times: everything is put on the recorder's clock (MCAP log time, int ns). Commands are logged
 when sent, so their log time is used as is. Sensor messages carry the sender's stamp, which is
@@ -35,6 +44,19 @@ OFFSET_QUANTILE = 2.0
 """Percentile of (log time - stamp) taken as a sensor topic's clock offset (the quickest deliveries)."""
 OUTLIER_S = 10.0
 """Messages whose (log time - stamp) lies this far from the topic's median are not used (a clock not yet running)."""
+
+RESET_MIN_JUMP_M = 0.2
+"""A pose that moved at least this far from the previous message's..."""
+RESET_MIN_SPEED_MPS = 1.0
+"""...at an implied speed of at least this (twice the ~0.5 m/s top speed of the robots this pipeline targets) jumped."""
+RESET_MIN_TURN_RAD = 0.5
+"""So did one whose heading changed by at least this..."""
+RESET_MIN_YAW_RATE_RADPS = 4.0
+"""...at an implied yaw rate of at least this."""
+RESET_CLUSTER_S = 0.5
+"""Jumps on different streams within this time of the first are one reset."""
+RESET_MIN_STREAMS = 2
+"""A reset shows on at least this many streams (robot and topic: ground truth or odometry)."""
 
 TOPICS_FOR: dict[Part, tuple[str, ...]] = {
     "lidar": ("ground_truth", "scan"),
@@ -112,7 +134,11 @@ class EpisodeWindow:
 
 @dataclass(frozen=True)
 class SessionData:
-    """A recording as calibration reads it."""
+    """A recording as calibration reads it.
+
+    `has_episode_topic` is False when the episodes were inferred from the data (see the module's
+    description); `notes` then say how.
+    """
 
     path: Path
     session: dict[str, str]
@@ -120,6 +146,7 @@ class SessionData:
     robots: tuple[RobotData, ...]
     episodes: tuple[EpisodeWindow, ...]
     has_episode_topic: bool
+    notes: tuple[str, ...] = ()
 
     @property
     def windows(self) -> list[tuple[int, int]]:
@@ -219,6 +246,77 @@ def _episodes(log: McapLog, where: str) -> tuple[list[EpisodeWindow], bool]:
     return out, True
 
 
+@dataclass(frozen=True)
+class PoseJump:
+    """A discontinuity of one stream (e.g. ``/robot_1/odom``): the times (int ns) of the poses before and after it."""
+
+    stream: str
+    before_ns: int
+    after_ns: int
+
+
+def pose_jumps(t_ns: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Indices i of poses (n, 3) (x m, y m, yaw rad) at sorted times `t_ns` (n,) that no motion reaches from pose i - 1.
+
+    A jump moves by at least RESET_MIN_JUMP_M at RESET_MIN_SPEED_MPS or more, or turns by at least
+    RESET_MIN_TURN_RAD at RESET_MIN_YAW_RATE_RADPS or more (so a long gap in the messages is not a jump).
+    """
+    if len(t_ns) < 2:
+        return np.zeros(0, dtype=np.int64)
+    dt = np.maximum(np.diff(np.asarray(t_ns, dtype=np.int64)) / NS_PER_S, 1e-9)
+    step = np.hypot(np.diff(pose[:, 0]), np.diff(pose[:, 1]))
+    turn = np.abs(np.angle(np.exp(1j * np.diff(pose[:, 2]))))
+    moved = (step >= RESET_MIN_JUMP_M) & (step >= RESET_MIN_SPEED_MPS * dt)
+    turned = (turn >= RESET_MIN_TURN_RAD) & (turn >= RESET_MIN_YAW_RATE_RADPS * dt)
+    return np.flatnonzero(moved | turned) + 1
+
+
+def reset_boundaries(jumps: Sequence[PoseJump]) -> list[tuple[int, int]]:
+    """(end_ns, start_ns) of each reset among `jumps`: the last time before it and the first after it.
+
+    Jumps within RESET_CLUSTER_S of a cluster's first one join it; a cluster with jumps on at least
+    RESET_MIN_STREAMS streams is a reset. It happened after the latest pose before a jump and no
+    later than the earliest pose after one. Where the streams' clocks disagree so that these
+    overlap, the episode before ends at the earliest pose before a jump and the next starts at the
+    latest pose after one, so that neither holds a pose from the other side.
+    """
+    ordered = sorted(jumps, key=lambda j: j.after_ns)
+    out: list[tuple[int, int]] = []
+    i = 0
+    while i < len(ordered):
+        first = ordered[i].after_ns
+        k = i
+        while k < len(ordered) and ordered[k].after_ns - first <= RESET_CLUSTER_S * NS_PER_S:
+            k += 1
+        cluster = ordered[i:k]
+        if len({j.stream for j in cluster}) >= RESET_MIN_STREAMS:
+            end = max(j.before_ns for j in cluster)
+            start = min(j.after_ns for j in cluster)
+            if end >= start:
+                end = min(j.before_ns for j in cluster)
+                start = max(end + 1, max(j.after_ns for j in cluster))
+            out.append((end, start))
+        i = k
+    return out
+
+
+def infer_episodes(streams: dict[str, PoseSeries], first_ns: int, last_ns: int) -> list[EpisodeWindow]:
+    """Episodes from `first_ns` to `last_ns` split at the resets seen on `streams` (topic -> poses)."""
+    jumps = [
+        PoseJump(topic, int(series.time.t_ns[i - 1]), int(series.time.t_ns[i]))
+        for topic, series in streams.items()
+        for i in pose_jumps(series.time.t_ns, series.pose)
+    ]
+    starts = [first_ns]
+    ends: list[int] = []
+    for end, start in reset_boundaries(jumps):
+        if starts[-1] < end and start < last_ns:
+            ends.append(end)
+            starts.append(start)
+    ends.append(last_ns)
+    return [EpisodeWindow(k, a, b) for k, (a, b) in enumerate(zip(starts, ends, strict=True))]
+
+
 def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path | Scenario | None = None) -> SessionData:
     """The streams of a recording needed for `parts`; MissingTopicError names every topic that is absent."""
     p = Path(path)
@@ -248,6 +346,9 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
     episodes, has_episodes = _episodes(log, where)
     kinds = sorted({kind for part in parts for kind in TOPICS_FOR[part]})
     wanted = [f"/{ns}/{kind}" for ns in robots for kind in kinds]
+    if not has_episodes:  # poses that show the resets
+        wanted += [f"/{ns}/{kind}" for ns in robots for kind in ("ground_truth", "odom")]
+        wanted = list(dict.fromkeys(t for t in wanted if t in topics))
     raw: dict[str, dict[str, list[Any]]] = {t: {"log": [], "stamp": [], "data": []} for t in wanted}
     for m in log.messages(wanted, skip_undecodable=True):
         bucket = raw[m.topic]
@@ -278,11 +379,21 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
                     float(msg.range_max),
                 )
             )
+    notes: tuple[str, ...] = ()
     if not episodes:
         all_log = [t for b in raw.values() for t in b["log"]]
         if not all_log:
             raise CalibrationError(where, "the recording holds no messages on the robots' topics")
-        episodes = [EpisodeWindow(0, int(min(all_log)), int(max(all_log)), None)]
+        first_ns, last_ns = int(min(all_log)), int(max(all_log))
+        whole = [(first_ns, last_ns)]
+        poses = {
+            t: _poses(b, whole) for t, b in raw.items() if t.endswith(("/ground_truth", "/odom")) and len(b["log"]) >= 2
+        }
+        episodes = infer_episodes({t: s for t, s in poses.items() if s is not None}, first_ns, last_ns)
+        notes = (
+            f"{p.name}: no /mrl/episode; {len(episodes)} episode(s) inferred from "
+            f"{len(episodes) - 1} reset(s) (simultaneous jumps of the robots' ground-truth or odometry poses)",
+        )
     windows = [(e.start_ns, e.end_ns) for e in episodes]
     robot_data = []
     for ns in robots:
@@ -291,11 +402,11 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
                 ns,
                 truth=_poses(raw.get(f"/{ns}/ground_truth"), windows),
                 scans=_scans(raw.get(f"/{ns}/scan"), windows, where, f"/{ns}/scan"),
-                odom=_poses(raw.get(f"/{ns}/odom"), windows),
+                odom=_poses(raw.get(f"/{ns}/odom"), windows) if "odom" in kinds else None,
                 commands=_commands(raw.get(f"/{ns}/cmd_vel")),
             )
         )
-    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes)
+    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes)
 
 
 def _poses(bucket: dict[str, list[Any]] | None, windows: Sequence[tuple[int, int]]) -> PoseSeries | None:

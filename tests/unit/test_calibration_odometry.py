@@ -82,3 +82,19 @@ def test_nothing_is_compared_across_a_gap_in_the_truth():
     d = episode_drift(jumped, SETTINGS)
     assert d.scale_error == pytest.approx(scale, abs=2e-3)
     assert d.heading_drift_per_m == pytest.approx(heading, abs=3e-3)
+
+
+def test_nothing_is_compared_across_a_restart_of_the_odometry():
+    episode, (scale, yaw_scale, heading) = drive(6, 0.05)
+    half = len(episode.t_ns) // 2
+    # the driver restarts: odometry goes on from the origin, in a frame turned by the heading it had
+    odom = episode.odom.copy()
+    x0, y0, yaw0 = odom[half]
+    c, s = np.cos(yaw0), np.sin(yaw0)
+    dx, dy = odom[half:, 0] - x0, odom[half:, 1] - y0
+    odom[half:] = np.stack([c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (odom[half:, 2] - yaw0)))], axis=1)
+    restarted = OdometryEpisode("robot_1", "episode 6", episode.t_ns, odom, episode.truth)
+    d = episode_drift(restarted, SETTINGS)
+    assert d.scale_error == pytest.approx(scale, abs=2e-3)
+    assert d.yaw_scale_error == pytest.approx(yaw_scale, abs=3e-3)
+    assert d.heading_drift_per_m == pytest.approx(heading, abs=3e-3)
