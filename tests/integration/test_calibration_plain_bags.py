@@ -67,7 +67,9 @@ def test_the_bag_calibrates_to_the_drift_of_the_full_recording_and_the_profile(p
     drift, full_drift = bag.values["odometry.drift_per_m"], full.values["odometry.drift_per_m"]
     print(f"\nprofile {name}: drift_per_m bag {drift.value:.4g} {drift.interval}, full {full_drift.value:.4g}")
     assert drift.ok and full_drift.ok and drift.value is not None and full_drift.value is not None
-    assert drift.n == full_drift.n  # the same robot-episodes give the same draws
+    # the same robot-episodes give (nearly) the same draws: the bag's windows also hold the waits for the
+    # resets, so a robot-episode can just pass or miss the turn needed for its yaw-scale draw
+    assert abs(drift.n - full_drift.n) <= max(2, full_drift.n // 10)
     assert drift.value == pytest.approx(full_drift.value, rel=DRIFT_REL)
     # 24 robot-episodes, 60-70 draws: the 95 % chi interval is about +-20 %; it holds the profile's value
     true_drift = profile["odometry"]["drift_per_m"]
