@@ -26,14 +26,14 @@ import numpy as np
 import yaml
 
 from pipeline.analysis.timing import TimingFigures, timing_figures
-from pipeline.config import TrainConfig, world_config
+from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
-from pipeline.policy.export import export_policy, golden_observations
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import TrainConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
+from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.clock import WallClock
-from pipeline.ros.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
-from pipeline.settings import from_mapping, merge, to_mapping
 from pipeline.sim import make_world
 
 TICK_NS = 20_000_000

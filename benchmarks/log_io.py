@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.core.timebase import NS_PER_S
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
@@ -36,14 +38,13 @@ if str(ROOT) not in sys.path:
 from pipeline.analysis.tables import EPISODE_TOPIC, Recording  # noqa: E402
 from pipeline.core.scan import ScanGeometry  # noqa: E402
 from pipeline.core.scenario import load_scenario  # noqa: E402
+from pipeline.mappings import to_mapping  # noqa: E402
 from pipeline.messages import convert as C  # noqa: E402
 from pipeline.messages import message_store  # noqa: E402
 from pipeline.messages import topics as T  # noqa: E402
 from pipeline.record import McapLog  # noqa: E402
 from pipeline.record.session import SessionLog, dumps, session_metadata  # noqa: E402
-from pipeline.settings import to_mapping  # noqa: E402
 
-NS_PER_S = 1_000_000_000
 TICK_NS = 20_000_000  # 50 Hz
 SLOW_EVERY = 5  # 10 Hz = every 5th tick
 EPISODE_S = 60

@@ -27,7 +27,7 @@ from pathlib import Path
 from pipeline.analysis.timing import timing_figures
 from pipeline.core.episode import summarize
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.ros.deployment import DeployRequest, deploy_policy
+from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 
 STALE_MARGIN = 0.001

@@ -16,15 +16,15 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from pipeline.config import Params, TrainConfig, load_params, world_config
 from pipeline.core.episode import summarize
+from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
-from pipeline.policy.export import export_policy, golden_observations
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import Params, TrainConfig, load_params, world_config
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate
 
 PAPER = {
     ("sac", "empty"): "91.5 %",

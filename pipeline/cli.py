@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 from pipeline.errors import MrlError
 
 if TYPE_CHECKING:
-    from pipeline.ros.deployment import DeploymentOutcome
+    from pipeline.rollout.deployment import DeploymentOutcome
 
 ROUNDS = ("nominal", "calibrated")
 EXIT_BAD_INPUT = 2

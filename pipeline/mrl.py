@@ -36,13 +36,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from pipeline.cli import deploy_summary, operator_reset, run_stage
+from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
 
 if TYPE_CHECKING:
     from pipeline.record import ImportedBag
 
 PROG = "mrl"
-NS_PER_S = 1_000_000_000
 UNIX_TIME_FROM_NS = 946_684_800 * NS_PER_S
 """Log times from 2000-01-01 on are shown as dates (Unix time); earlier ones are a session clock."""
 TABLE_SUFFIXES = (".csv", ".parquet")
@@ -377,10 +377,10 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 def _replay(args: argparse.Namespace) -> int:
     from pipeline.analysis.replay_report import run_replay, write_replay
-    from pipeline.config import ReplayConfig, calibrated_world, world_config
     from pipeline.core.scenario import load_scenario
+    from pipeline.mappings import from_mapping, merge, to_mapping
+    from pipeline.params import ReplayConfig, calibrated_world, world_config
     from pipeline.policy.runtime import PolicyRuntime
-    from pipeline.settings import from_mapping, merge, to_mapping
 
     cfg = from_mapping(
         ReplayConfig,
@@ -431,11 +431,11 @@ def _twin(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 def _deploy(args: argparse.Namespace) -> int:
-    from pipeline.config import DeployConfig
+    from pipeline.mappings import from_mapping, merge, to_mapping
+    from pipeline.params import DeployConfig
     from pipeline.policy.runtime import PolicyRuntime
-    from pipeline.ros.deployment import DeployRequest, deploy_session
+    from pipeline.rollout.deployment import DeployRequest, deploy_session
     from pipeline.ros.fleet import load_fleet
-    from pipeline.settings import from_mapping, merge, to_mapping
 
     options = {"fleet": args.fleet, "episodes": args.episodes, "seed": args.seed, "out_dir": args.out}
     options.update(time_scale=args.time_scale, profile=args.profile)
@@ -468,7 +468,7 @@ def _verb(subparsers: Any, name: str, summary: str, description: str, **kwargs: 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``mrl`` argument parser with every verb."""
-    from pipeline.config import DeployConfig, ReplayConfig
+    from pipeline.params import DeployConfig, ReplayConfig
 
     deploy_defaults = DeployConfig()
     replay_defaults = ReplayConfig()

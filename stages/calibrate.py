@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pipeline.calibration import calibrate, calibration_settings, write_calibration
 from pipeline.cli import run_stage, stage_arguments
-from pipeline.config import load_params
+from pipeline.params import load_params
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,9 +8,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.cli import deploy_summary, operator_reset, run_stage, stage_arguments
-from pipeline.config import load_params
+from pipeline.params import load_params
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.ros.deployment import DeployRequest, check_scenario_agrees, deploy_session
+from pipeline.rollout.deployment import DeployRequest, check_scenario_agrees, deploy_session
 from pipeline.ros.fleet import load_fleet
 
 

@@ -7,10 +7,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.cli import run_stage, stage_arguments
-from pipeline.config import load_params, round_world
+from pipeline.params import load_params, round_world
 from pipeline.policy.runtime import PolicyRuntime
+from pipeline.rollout.sim import evaluate_session
 from pipeline.sim import make_world
-from pipeline.sim.evaluate import evaluate_session
 
 
 def main(argv: Sequence[str] | None = None) -> int:

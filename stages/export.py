@@ -7,9 +7,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.cli import run_stage, stage_arguments
-from pipeline.config import load_params, round_world
+from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import CHECKPOINT_DIR
-from pipeline.policy.export import export_policy, golden_observations
+from pipeline.params import load_params, round_world
 from pipeline.sim import make_world
 
 

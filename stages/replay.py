@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pipeline.analysis.replay_report import run_replay, write_replay
 from pipeline.cli import ROUNDS, run_stage, stage_arguments
-from pipeline.config import load_params, round_world
+from pipeline.params import load_params, round_world
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.sim import make_world
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from pipeline.analysis.report import write_report
 from pipeline.cli import ROUNDS, run_stage, stage_arguments
-from pipeline.config import load_params
+from pipeline.params import load_params
 
 
 def relink_images(markdown: str, source: Path, target: Path) -> str:

@@ -11,13 +11,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.cli import run_stage, stage_arguments
-from pipeline.config import load_params, world_config
 from pipeline.core.episode import summarize
+from pipeline.params import load_params, world_config
 from pipeline.policy.scripted import GoToGoalController
+from pipeline.rollout.outputs import write_episodes, write_metrics, write_paths_picture
+from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate
-from pipeline.sim.outputs import write_episodes, write_metrics, write_paths_picture
 
 
 def main(argv: Sequence[str] | None = None) -> int:

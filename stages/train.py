@@ -7,10 +7,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.cli import run_stage, stage_arguments
-from pipeline.config import load_params, round_world
 from pipeline.learn.trainer import train
+from pipeline.params import load_params, round_world
+from pipeline.rollout.outputs import write_metrics
 from pipeline.sim import make_world
-from pipeline.sim.outputs import write_metrics
 
 
 def main(argv: Sequence[str] | None = None) -> int:

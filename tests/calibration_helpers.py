@@ -19,13 +19,12 @@ from typing import Any
 import numpy as np
 
 from pipeline.core.actions import ActionCodec
-from pipeline.core.observation import ObservationLayout
-from pipeline.core.observe import ObservationBuilder
+from pipeline.core.observation import ObservationBuilder, ObservationLayout
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario, load_scenario
-from pipeline.errors import PolicyMismatch
+from pipeline.mappings import to_mapping
+from pipeline.policy.errors import PolicyMismatch
 from pipeline.record.session import SessionLog, dumps, session_metadata
-from pipeline.settings import to_mapping
 
 POLICY_BEAMS = 36
 PHASES = ("stand", "goal", "turn", "arc")
@@ -132,7 +131,7 @@ def record_twin_session(
     max_steps: int = 150,
 ) -> Path:
     """Deploy the excitation runtime against the hardware twin (DDS on loopback); the recording's path."""
-    from pipeline.ros.deployment import DeployRequest, deploy_policy
+    from pipeline.rollout.deployment import DeployRequest, deploy_policy
     from pipeline.ros.fleet import load_fleet
     from tests.integration.conftest import write_fleet
 
@@ -166,7 +165,7 @@ def simulate_session(
     Every 20 ms: the command (sent at the tick), ground truth and odometry; scans every 100 ms;
     one policy step every 100 ms. Topics whose name ends with an entry of `omit` are not written.
     """
-    from pipeline.config import world_config
+    from pipeline.params import world_config
     from pipeline.sim.world import SimWorld
 
     scen = load_scenario(scenario)

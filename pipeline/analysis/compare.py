@@ -21,8 +21,8 @@ import numpy as np
 import polars as pl
 from scipy import stats as sps
 
-from pipeline.analysis import TableError
-from pipeline.analysis.stats import Z_95, newcombe_interval, two_proportion_z_test, wilson_interval
+from pipeline.analysis.errors import TableError
+from pipeline.core.stats import Z_95, newcombe_interval, two_proportion_z_test, wilson_interval
 
 WORLDS = ("sim", "real")
 REQUIRED_COLUMNS = ("episode", "robot", "success", "collided", "aborted", "time_to_goal_s", "team_success")

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import MessageError
+from pipeline.core.timebase import NS_PER_S
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import message_store
 
 _CDR_LE = (0, 1)
@@ -198,7 +199,7 @@ Column = np.ndarray | Strings | Ragged
 class Decoded:
     """Columns of `n` messages of `typename`, named after the fields of :data:`LAYOUTS` in wire order.
 
-    Header stamps appear as ``stamp_ns`` (int64 ns: sec * 1e9 + nanosec) in place of their two fields.
+    Header stamps appear as ``stamp_ns`` (int64 ns: sec * NS_PER_S + nanosec) in place of their two fields.
     `generic` counts the messages that went through the message store's decoder.
     """
 
@@ -369,7 +370,7 @@ class _Builder:
         for name in self.order:
             if name == "stamp_sec":
                 sec = self.prims["stamp_sec"].astype(np.int64)
-                out.columns["stamp_ns"] = sec * 1_000_000_000 + self.prims["stamp_nanosec"].astype(np.int64)
+                out.columns["stamp_ns"] = sec * NS_PER_S + self.prims["stamp_nanosec"].astype(np.int64)
             elif name == "stamp_nanosec":
                 continue
             elif name in self.prims:

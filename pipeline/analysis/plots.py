@@ -18,10 +18,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle
 
-from pipeline.analysis import AnalysisError, TableError
-from pipeline.analysis.stats import Z_95, wilson_interval
+from pipeline.analysis.errors import AnalysisError, TableError
 from pipeline.analysis.tables import PoseKind, Recording, Source, open_recording
 from pipeline.core.scenario import Scenario, box_corners
+from pipeline.core.stats import Z_95, wilson_interval
 
 ROBOT_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
 CURVE_COLUMNS = ("episode", "world_steps", "robot_success", "team_success")

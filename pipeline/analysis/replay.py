@@ -19,21 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.config import WorldConfig, world_config
+from pipeline.analysis.errors import ReplayError
 from pipeline.core.scenario import Scenario
-from pipeline.errors import MrlError
+from pipeline.core.timebase import NS_PER_S
+from pipeline.mappings import to_mapping
 from pipeline.messages import convert as C
+from pipeline.params import WorldConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
-from pipeline.settings import to_mapping
 from pipeline.sim.world import SimWorld
 
-NS_PER_S = 1_000_000_000
 REPLAY_TICK_S = 0.02
-
-
-class ReplayError(MrlError):
-    """A recording cannot be replayed (a needed topic is missing, robots differ); names the file and topic."""
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from pipeline.analysis.replay import Agreement, Divergence, action_agreement, open_loop_divergence
-from pipeline.config import WorldConfig
 from pipeline.core.scenario import Scenario
+from pipeline.params import WorldConfig
 from pipeline.policy.runtime import PolicyRuntime
 
 

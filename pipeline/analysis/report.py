@@ -24,8 +24,8 @@ from typing import Any
 
 import polars as pl
 
-from pipeline.analysis import AnalysisError
 from pipeline.analysis.compare import WORLDS, Comparison, compare
+from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.plots import plot_learning_curves, plot_success_rates, plot_trajectories, success_panels
 from pipeline.analysis.tables import Recording
 from pipeline.analysis.timing import TIMING_TOPIC, TimingFigures, timing_figures, timing_markdown

@@ -26,15 +26,16 @@ from typing import Any, Literal
 import numpy as np
 import polars as pl
 
-from pipeline.analysis import AnalysisError, MissingTopicError, TopicTypeError
 from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat, decode
+from pipeline.analysis.errors import AnalysisError
 from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
 from pipeline.messages import topics as T
 from pipeline.messages.convert import EVENT_NAMES
 from pipeline.record import McapLog
+from pipeline.record.errors import MissingTopicError, TopicTypeError
 
-NS_PER_S = 1_000_000_000
 EPISODE_TOPIC = "/mrl/episode"
 PoseKind = Literal["ground_truth", "odom"]
 POSE_TYPES: dict[str, str] = {"ground_truth": T.POSE_STAMPED, "odom": T.ODOMETRY}
@@ -195,7 +196,7 @@ class Recording:
     def require(self, topics: Sequence[str], needed_for: str) -> None:
         """Raise MissingTopicError unless the file has at least one of `topics`."""
         if not any(t in self._topics for t in topics):
-            raise MissingTopicError(self.where, topics, needed_for)
+            raise MissingTopicError(self.where, topics, needed_for, any_of=True)
 
     def load(self, topics: Iterable[str]) -> None:
         """Read and decode `topics` (those present and not cached yet) in one pass over the file.
@@ -417,7 +418,7 @@ class Recording:
                 self._expect_type(odom, T.ODOMETRY)
                 sources[robot] = ("odom", odom)
             else:
-                raise MissingTopicError(self.where, [gt, odom], f"the path length of {robot}")
+                raise MissingTopicError(self.where, [gt, odom], f"the path length of {robot}", any_of=True)
         self.load([EPISODE_TOPIC, *(topic for _, topic in sources.values())])
         # a ground-truth channel without messages (e.g. cut off by a crash) falls back to odometry
         for robot, (kind, topic) in list(sources.items()):

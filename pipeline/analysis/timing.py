@@ -15,8 +15,9 @@ import numpy as np
 import polars as pl
 import yaml
 
-from pipeline.analysis import AnalysisError
+from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.tables import Recording
+from pipeline.core.timebase import NS_PER_S
 from pipeline.messages.convert import TIMING_CODES
 from pipeline.record import McapLog
 
@@ -87,7 +88,7 @@ def timing_figures(source: str | os.PathLike[str] | McapLog | Recording) -> Timi
     recording = source if isinstance(source, Recording) else Recording(source)
     recording.require([TIMING_TOPIC], "deployment timing")
     frame = recording.topic_frame(TIMING_TOPIC).select("kind", "robot", "topic", "local_ns", "tick")
-    period_ns = nominal_tick_period_s(recording) * 1e9
+    period_ns = nominal_tick_period_s(recording) * NS_PER_S
 
     ticks = frame.filter(pl.col("kind") == TIMING_CODES["tick"])["local_ns"].sort().to_numpy()
     if ticks.size == 0:

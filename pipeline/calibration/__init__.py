@@ -16,10 +16,11 @@ Modules: :mod:`~pipeline.calibration.recording` (reading), :mod:`~pipeline.calib
 """
 
 from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration, Source, calibrate
-from pipeline.calibration.errors import CalibrationError, MissingTopicError, ScenarioMismatchError
+from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.options import PARTS, CalibrationSettings, calibration_settings
 from pipeline.calibration.output import calibration_mapping, write_calibration
-from pipeline.calibration.settings import PARTS, CalibrationSettings, calibration_settings
+from pipeline.record.errors import MissingTopicError
 
 __all__ = [
     "PARTS",

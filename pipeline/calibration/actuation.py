@@ -25,8 +25,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from pipeline.calibration.estimates import Estimate, bootstrap, spread
-from pipeline.calibration.settings import CalibrationSettings
-from pipeline.calibration.smoothing import NS_PER_S
+from pipeline.calibration.options import CalibrationSettings
+from pipeline.core.timebase import NS_PER_S
 
 COARSE_STEP_S = 0.01
 COARSE_DELAY_STEP_S = 0.02

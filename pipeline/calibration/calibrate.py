@@ -27,9 +27,9 @@ from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
 from pipeline.calibration.network import NetworkFit, StampStream, estimate_network, rate_estimate
 from pipeline.calibration.odometry import OdometryEpisode, OdometryFit, estimate_odometry
+from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry
 from pipeline.calibration.recording import SessionData, read_session
-from pipeline.calibration.settings import CalibrationSettings
 from pipeline.calibration.smoothing import SmootherNoise, Trajectory, smooth_trajectory
 from pipeline.core.scenario import Scenario
 
@@ -88,7 +88,7 @@ class Calibration:
         return {k: e.reason for k, e in self.values.items() if not e.ok}
 
     def world_overrides(self) -> dict[str, dict[str, float | int]]:
-        """Simulator settings (keys of ``pipeline.config.WorldConfig``) for training on top of params.yaml's ``world``.
+        """Simulator settings (keys of ``pipeline.params.WorldConfig``) for training on top of params.yaml's ``world``.
 
         Only identified values appear; the simulated lidar gets the real beam count (its scan is reduced
         to the policy's beams as the real one is) and sees the real robot bodies.

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 from pipeline.errors import MrlError
 
 
@@ -14,17 +12,6 @@ class CalibrationError(MrlError):
         self.where = where
         self.problem = problem
         super().__init__(f"{where}: {problem}")
-
-
-class MissingTopicError(CalibrationError):
-    """A recording lacks topics that an estimate needs."""
-
-    def __init__(self, path: str, topics: Sequence[str], needed_for: str) -> None:
-        self.path = path
-        self.topics = tuple(topics)
-        names = ", ".join(self.topics)
-        plural = "s" if len(self.topics) > 1 else ""
-        super().__init__(path, f"the recording has no topic{plural} {names}, needed for {needed_for}")
 
 
 class ScenarioMismatchError(CalibrationError):
@@ -39,4 +26,4 @@ class ScenarioMismatchError(CalibrationError):
         )
 
 
-__all__ = ["CalibrationError", "MissingTopicError", "ScenarioMismatchError"]
+__all__ = ["CalibrationError", "ScenarioMismatchError"]

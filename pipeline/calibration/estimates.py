@@ -10,7 +10,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy import stats
 
-from pipeline.analysis.stats import wilson_interval
+from pipeline.core.stats import wilson_interval
 
 Status = Literal["ok", "unidentifiable"]
 Z_95 = 1.959963984540054

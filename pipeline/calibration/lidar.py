@@ -30,9 +30,10 @@ import numpy as np
 from scipy import stats
 
 from pipeline.calibration.estimates import Z_95, Estimate, binomial_estimate, bootstrap, normal_interval, spread
+from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry, cast_circles, wrap
-from pipeline.calibration.settings import CalibrationSettings
-from pipeline.calibration.smoothing import NS_PER_S, Track
+from pipeline.calibration.smoothing import Track
+from pipeline.core.timebase import NS_PER_S
 
 MIN_SPANS_FOR_BOOTSTRAP = 5
 MIN_BEAMS = 200

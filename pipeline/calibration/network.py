@@ -30,10 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.analysis.stats import wilson_interval
 from pipeline.calibration.estimates import Estimate, bootstrap, spread
-from pipeline.calibration.settings import CalibrationSettings
-from pipeline.calibration.smoothing import NS_PER_S
+from pipeline.calibration.options import CalibrationSettings
+from pipeline.core.stats import wilson_interval
+from pipeline.core.timebase import NS_PER_S
 
 MIN_MESSAGES = 50
 SHARED_TICKS = 0.5

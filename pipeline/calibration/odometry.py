@@ -33,13 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.calibration.estimates import Estimate, chi_interval
+from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import pose_jumps
-from pipeline.calibration.settings import CalibrationSettings
+from pipeline.core.timebase import NS_PER_S
 
 MIN_DRAWS = 3
 CHUNK_S = 0.5
 """Length of the chunks that increments are summed over (s)."""
-NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,8 @@ Layout of ``calibration.yaml``:
 - ``profile``: the identified values in the reality profile's keys (lidar, actuation, odometry, network);
 - ``uncertainty``: every estimated key with its status, and either its value, standard error, 95 %
   interval, unit, method and sample count, or the reason it is unidentifiable;
-- ``world``: simulator settings (keys of ``pipeline.config.WorldConfig``) that training applies on
-  top of params.yaml's ``world`` (:func:`pipeline.config.calibrated_world`); unidentified values are
+- ``world``: simulator settings (keys of ``pipeline.params.WorldConfig``) that training applies on
+  top of params.yaml's ``world`` (:func:`pipeline.params.calibrated_world`); unidentified values are
   left out, so training keeps their nominal values;
 - ``unidentified``: the keys left out and why;
 - ``source``: the recordings (path and session metadata) and the calibration settings.
@@ -22,9 +22,9 @@ import yaml
 
 from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration
 from pipeline.calibration.errors import CalibrationError
-from pipeline.config import CALIBRATION_FILE, world_config
 from pipeline.errors import ConfigError
-from pipeline.settings import to_mapping
+from pipeline.mappings import to_mapping
+from pipeline.params import CALIBRATION_FILE, world_config
 
 FORMAT = "mrl-calibration/1"
 REPORT_FILE = "calibration.md"

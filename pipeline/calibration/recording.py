@@ -31,15 +31,16 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.calibration.errors import CalibrationError, MissingTopicError, ScenarioMismatchError
-from pipeline.calibration.settings import Part
+from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
+from pipeline.calibration.options import Part
 from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
+from pipeline.mappings import to_mapping
 from pipeline.messages.convert import EVENT_NAMES, quaternion_yaw
 from pipeline.record import McapLog
-from pipeline.settings import to_mapping
+from pipeline.record.errors import MissingTopicError
 
-NS_PER_S = 1_000_000_000
 OFFSET_QUANTILE = 2.0
 """Percentile of (log time - stamp) taken as a sensor topic's clock offset (the quickest deliveries)."""
 OUTLIER_S = 10.0

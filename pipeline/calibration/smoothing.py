@@ -17,7 +17,7 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
-NS_PER_S = 1_000_000_000
+from pipeline.core.timebase import NS_PER_S
 
 
 @dataclass(frozen=True)

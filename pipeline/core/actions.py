@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import ActionError
+from pipeline.core.errors import ActionError
 
 ActionKind = Literal["continuous", "discrete"]
 DiscreteName = Literal["forward", "left", "right", "backward", "stop"]

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import ScanError
+from pipeline.core.errors import ScanError
 
 Reduction = Literal["pick", "sector_min"]
 

@@ -18,8 +18,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pipeline.errors import ConfigError, ConfigProblem, ScenarioError
-from pipeline.settings import from_mapping, read_yaml, setting
+from pipeline.core.errors import ScenarioError
+from pipeline.errors import ConfigError, ConfigProblem
+from pipeline.mappings import from_mapping, read_yaml, setting
 
 
 @dataclass(frozen=True)

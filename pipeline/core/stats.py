@@ -1,11 +1,14 @@
-"""Small statistics shared by evaluation, deployment and analysis."""
+"""Small statistics shared by evaluation, deployment and analysis: binomial intervals and tests."""
 
 from __future__ import annotations
 
 import math
 
+Z_95 = 1.959963984540054
+"""The two-sided 95 % normal quantile."""
 
-def wilson_interval(successes: int, trials: int, z: float = 1.959963984540054) -> tuple[float, float]:
+
+def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
     """The Wilson score interval (default 95 %) for a binomial proportion; (0, 1) when trials == 0."""
     if trials < 0 or not 0 <= successes <= trials:
         raise ValueError(f"need 0 <= successes <= trials, got successes={successes}, trials={trials}")
@@ -16,3 +19,35 @@ def wilson_interval(successes: int, trials: int, z: float = 1.959963984540054) -
     centre = (p + z * z / (2 * trials)) / denom
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def newcombe_interval(
+    successes_a: int, trials_a: int, successes_b: int, trials_b: int, z: float = Z_95
+) -> tuple[float, float]:
+    """Newcombe's hybrid score interval (his method 10, from two Wilson intervals) for p_a - p_b.
+
+    Returns (nan, nan) when either group has no trials.
+    """
+    if trials_a == 0 or trials_b == 0:
+        return math.nan, math.nan
+    p_a, p_b = successes_a / trials_a, successes_b / trials_b
+    low_a, high_a = wilson_interval(successes_a, trials_a, z)
+    low_b, high_b = wilson_interval(successes_b, trials_b, z)
+    d = p_a - p_b
+    return d - math.hypot(p_a - low_a, high_b - p_b), d + math.hypot(high_a - p_a, p_b - low_b)
+
+
+def two_proportion_z_test(successes_a: int, trials_a: int, successes_b: int, trials_b: int) -> tuple[float, float]:
+    """The pooled two-proportion z statistic for p_a - p_b and its two-sided p-value.
+
+    When both groups are all successes or all failures the difference is 0 with p = 1; with no
+    trials in either group both values are nan.
+    """
+    if trials_a == 0 or trials_b == 0:
+        return math.nan, math.nan
+    pooled = (successes_a + successes_b) / (trials_a + trials_b)
+    se = math.sqrt(pooled * (1 - pooled) * (1 / trials_a + 1 / trials_b))
+    if se == 0:
+        return 0.0, 1.0
+    z = (successes_a / trials_a - successes_b / trials_b) / se
+    return z, math.erfc(abs(z) / math.sqrt(2))

@@ -16,7 +16,7 @@ from typing import Any
 
 import torch as th
 
-from pipeline.errors import CheckpointError
+from pipeline.learn.errors import CheckpointError
 
 META_FILE = "train.json"
 

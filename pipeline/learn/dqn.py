@@ -22,7 +22,8 @@ from stable_baselines3.dqn.policies import DQNPolicy, QNetwork
 from torch import nn
 from torch.nn import functional as F
 
-from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples, PrioritizedReplayError
+from pipeline.learn.errors import PrioritizedReplayError
+from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 
 
 class DuelingQNetwork(QNetwork):

@@ -21,9 +21,9 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn
 
-from pipeline.config import TrainConfig
 from pipeline.learn.dqn import PerDQN
 from pipeline.learn.modes import StreamBatch
+from pipeline.params import TrainConfig
 
 
 class SpacesVecEnv(VecEnv):

@@ -18,8 +18,8 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from pipeline.config import Mode
 from pipeline.learn.worlds import VecWorlds, WorldsStep
+from pipeline.params import Mode
 
 
 @dataclass(frozen=True)

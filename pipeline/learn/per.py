@@ -24,17 +24,7 @@ from numpy.typing import ArrayLike
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from pipeline.errors import MrlError
-
-
-class PrioritizedReplayError(MrlError, ValueError):
-    """A prioritized-replay argument is out of range or does not fit the rest of the set-up."""
-
-    def __init__(self, argument: str, value: object, allowed: str) -> None:
-        self.argument = argument
-        self.value = value
-        self.allowed = allowed
-        super().__init__(f"{argument} = {value!r}: {allowed}")
+from pipeline.learn.errors import PrioritizedReplayError
 
 
 def _check_beta(beta: float) -> None:

@@ -20,12 +20,12 @@ from typing import Any, TextIO
 import numpy as np
 import torch as th
 
-from pipeline.config import SelectionConfig, WorldConfig
 from pipeline.core.episode import summarize
 from pipeline.core.scenario import Scenario
 from pipeline.learn.modes import deterministic_actions
+from pipeline.params import SelectionConfig, WorldConfig
+from pipeline.rollout.sim import evaluate
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate
 
 SELECTION_FILE = "selection.csv"
 StateDicts = list[dict[str, th.Tensor]]

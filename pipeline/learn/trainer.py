@@ -12,16 +12,16 @@ import stable_baselines3
 import torch as th
 from tqdm import tqdm
 
-from pipeline.config import TrainConfig, WorldConfig
 from pipeline.core.scenario import Scenario
-from pipeline.errors import TrainingInterrupted
 from pipeline.learn.checkpoint import save_checkpoint
+from pipeline.learn.errors import TrainingInterrupted
 from pipeline.learn.learners import OffPolicyLearner, OnPolicyLearner, build_learner
 from pipeline.learn.modes import StreamMap
 from pipeline.learn.progress import ConvergenceTracker, LearningCurve
 from pipeline.learn.selection import Selector, greedy_policy
 from pipeline.learn.worlds import VecWorlds
-from pipeline.settings import to_mapping
+from pipeline.mappings import to_mapping
+from pipeline.params import TrainConfig, WorldConfig
 
 CHECKPOINT_DIR = "checkpoint"
 CURVE_FILE = "curve.csv"

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.config import WorldConfig
 from pipeline.core.scenario import Scenario, perturbed_starts
+from pipeline.params import WorldConfig
 from pipeline.sim.env import MultiRobotSim
 
 

@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 
 from pipeline.core.scan import ScanGeometry
+from pipeline.core.timebase import NS_PER_S
 from pipeline.messages import topics as T
 from pipeline.messages.store import MessageStore, message_store
 
-NS_PER_S = 1_000_000_000
 _ZERO36 = np.zeros(36, dtype=np.float64)
 
 

@@ -9,7 +9,7 @@ from typing import Any
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import TypesysError
 
-from pipeline.errors import MessageError, SchemaError
+from pipeline.messages.errors import MessageError, SchemaError
 
 SCHEMAS_DIR = Path(__file__).resolve().parents[2] / "schemas"
 """The ``schemas/`` folder of the repository: ``<package>/msg/<Name>.msg`` files."""

@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pipeline.errors import PolicyError
+from pipeline.policy.errors import PolicyError
 
 PolicyKind = Literal["sac_actor", "ppo_actor", "dqn", "dqn_dueling"]
 POLICY_KINDS: tuple[PolicyKind, ...] = ("sac_actor", "ppo_actor", "dqn", "dqn_dueling")

@@ -18,7 +18,7 @@ import onnxruntime
 
 from pipeline.core.actions import ActionCodec
 from pipeline.core.observation import LAYOUTS, ObservationLayout
-from pipeline.errors import PolicyError, PolicyMismatch
+from pipeline.policy.errors import PolicyError, PolicyMismatch
 
 FORMAT = "mrl-policy/1"
 META_FILE = "policy.json"

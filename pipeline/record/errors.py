@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from pipeline.errors import MrlError
 
 
@@ -38,6 +40,20 @@ class LogDecodeError(LogReadError):
         self.topic = topic
         self.log_time_ns = log_time_ns
         super().__init__(path, f"topic {topic}, message logged at {log_time_ns} ns: {problem}")
+
+
+class MissingTopicError(LogReadError):
+    """A recording lacks topics that a reader needs: every one of `topics`, or with `any_of` at least one."""
+
+    def __init__(self, path: str, topics: Sequence[str], needed_for: str, any_of: bool = False) -> None:
+        self.topics = tuple(topics)
+        self.needed_for = needed_for
+        if any_of:
+            text = f"the recording has no topic {' or '.join(self.topics)}, needed for {needed_for}"
+        else:
+            plural = "s" if len(self.topics) > 1 else ""
+            text = f"the recording has no topic{plural} {', '.join(self.topics)}, needed for {needed_for}"
+        super().__init__(path, text)
 
 
 class TruncatedLogWarning(UserWarning):
@@ -98,15 +114,16 @@ class UnknownMessageTypeError(BagError):
         super().__init__(path, f"topic {topic}: message type {typename} {problem}")
 
 
-class TopicTypeError(BagError):
-    """A robot topic carries another message type than the ROS 2 contract gives it."""
+class TopicTypeError(LogReadError):
+    """A topic of a recording or bag carries another message type than the one its reader (or the ROS 2
+    contract of a robot topic of that name) expects."""
 
     def __init__(self, path: str, topic: str, found: str, expected: str, source: str = "") -> None:
         self.topic = topic
         self.found = found
         self.expected = expected
         where = f"topic {topic}" + (f" (from {source})" if source and source != topic else "")
-        super().__init__(path, f"{where} carries {found}; a robot's topic of that name carries {expected}")
+        super().__init__(path, f"{where} carries {found}, expected {expected}")
 
 
 class RemapError(BagError):

@@ -43,7 +43,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Header, Metadata, Schema
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from pipeline.errors import MessageError
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import MessageStore, message_store
 from pipeline.record import format as fmt
 from pipeline.record.errors import (

@@ -54,7 +54,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from pipeline.errors import MessageError
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import MessageStore, message_store
 from pipeline.messages.topics import TopicSpec
 from pipeline.record import format as fmt

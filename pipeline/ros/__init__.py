@@ -5,17 +5,8 @@ speak the contract of :mod:`pipeline.messages.topics`. Importing this package lo
 cyclonedds nor rclpy; the chosen backend is imported when a transport is opened.
 """
 
-from pipeline.ros.transport import (
-    BackendUnavailableError,
-    MessageCallback,
-    NetworkSettings,
-    NetworkSettingsError,
-    Publisher,
-    Subscription,
-    Transport,
-    TransportError,
-    open_transport,
-)
+from pipeline.ros.errors import BackendUnavailableError, NetworkSettingsError, TransportError
+from pipeline.ros.transport import MessageCallback, NetworkSettings, Publisher, Subscription, Transport, open_transport
 
 __all__ = [
     "BackendUnavailableError",

@@ -12,6 +12,8 @@ import threading
 import time
 from typing import Protocol
 
+from pipeline.core.timebase import NS_PER_S
+
 SPIN_NS = 400_000
 """The last stretch before a deadline is waited out by spinning: OS sleeps overshoot by ~0.1 ms."""
 
@@ -32,7 +34,7 @@ def _sleep_wall_until(deadline_wall_ns: int, stop: threading.Event | None) -> bo
         if stop is not None and stop.is_set():
             return False
         if remaining > SPIN_NS:
-            wait_s = (remaining - SPIN_NS) / 1e9
+            wait_s = (remaining - SPIN_NS) / NS_PER_S
             if stop is not None:
                 if stop.wait(min(wait_s, 0.05)):
                     return False

@@ -57,16 +57,9 @@ from cyclonedds.util import duration
 
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import QosProfile, TopicSpec
+from pipeline.ros.errors import TransportError
 from pipeline.ros.idl import DdsType, dds_type
-from pipeline.ros.transport import (
-    MessageCallback,
-    NetworkSettings,
-    Publisher,
-    Subscription,
-    Transport,
-    TransportError,
-    check_topic,
-)
+from pipeline.ros.transport import MessageCallback, NetworkSettings, Publisher, Subscription, Transport, check_topic
 
 log = logging.getLogger(__name__)
 

@@ -24,9 +24,10 @@ from pathlib import Path
 from typing import Literal
 
 from pipeline.errors import ConfigError, ConfigProblem
+from pipeline.mappings import from_mapping, read_yaml, setting
 from pipeline.messages.topics import TopicSpec, robot_topics
-from pipeline.ros.transport import NetworkSettings, NetworkSettingsError
-from pipeline.settings import from_mapping, read_yaml, setting
+from pipeline.ros.errors import NetworkSettingsError
+from pipeline.ros.transport import NetworkSettings
 
 _NAMESPACE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 

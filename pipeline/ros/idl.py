@@ -25,7 +25,7 @@ from cyclonedds.idl import IdlStruct, make_idl_struct
 from cyclonedds.idl import types as idl_types
 from cyclonedds.idl.annotations import final
 
-from pipeline.errors import MessageError
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import MessageStore, message_store
 
 Converter = Callable[[Any], Any]

@@ -30,16 +30,8 @@ from typing import Any
 
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import QosProfile, TopicSpec
-from pipeline.ros.transport import (
-    BackendUnavailableError,
-    MessageCallback,
-    NetworkSettings,
-    Publisher,
-    Subscription,
-    Transport,
-    TransportError,
-    check_topic,
-)
+from pipeline.ros.errors import BackendUnavailableError, TransportError
+from pipeline.ros.transport import MessageCallback, NetworkSettings, Publisher, Subscription, Transport, check_topic
 
 log = logging.getLogger(__name__)
 

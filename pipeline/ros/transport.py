@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any, Literal
 
-from pipeline.errors import MrlError
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import TopicSpec
+from pipeline.ros.errors import NetworkSettingsError, TransportError
 
 BackendKind = Literal["dds", "rclpy"]
 BACKENDS: tuple[BackendKind, ...] = ("dds", "rclpy")
@@ -34,29 +34,6 @@ MAX_DOMAIN_ID = 232
 
 MessageCallback = Callable[[TopicSpec, Any, int], None]
 """``callback(spec, msg, receive_time_ns)``: one valid sample of `spec` taken at `receive_time_ns`."""
-
-
-class TransportError(MrlError):
-    """The network transport cannot do what was asked; names the topic or setting involved."""
-
-    def __init__(self, where: str, problem: str) -> None:
-        self.where = where
-        self.problem = problem
-        super().__init__(f"{where}: {problem}")
-
-
-class NetworkSettingsError(TransportError):
-    """A network setting has a value that is not allowed; names the setting and what is allowed."""
-
-    def __init__(self, setting: str, value: object, allowed: str) -> None:
-        self.setting = setting
-        self.value = value
-        self.allowed = allowed
-        super().__init__(f"network setting {setting} = {value!r}", allowed)
-
-
-class BackendUnavailableError(TransportError):
-    """The requested transport backend cannot run in this Python environment."""
 
 
 _HOSTNAME = re.compile(

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pipeline.config import WorldConfig, world_config
 from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.params import WorldConfig, world_config
 from pipeline.sim.env import MultiRobotEnv, MultiRobotSim
 from pipeline.sim.views import JointEnv, RobotEnv, TeammatePolicy
 

@@ -16,10 +16,10 @@ import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from pipeline.config import WorldConfig
 from pipeline.core.judge import EpisodeJudge, JudgeStep
-from pipeline.core.observe import ObservationBuilder
+from pipeline.core.observation import ObservationBuilder
 from pipeline.core.scenario import Scenario
+from pipeline.params import WorldConfig
 from pipeline.sim.world import SimWorld
 
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from pipeline.config import WorldConfig
 from pipeline.core.scenario import Scenario
+from pipeline.params import WorldConfig
 
 GROUP_STATIC, GROUP_ROBOT, GROUP_LIDAR_ONLY = 0, 1, 3
 LATERAL_TIME_CONSTANT_S = 0.01

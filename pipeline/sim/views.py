@@ -18,8 +18,8 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from pipeline.config import WorldConfig
 from pipeline.core.scenario import Scenario
+from pipeline.params import WorldConfig
 from pipeline.sim.env import MultiRobotSim
 
 TeammatePolicy = Callable[[np.ndarray], np.ndarray]

@@ -8,9 +8,9 @@ from collections import deque
 import mujoco
 import numpy as np
 
-from pipeline.config import WorldConfig
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
+from pipeline.params import WorldConfig
 from pipeline.sim.model import GROUP_LIDAR_ONLY, GROUP_ROBOT, GROUP_STATIC, build_model, lidar_directions
 from pipeline.sim.noise import OdometryDrift, noisy_ranges
 

@@ -15,7 +15,7 @@ from importlib import resources
 from pathlib import Path
 
 from pipeline.errors import ConfigError, ConfigProblem
-from pipeline.settings import from_mapping, read_yaml, setting
+from pipeline.mappings import from_mapping, read_yaml, setting
 
 
 @dataclass(frozen=True)

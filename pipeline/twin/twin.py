@@ -21,12 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import WorldConfig, world_config
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
+from pipeline.core.timebase import NS_PER_S
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
+from pipeline.params import WorldConfig, world_config
 from pipeline.ros.clock import Clock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Publisher, Transport
@@ -88,7 +89,7 @@ class LossyLink:
     def __init__(self, clock: Clock, loss_prob: float, jitter_s: float, rng: np.random.Generator) -> None:
         self.clock = clock
         self.loss_prob = loss_prob
-        self.jitter_ns = int(jitter_s * 1e9)
+        self.jitter_ns = int(jitter_s * NS_PER_S)
         self.rng = rng
         self._heap: list[tuple[int, int, Publisher, Any]] = []
         self._counter = itertools.count()
@@ -241,7 +242,7 @@ class HardwareTwin:
         if s is None or s.robot != ns or self._first_reset_ns is None:
             return False
         since = now_ns - self._first_reset_ns
-        return since >= s.after_s * 1e9 and (s.duration_s is None or since < (s.after_s + s.duration_s) * 1e9)
+        return since >= s.after_s * NS_PER_S and (s.duration_s is None or since < (s.after_s + s.duration_s) * NS_PER_S)
 
     def step(self) -> None:
         """One twin tick at time t: messages out describing the state at t, then commands in and physics to t + tick."""
@@ -274,7 +275,7 @@ class HardwareTwin:
 
     def run(self, stop: threading.Event) -> None:
         """Tick every TICK_S of twin time until `stop` is set."""
-        period = round(TICK_S * 1e9)
+        period = round(TICK_S * NS_PER_S)
         next_t = self.clock.now_ns()
         while not stop.is_set():
             if not self.clock.sleep_until(next_t, stop):

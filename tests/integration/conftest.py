@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import TrainConfig, world_config
+from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
-from pipeline.policy.export import export_policy, golden_observations
-from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import TrainConfig, world_config
 from pipeline.sim import make_world
 
 TINY_TRAIN = {

@@ -19,13 +19,13 @@ from pipeline.analysis.decode import DECODABLE, decode
 from pipeline.analysis.report import write_report
 from pipeline.analysis.tables import Recording, episodes_table
 from pipeline.core.episode import EpisodeResult
+from pipeline.mappings import to_mapping
 from pipeline.policy.scripted import GoToGoalController
 from pipeline.record import McapLog, TruncatedLogWarning
 from pipeline.record.session import SessionLog, dumps, session_metadata
-from pipeline.settings import to_mapping
+from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate
 
 pytestmark = pytest.mark.integration
 

@@ -10,13 +10,13 @@ import yaml
 from pipeline.calibration import (
     CalibrationError,
     CalibrationSettings,
-    MissingTopicError,
     ScenarioMismatchError,
     calibrate,
     calibration_settings,
     write_calibration,
 )
 from pipeline.record import LogReadError, McapLog
+from pipeline.record.errors import MissingTopicError
 from tests.calibration_helpers import simulate_session
 
 pytestmark = pytest.mark.integration

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from pipeline.calibration import PROFILE_KEYS, Calibration, CalibrationSettings, calibrate, write_calibration
-from pipeline.config import WorldConfig, calibrated_world
+from pipeline.params import WorldConfig, calibrated_world
 from tests.calibration_helpers import record_twin_session
 
 pytestmark = pytest.mark.integration

@@ -12,12 +12,13 @@ import pytest
 import yaml
 
 from pipeline.core.scenario import load_scenario
-from pipeline.errors import ConfigError, PolicyMismatch
+from pipeline.errors import ConfigError
 from pipeline.messages.convert import EVENT_NAMES
+from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
-from pipeline.ros.deploy import DeployAborted, FleetNotReady
-from pipeline.ros.deployment import DeployRequest, deploy_policy
+from pipeline.rollout.deployment import DeployRequest, deploy_policy
+from pipeline.rollout.errors import DeployAborted, FleetNotReady
 from pipeline.ros.fleet import load_fleet
 from tests.integration.conftest import write_fleet
 

@@ -17,19 +17,19 @@ import psutil
 import pytest
 import yaml
 
+from pipeline.core.timebase import NS_PER_S
 from pipeline.messages.convert import EVENT_NAMES
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.results import STAGING
-from pipeline.ros.deploy import DeployAborted, FleetNotReady
-from pipeline.ros.deployment import DeployRequest, FleetConflict, deploy_session
+from pipeline.rollout.deployment import DeployRequest, deploy_session
+from pipeline.rollout.errors import DeployAborted, FleetConflict, FleetNotReady
 from pipeline.ros.fleet import load_fleet
 from tests.integration.conftest import write_fleet
 
 pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
-NS_PER_S = 1_000_000_000
 
 
 def stage_params(tmp_path: Path, policy: Path, fleet: Path, **deploy: object) -> Path:

@@ -8,18 +8,17 @@ import json
 import pytest
 from rosbags.rosbag2 import Reader
 
-from pipeline.config import EvalSimConfig, world_config
-from pipeline.errors import PolicyMismatch
+from pipeline.core.timebase import NS_PER_S
+from pipeline.params import EvalSimConfig, world_config
+from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.results import STAGING
+from pipeline.rollout.sim import EPISODE_GAP_NS, evaluate_session
 from pipeline.sim import make_world
-from pipeline.sim.evaluate import EPISODE_GAP_NS, evaluate_session
 from tests.integration.conftest import TINY_WORLD
 
 pytestmark = pytest.mark.integration
-
-NS_PER_S = 1_000_000_000
 
 
 def test_a_sim_recording_spans_exactly_its_episodes_and_opens_as_a_bag(tiny_policy, tmp_path):

@@ -8,16 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.analysis.replay import ReplayError, action_agreement, open_loop_divergence
-from pipeline.config import EvalSimConfig, TrainConfig, world_config
+from pipeline.analysis.errors import ReplayError
+from pipeline.analysis.replay import action_agreement, open_loop_divergence
+from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
-from pipeline.policy.export import export_policy, golden_observations
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import EvalSimConfig, TrainConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.session import SessionLog, session_metadata
-from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.rollout.sim import evaluate_policy
 from pipeline.sim import make_world
-from pipeline.sim.evaluate import evaluate_policy
 from tests.integration.conftest import TINY_TRAIN, TINY_WORLD
 
 pytestmark = pytest.mark.integration

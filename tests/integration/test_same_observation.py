@@ -7,14 +7,14 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from pipeline.config import world_config
+from pipeline.params import world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.session import SessionLog, session_metadata
-from pipeline.ros.deploy import observation_builder, odom_sample, scan_sample
+from pipeline.rollout.fleet import observation_builder, odom_sample, scan_sample
+from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate
 from tests.integration.conftest import TINY_WORLD
 
 pytestmark = pytest.mark.integration

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import torch as th
 
-from pipeline.config import SelectionConfig, TrainConfig, load_params, world_config
 from pipeline.errors import ConfigError
 from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.learn.selection import SELECTION_FILE, Selector
 from pipeline.learn.trainer import train
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import SelectionConfig, TrainConfig, load_params, world_config
 from pipeline.policy.scripted import GoToGoalController
-from pipeline.settings import from_mapping, merge, to_mapping
 from pipeline.sim import make_world
 from tests.integration.conftest import TINY_TRAIN
 

@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import TrainConfig, world_config
-from pipeline.errors import CheckpointError, PolicyError, PolicyMismatch
 from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.errors import CheckpointError
+from pipeline.learn.export import export_policy
 from pipeline.learn.trainer import train
-from pipeline.policy.export import export_policy
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import TrainConfig, world_config
+from pipeline.policy.errors import PolicyError, PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.settings import from_mapping, merge, to_mapping
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
 

@@ -6,15 +6,15 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.config import TrainConfig, load_params, world_config
 from pipeline.core.episode import summarize
+from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
-from pipeline.policy.export import export_policy, golden_observations
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import TrainConfig, load_params, world_config
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.settings import from_mapping, merge, to_mapping
+from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.evaluate import evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow

@@ -9,9 +9,9 @@ import polars as pl
 import pytest
 from scipy import stats as sps
 
-from pipeline.analysis import TableError
 from pipeline.analysis.compare import compare
-from pipeline.analysis.stats import newcombe_interval, two_proportion_z_test, wilson_interval
+from pipeline.analysis.errors import TableError
+from pipeline.core.stats import newcombe_interval, two_proportion_z_test, wilson_interval
 
 
 def table(outcomes: list[tuple[bool, bool]], times: list[float], aborted: tuple[int, ...] = ()) -> pl.DataFrame:

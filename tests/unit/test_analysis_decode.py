@@ -11,10 +11,10 @@ from rosbags.typesys import Stores, get_typestore
 
 from pipeline.analysis.decode import DECODABLE, MAX_LAYOUTS_PER_LENGTH, Decoded, Ragged, Strings, concat, decode
 from pipeline.core.scan import ScanGeometry
-from pipeline.errors import MessageError
 from pipeline.messages import convert as C
 from pipeline.messages import message_store
 from pipeline.messages import topics as T
+from pipeline.messages.errors import MessageError
 from pipeline.record import McapLog
 
 GOLDEN = Path(__file__).resolve().parents[1] / "golden" / "session.mcap"

@@ -9,7 +9,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from pipeline.analysis import AnalysisError, MissingTopicError, TopicTypeError
+from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.tables import (
     EPISODES_SCHEMA,
     Recording,
@@ -21,12 +21,13 @@ from pipeline.analysis.tables import (
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import load_scenario
 from pipeline.errors import MrlError
+from pipeline.mappings import to_mapping
 from pipeline.messages import QOS_SENSOR, TopicSpec
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.record import McapLog, McapRecorder, TruncatedLogWarning
+from pipeline.record.errors import MissingTopicError, TopicTypeError
 from pipeline.record.session import SessionLog, dumps, session_metadata
-from pipeline.settings import to_mapping
 
 NS = 1_000_000_000
 PERIOD_NS = 100_000_000

@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.analysis import AnalysisError, MissingTopicError
+from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.timing import timing_figures, timing_markdown
 from pipeline.messages.convert import TIMING_CODES
 from pipeline.record import McapLog
+from pipeline.record.errors import MissingTopicError
 from pipeline.record.session import SessionLog, dumps, session_metadata
 
 ROBOTS = ("robot_1", "robot_2", "robot_3")

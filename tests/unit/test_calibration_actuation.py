@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.calibration.actuation import CommandTimeline, VelocityTrack, estimate_actuation
-from pipeline.calibration.settings import CalibrationSettings
+from pipeline.calibration.options import CalibrationSettings
 
 NS = 1_000_000_000
 SETTINGS = CalibrationSettings(bootstrap=60, actuation_delay_max_s=0.5)

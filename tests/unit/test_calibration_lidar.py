@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.calibration.lidar import ScanSpan, clipped_moments, estimate_lidar
+from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry, cast_circles
-from pipeline.calibration.settings import CalibrationSettings
 from pipeline.core.scenario import load_scenario
 
 SCENARIO = load_scenario("obstacles")

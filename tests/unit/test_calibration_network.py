@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.calibration.network import StampStream, estimate_network, isolated_loss, rate_estimate
-from pipeline.calibration.settings import CalibrationSettings
+from pipeline.calibration.options import CalibrationSettings
 
 NS = 1_000_000_000
 SETTINGS = CalibrationSettings(bootstrap=60)

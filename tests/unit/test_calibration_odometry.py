@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.calibration.odometry import OdometryEpisode, episode_drift, estimate_odometry
-from pipeline.calibration.settings import CalibrationSettings
+from pipeline.calibration.options import CalibrationSettings
 from pipeline.sim.noise import OdometryDrift
 
 NS = 1_000_000_000

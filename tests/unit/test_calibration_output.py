@@ -14,8 +14,8 @@ from pipeline.calibration import (
     calibration_settings,
     write_calibration,
 )
-from pipeline.config import WorldConfig, calibrated_world
 from pipeline.errors import ConfigError
+from pipeline.params import WorldConfig, calibrated_world
 
 
 def ok(value: float, se: float = 0.001, unit: str = "") -> Estimate:

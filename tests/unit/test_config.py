@@ -2,9 +2,9 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.config import Params, WorldConfig, load_params, world_config
 from pipeline.errors import ConfigError
-from pipeline.settings import to_mapping
+from pipeline.mappings import to_mapping
+from pipeline.params import Params, WorldConfig, load_params, world_config
 
 
 def test_repository_params_load_into_frozen_dataclasses(params_data, write_params):

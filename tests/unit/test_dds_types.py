@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from cyclonedds.idl import Endianness, IdlStruct
 
-from pipeline.errors import MessageError
 from pipeline.messages import topics as T
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import message_store
 from pipeline.ros.idl import DdsType, dds_type, field_definitions
 

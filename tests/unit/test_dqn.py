@@ -17,7 +17,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from stable_baselines3.dqn.policies import DQNPolicy, QNetwork
 
 from pipeline.learn.dqn import DuelingDQNPolicy, DuelingQNetwork, PerDQN
-from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples, PrioritizedReplayError
+from pipeline.learn.errors import PrioritizedReplayError
+from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 
 N_CELLS = 6
 GOAL = N_CELLS - 1

@@ -9,8 +9,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from pettingzoo.test import parallel_api_test
 
+from pipeline.core.errors import ScenarioError
 from pipeline.core.scan import reduce_scan
-from pipeline.errors import ConfigError, ScenarioError
+from pipeline.errors import ConfigError
 from pipeline.sim import joint_env, parallel_env, robot_env
 from pipeline.sim.render import ROBOT_COLOURS
 

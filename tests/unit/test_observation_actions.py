@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from pipeline.core.actions import ActionCodec
+from pipeline.core.errors import ActionError
 from pipeline.core.observation import ObservationLayout
-from pipeline.errors import ActionError
 
 
 def test_paper_layout_is_17_values_for_15_beams():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline.core.observation import ObservationLayout
-from pipeline.errors import PolicyError, PolicyMismatch
+from pipeline.policy.errors import PolicyError, PolicyMismatch
 from pipeline.policy.networks import ActionNetwork, Dense
 from pipeline.policy.onnx_graph import INPUT, policy_graph
 from pipeline.policy.runtime import FORMAT, PolicyRuntime

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import yaml
 
-from pipeline.config import Params
+from pipeline.params import Params
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -42,3 +42,68 @@ def test_params_sections_match_config_and_dvc_stages():
         body = stage.get("do", stage)  # foreach stages keep their definition under `do`
         assert name in params, f"stage {name} has no params section of its own name"
         assert name in body["params"], f"stage {name} does not depend on its params section"
+
+
+def _pipeline_imports(path: Path) -> set[str]:
+    """Absolute pipeline module names imported by the file at `path`."""
+    import ast
+
+    names: set[str] = set()
+    tree = ast.parse(path.read_text())
+    typing_only = {
+        id(n)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and isinstance(block.test, ast.Name) and block.test.id == "TYPE_CHECKING"
+        for stmt in block.body
+        for n in ast.walk(stmt)
+    }
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names if a.name.startswith("pipeline")}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("pipeline"):
+            names.add(node.module)
+            names |= {f"{node.module}.{a.name}" for a in node.names}
+    return names
+
+
+def _module_file(name: str) -> Path | None:
+    parts = name.split(".")
+    for candidate in (ROOT.joinpath(*parts).with_suffix(".py"), ROOT.joinpath(*parts, "__init__.py")):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def stage_sources(script: Path) -> set[Path]:
+    """Every pipeline file that `script` imports, directly or through other pipeline modules."""
+    seen: set[Path] = set()
+    todo = [script]
+    while todo:
+        path = todo.pop()
+        for name in _pipeline_imports(path):
+            parts = name.split(".")
+            for k in range(1, len(parts) + 1):  # a package's __init__ runs on import of its modules
+                found = _module_file(".".join(parts[:k]))
+                if found is not None and found not in seen:
+                    seen.add(found)
+                    todo.append(found)
+    return seen
+
+
+def test_every_stage_depends_on_the_code_it_runs():
+    """dvc reruns a stage when a dependency changes: every pipeline file a stage imports must be one."""
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    for name, stage in stages.items():
+        body = stage.get("do", stage)
+        script = ROOT / body["cmd"].split()[1]
+        deps = [d for d in body["deps"] if not d.startswith("$")]
+        uncovered = sorted(
+            str(p.relative_to(ROOT))
+            for p in stage_sources(script)
+            if not any(
+                str(p.relative_to(ROOT)) == d or str(p.relative_to(ROOT)).startswith(d.rstrip("/") + "/") for d in deps
+            )
+        )
+        assert not uncovered, f"dvc.yaml stage {name} runs {uncovered} but does not depend on them"

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from pipeline.core.errors import ScanError
 from pipeline.core.scan import ScanGeometry, reduce_scan, uncovered_beams
-from pipeline.errors import ScanError
 
 FULL_360 = ScanGeometry(360, 0.0, math.radians(1.0), 0.12, 12.0)
 

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 import yaml
 
+from pipeline.core.errors import ScenarioError
 from pipeline.core.scenario import bundled_scenarios, load_scenario
-from pipeline.errors import ConfigError, ScenarioError
-from pipeline.settings import to_mapping
+from pipeline.errors import ConfigError
+from pipeline.mappings import to_mapping
 
 
 def test_reference_scenarios_match_the_paper():

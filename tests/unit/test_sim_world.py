@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from pipeline.config import world_config
 from pipeline.core.scenario import load_scenario
+from pipeline.params import world_config
 from pipeline.sim.world import SimWorld
 
 

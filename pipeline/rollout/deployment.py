@@ -20,19 +20,21 @@ from pathlib import Path
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.observation import ObservationLayout
 from pipeline.core.scenario import Scenario, load_scenario
-from pipeline.errors import MrlError, PolicyMismatch
+from pipeline.errors import MrlError
+from pipeline.mappings import to_mapping
 from pipeline.messages import topics as T
 from pipeline.messages.topics import TopicSpec
+from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
+from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
+from pipeline.rollout.fleet import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
-from pipeline.ros.deploy import DeployAborted, DeployRunner, FleetNotReady
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Transport, open_transport
-from pipeline.settings import to_mapping
 
 TWIN_START_TIMEOUT_S = 60.0
 SWITCH_INTERVAL_S = 0.00005
@@ -105,15 +107,6 @@ class TwinProcess:
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
-
-
-class FleetConflict(MrlError):
-    """Robots that this deployment did not start publish on the fleet's topics (a stray twin, another user)."""
-
-    def __init__(self, domain_id: int, seen: list[str], hint: str) -> None:
-        self.domain_id = domain_id
-        self.seen = tuple(seen)
-        super().__init__(f"DDS domain {domain_id} already has {'; '.join(seen)}: {hint}")
 
 
 STRAY_WATCH_S = 1.0
@@ -296,10 +289,6 @@ def check_scenario_agrees(world_scenario: str, params_source: str, fleet: Fleet,
             f"{fleet_source!r} drives in {fleet.scenario!r} (scenario {theirs.name!r}); the fleet file's "
             "`scenario` is the map the robots are in: make the two agree"
         )
-
-
-class FleetConfigMismatch(MrlError):
-    """The parameters and the fleet file describe different worlds."""
 
 
 def _holds_an_episode(recording: Path) -> bool:

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from pipeline.settings import from_mapping, merge, setting, to_mapping
+from pipeline.mappings import from_mapping, merge, setting, to_mapping
 
 Part = Literal["lidar", "actuation", "odometry", "network"]
 PARTS: tuple[Part, ...] = ("lidar", "actuation", "odometry", "network")

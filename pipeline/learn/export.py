@@ -21,9 +21,9 @@ import onnx
 import onnxruntime
 import torch as th
 
-from pipeline.errors import PolicyError
 from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.learn.modes import deterministic_actions
+from pipeline.policy.errors import PolicyError
 from pipeline.policy.networks import ActionNetwork, action_network
 from pipeline.policy.onnx_graph import INPUT, policy_graph
 

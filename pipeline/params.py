@@ -17,7 +17,7 @@ from pipeline.core.judge import ProgressDistance, RewardWeights
 from pipeline.core.observation import LayoutName, ObservationLayout
 from pipeline.core.scan import Reduction
 from pipeline.errors import ConfigError, ConfigProblem
-from pipeline.settings import from_mapping, merge, read_yaml, setting, to_mapping
+from pipeline.mappings import from_mapping, merge, read_yaml, setting, to_mapping
 
 
 @dataclass(frozen=True)

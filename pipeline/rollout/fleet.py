@@ -23,15 +23,18 @@ from tqdm import tqdm
 
 from pipeline.core.episode import EpisodeResult
 from pipeline.core.judge import EpisodeJudge, RewardWeights
-from pipeline.core.observe import ObservationBuilder
+from pipeline.core.observation import ObservationBuilder
 from pipeline.core.scan import uncovered_beams
 from pipeline.core.scenario import Scenario
-from pipeline.errors import MrlError, PolicyMismatch
+from pipeline.core.timebase import NS_PER_S
+from pipeline.errors import MrlError
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
+from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record.session import SessionLog
+from pipeline.rollout.errors import DeployAborted, FleetNotReady
 from pipeline.ros.buffers import (
     EmitterBuffer,
     JointState,
@@ -44,22 +47,6 @@ from pipeline.ros.buffers import (
 from pipeline.ros.clock import Clock, ScaledClock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Transport
-
-NS_PER_S = 1_000_000_000
-
-
-class DeployAborted(MrlError):
-    """The deployment stopped early; robots were sent zero velocity and the recording was closed."""
-
-    def __init__(self, reason: str, results: list[EpisodeResult], interrupted: bool = False) -> None:
-        self.reason = reason
-        self.results = results
-        self.interrupted = interrupted
-        super().__init__(f"deployment stopped after {len(results)} finished episode(s): {reason}")
-
-
-class FleetNotReady(MrlError):
-    """Robots did not appear, did not confirm a reset, or sent no data in time; names them."""
 
 
 def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:

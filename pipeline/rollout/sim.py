@@ -8,34 +8,25 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.config import EvalSimConfig, WorldConfig
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario
-from pipeline.errors import MrlError, PolicyMismatch
+from pipeline.core.timebase import NS_PER_S
+from pipeline.mappings import to_mapping
+from pipeline.params import EvalSimConfig, WorldConfig
+from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
-from pipeline.settings import to_mapping
+from pipeline.rollout.errors import EvaluationInterrupted
+from pipeline.rollout.outputs import write_paths_picture
 from pipeline.sim.env import MultiRobotSim
-from pipeline.sim.outputs import write_paths_picture
 
-NS_PER_S = 1_000_000_000
 EPISODE_GAP_NS = NS_PER_S
 """Simulated time between two recorded episodes, so each starts on a fresh second."""
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """Maps observations (n_robots, obs_size) to actions for the action codec."""
-
-
-class EvaluationInterrupted(MrlError):
-    """Evaluation stopped on a signal; `results` holds the episodes finished before it."""
-
-    interrupted = True
-
-    def __init__(self, results: list[EpisodeResult]) -> None:
-        self.results = results
-        super().__init__(f"evaluation interrupted after {len(results)} finished episode(s); the recording is kept")
 
 
 def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
