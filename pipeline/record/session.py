@@ -173,6 +173,10 @@ class SessionLog:
         msg = C.episode_event(t_ns, episode, step, event, robot, detail, store=self.store)
         self.recorder.write("/mrl/episode", msg, t_ns)
 
+    def start_episode(self, t_ns: int, episode: int, seed: int) -> None:
+        """The ``start`` event of `episode`, which runs from the seed `seed`."""
+        self.event(t_ns, episode, 0, "start", detail=f"seed={seed}")
+
     def timing(self, t_ns: int, kind: str, robot: str, topic: str, source_stamp_ns: int, seq: int, tick: int) -> None:
         msg = C.timing(t_ns, kind, robot, topic, source_stamp_ns, seq, tick, store=self.store)
         self.recorder.write("/mrl/timing", msg, t_ns)

@@ -398,7 +398,7 @@ class DeployRunner:
         n = len(self.namespaces)
         t_start = self.next_control_time(self.clock.now_ns())
         self.clock.sleep_until(t_start)
-        self.log.event(t_start, episode, 0, "start", detail=f"seed={seed}")
+        self.log.start_episode(t_start, episode, seed)
         self.log.map(t_start, self.scenario)
         state = self.receiver.joint_state(t_start)
         scans, geoms, odom, truth = self._arrays(state)

@@ -59,7 +59,7 @@ def run_episode(
     arrival = np.full(n, np.nan)
     step = 0
     if log is not None:
-        log.event(t0_ns, episode, 0, "start", detail=f"seed={seed}")
+        log.start_episode(t0_ns, episode, seed)
         log.map(t0_ns, sim.scenario)
         _record_state(log, sim, t0_ns)
     while True:
