@@ -65,7 +65,7 @@ def main() -> int:
             wall = time.perf_counter() - start
             t = timing_figures(recording)
             m = summarize(results, prefix="real")
-            simulated = t.controls * float(runtime.meta.get("control_period_s", 0.1))
+            simulated = t.controls * runtime.spec.world.control_period_s
             achieved = simulated / wall
             aborted = int(m["real/aborted_episodes"])
             print(

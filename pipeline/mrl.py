@@ -377,9 +377,8 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 def _replay(args: argparse.Namespace) -> int:
     from pipeline.analysis.replay_report import run_replay, write_replay
-    from pipeline.core.scenario import load_scenario
     from pipeline.mappings import from_mapping, merge, to_mapping
-    from pipeline.params import ReplayConfig, calibrated_world, world_config
+    from pipeline.params import ReplayConfig, calibrated_world
     from pipeline.policy.runtime import PolicyRuntime
 
     cfg = from_mapping(
@@ -391,15 +390,8 @@ def _replay(args: argparse.Namespace) -> int:
         "command-line options",
     )
     runtime = PolicyRuntime(args.policy)
-    meta = runtime.meta
-    where = f"{runtime.meta_path} (the world the policy was trained in)"
-    try:
-        scenario = load_scenario(meta["scenario"])
-        trained = {key: meta["noise"][key] for key in ("lidar", "odometry", "actuation")}
-        trained.update(control_period_s=meta["control_period_s"], max_steps=meta["max_steps"])
-    except (KeyError, TypeError) as exc:
-        raise CommandError(f"{where}: lacks {exc}; re-export the policy") from exc
-    worlds = {"trained": world_config(trained, source=where)}
+    scenario = runtime.spec.scenario
+    worlds = {"trained": runtime.spec.world}
     if args.calibration:
         worlds["calibrated"] = calibrated_world(worlds["trained"], Path(args.calibration))
     with _imported(args, [args.recording]) as (bag,):

@@ -21,16 +21,13 @@ import onnx
 import onnxruntime
 import torch as th
 
-from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.checkpoint import META_FILE, load_checkpoint
 from pipeline.learn.modes import deterministic_actions
+from pipeline.mappings import from_mapping
 from pipeline.policy.errors import PolicyError
 from pipeline.policy.networks import ActionNetwork, action_network
 from pipeline.policy.onnx_graph import INPUT, policy_graph
-
-FORMAT = "mrl-policy/1"
-ONNX_FILE = "policy.onnx"
-META_FILE = "policy.json"
-GOLDEN_FILE = "golden.json"
+from pipeline.policy.spec import FORMAT, GOLDEN_FILE, ONNX_FILE, SPEC_FILE, PolicySpec, write_policy_spec
 
 
 @dataclass(frozen=True)
@@ -163,30 +160,35 @@ def export_policy(
         agreement = float((np.abs(onnx_actions - torch_actions) <= tolerance).mean())
         if max_diff > tolerance:
             raise PolicyError(where, f"ONNX differs from torch by {max_diff:.3g} > tolerance {tolerance:g}")
+    sha = hashlib.sha256(data).hexdigest()
+    spec = policy_spec(meta, sha, opset, f"{where}/{META_FILE}")  # validated before any file is written
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / ONNX_FILE).write_bytes(data)
-    sha = hashlib.sha256(data).hexdigest()
     golden_doc = {
         "observations": golden.tolist(),
         "actions": torch_actions.tolist(),
         "tolerance": tolerance,
     }
     (out_dir / GOLDEN_FILE).write_text(json.dumps(golden_doc) + "\n", encoding="utf-8")
-    description = {
+    write_policy_spec(spec, out_dir / SPEC_FILE)
+    return ExportResult(
+        folder=out_dir, onnx_sha256=sha, max_abs_diff=max_diff, golden_samples=len(golden), discrete_agreement=agreement
+    )
+
+
+def policy_spec(meta: dict[str, Any], onnx_sha256: str, opset: int, source: str) -> PolicySpec:
+    """The spec of a policy exported from a checkpoint described by `meta`; ConfigError names a bad key."""
+    mapping = {
         "format": FORMAT,
-        "onnx": {"file": ONNX_FILE, "sha256": sha, "opset": opset, "input": INPUT, "output": "action"},
+        "onnx": {"file": ONNX_FILE, "sha256": onnx_sha256, "opset": opset, "input": INPUT, "output": "action"},
         "golden": GOLDEN_FILE,
         "algorithm": meta["algorithm"],
         "mode": meta["mode"],
         "policy_kind": meta["policy_kind"],
         "robots": meta["robots"],
         "observation": meta["observation"],
-        "actions": meta["actions"],
+        "world": meta["world"],
         "scenario": meta["scenario"],
-        "noise": {k: meta["world"][k] for k in ("lidar", "odometry", "actuation")},
-        "control_period_s": meta["world"]["control_period_s"],
-        "max_steps": meta["world"]["max_steps"],
-        "judge": {k: meta["world"][k] for k in ("reward", "max_steps", "collision_margin_m", "progress_distance")},
         "training": {
             "digest": meta["weights_sha256"],
             "seed": meta["train"]["seed"],
@@ -198,10 +200,7 @@ def export_policy(
         },
         "versions": {**meta["versions"], "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__},
     }
-    (out_dir / META_FILE).write_text(json.dumps(description, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    return ExportResult(
-        folder=out_dir, onnx_sha256=sha, max_abs_diff=max_diff, golden_samples=len(golden), discrete_agreement=agreement
-    )
+    return from_mapping(PolicySpec, mapping, source)
 
 
 def golden_observations(scenario: Any, world: Any, count: int, seed: int = 0) -> np.ndarray:

@@ -16,15 +16,13 @@ from typing import Any
 import numpy as np
 import onnxruntime
 
-from pipeline.core.actions import ActionCodec
-from pipeline.core.observation import LAYOUTS, ObservationLayout
+from pipeline.core.observation import ObservationLayout
+from pipeline.mappings import to_mapping
 from pipeline.policy.errors import PolicyError, PolicyMismatch
+from pipeline.policy.spec import SPEC_FILE, PolicySpec, read_policy_spec
 
-FORMAT = "mrl-policy/1"
-META_FILE = "policy.json"
 _OUTPUT_KINDS = {"tensor(float)": "continuous", "tensor(int64)": "discrete"}
 """The kind of actions an ONNX policy's output element type carries."""
-_REQUIRED = ("format", "onnx", "algorithm", "mode", "robots", "observation", "actions", "training")
 
 
 class PolicyRuntime:
@@ -36,12 +34,12 @@ class PolicyRuntime:
 
     def __init__(self, folder: str | Path, verify: bool = True) -> None:
         self.folder = Path(folder)
-        meta_path = self.folder / META_FILE if self.folder.is_dir() or not self.folder.suffix else self.folder
-        if meta_path.name != META_FILE:
-            self.folder = meta_path.parent
-        self.meta_path = meta_path
-        self.meta = self._read_meta(meta_path)
-        onnx_path = self.folder / self.meta["onnx"]["file"]
+        spec_path = self.folder / SPEC_FILE if self.folder.is_dir() or not self.folder.suffix else self.folder
+        if spec_path.name != SPEC_FILE:
+            self.folder = spec_path.parent
+        self.spec_path = spec_path
+        self.spec: PolicySpec = read_policy_spec(spec_path)
+        onnx_path = self.folder / self.spec.onnx.file
         try:
             data = onnx_path.read_bytes()
         except OSError as exc:
@@ -49,7 +47,7 @@ class PolicyRuntime:
                 str(onnx_path), f"missing or unreadable ({exc.strerror}); export the policy first"
             ) from exc
         digest = hashlib.sha256(data).hexdigest()
-        if digest != self.meta["onnx"]["sha256"]:
+        if digest != self.spec.onnx.sha256:
             raise PolicyError(str(onnx_path), "does not match the sha256 recorded in policy.json (corrupt or replaced)")
         self.digest = digest
         options = onnxruntime.SessionOptions()
@@ -59,22 +57,16 @@ class PolicyRuntime:
             self._session = onnxruntime.InferenceSession(data, options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for invalid graphs
             raise PolicyError(str(onnx_path), f"not a loadable ONNX graph ({exc})") from exc
-        self._input = self.meta["onnx"]["input"]
-        obs = self.meta["observation"]
-        self.robots: tuple[str, ...] = tuple(self.meta["robots"])
-        self.layout = ObservationLayout(obs["layout"], int(obs["n_beams"]))
-        a = self.meta["actions"]
-        self.codec = ActionCodec(a["kind"], float(a["v_max_mps"]), float(a["w_max_radps"]), tuple(a["discrete_set"]))
-        if self.layout.size != int(obs["size"]):
-            raise PolicyError(
-                str(meta_path), f"observation size {obs['size']} does not match layout {self.layout.name}"
-            )
+        self._input = self.spec.onnx.input
+        self.robots: tuple[str, ...] = self.spec.robots
+        self.layout = self.spec.world.layout()
+        self.codec = self.spec.world.codec()
         self._check_output_kind(onnx_path)
         if verify:
             self.verify_golden()
 
     def _check_output_kind(self, onnx_path: Path) -> None:
-        """Refuse a policy.json whose actions.kind is not the kind of actions its ONNX graph outputs."""
+        """Refuse a policy.json whose world.actions.kind is not the kind of actions its ONNX graph outputs."""
         output = self._session.get_outputs()[0]
         graph_kind = _OUTPUT_KINDS.get(output.type)
         if graph_kind is None:
@@ -85,30 +77,11 @@ class PolicyRuntime:
             )
         if graph_kind != self.codec.kind:
             raise PolicyError(
-                str(self.meta_path),
-                f"actions.kind is {self.codec.kind!r} but the policy was trained with {graph_kind!r} "
+                str(self.spec_path),
+                f"world.actions.kind is {self.codec.kind!r} but the policy was trained with {graph_kind!r} "
                 f"(its ONNX graph outputs {output.type} actions of shape {output.shape}); "
-                "export it again instead of editing actions.kind",
+                "export it again instead of editing world.actions.kind",
             )
-
-    @staticmethod
-    def _read_meta(path: Path) -> dict[str, Any]:
-        try:
-            meta = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise PolicyError(str(path), "missing: export the policy first (dvc repro export)") from None
-        except (OSError, json.JSONDecodeError) as exc:
-            raise PolicyError(str(path), f"unreadable or not JSON ({exc})") from exc
-        if not isinstance(meta, dict):
-            raise PolicyError(str(path), "not a policy description (expected a JSON object)")
-        missing = [k for k in _REQUIRED if k not in meta]
-        if missing:
-            raise PolicyError(str(path), f"lacks key(s) {', '.join(missing)}")
-        if meta["format"] != FORMAT:
-            raise PolicyError(str(path), f"format {meta['format']!r} is not supported; this runtime reads {FORMAT!r}")
-        if meta["observation"].get("layout") not in LAYOUTS:
-            raise PolicyError(str(path), f"unknown observation layout {meta['observation'].get('layout')!r}")
-        return meta
 
     @property
     def n_robots(self) -> int:
@@ -116,7 +89,13 @@ class PolicyRuntime:
 
     @property
     def name(self) -> str:
-        return f"{self.meta['algorithm']}/{self.meta['mode']} ({self.digest[:12]})"
+        return f"{self.spec.algorithm}/{self.spec.mode} ({self.digest[:12]})"
+
+    @property
+    def document(self) -> dict[str, Any]:
+        """The spec as plain data, for the ``policy`` document of a recording."""
+        document: dict[str, Any] = to_mapping(self.spec)
+        return document
 
     def actions(self, obs: np.ndarray) -> np.ndarray:
         """Policy outputs for the codec: (n_robots, 2) in [-1, 1] or (n_robots,) int64 indices."""
@@ -137,7 +116,7 @@ class PolicyRuntime:
 
     def verify_golden(self) -> int:
         """Re-run the golden set stored with the policy; PolicyError if an action differs. Returns its size."""
-        path = self.folder / self.meta.get("golden", "golden.json")
+        path = self.folder / self.spec.golden
         try:
             golden = json.loads(path.read_text(encoding="utf-8"))
             obs = np.asarray(golden["observations"], dtype=np.float32)
@@ -195,7 +174,7 @@ class PolicyRuntime:
             kind = self.codec.kind
             problems.append(
                 f"world.actions.kind is {action_kind!r} but the policy was trained with {kind!r} "
-                f"(policy.json actions.kind): its actions are {kind}; set world.actions.kind: {kind}, or retrain"
+                f"(policy.json world.actions.kind): its actions are {kind}; set world.actions.kind: {kind}, or retrain"
             )
         if limits is not None and (
             limits[0] < self.codec.v_max_mps - 1e-9 or limits[1] < self.codec.w_max_radps - 1e-9

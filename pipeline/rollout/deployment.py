@@ -18,7 +18,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from pipeline.core.episode import EpisodeResult, summarize
-from pipeline.core.observation import ObservationLayout
 from pipeline.core.scenario import Scenario, load_scenario
 from pipeline.errors import MrlError
 from pipeline.mappings import to_mapping
@@ -118,18 +117,17 @@ SETTLE_S = 0.3
 def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scenario) -> None:
     """Refuse a policy trained for other robots, another layout, beam count or scenario, or that commands
     more than a robot's velocity limits (its commands would be clamped: another action space)."""
-    lidar = runtime.meta["noise"]["lidar"]
-    runtime.check_fits(fleet.names, ObservationLayout(runtime.layout.name, int(lidar["beams"])))
+    runtime.check_fits(fleet.names, runtime.layout)
     problems = []
-    trained = runtime.meta.get("scenario", {}).get("name")
-    if trained is not None and trained != scenario.name:
+    trained = runtime.spec.scenario.name
+    if trained != scenario.name:
         problems.append(f"it was trained in scenario {trained!r}, the fleet drives in {scenario.name!r}")
     codec = runtime.codec
     for robot in fleet.robots:
         if codec.v_max_mps > robot.v_max_mps + 1e-9 or codec.w_max_radps > robot.w_max_radps + 1e-9:
             problems.append(
                 f"it commands up to {codec.v_max_mps:g} m/s and {codec.w_max_radps:g} rad/s (policy.json "
-                f"actions.v_max_mps, actions.w_max_radps), the fleet limits {robot.name} to {robot.v_max_mps:g} m/s "
+                f"world.actions.v_max_mps, w_max_radps), the fleet limits {robot.name} to {robot.v_max_mps:g} m/s "
                 f"and {robot.w_max_radps:g} rad/s (fleet file robots[{robot.name}].v_max_mps, w_max_radps): its "
                 "commands would be clamped; retrain with world.actions within the fleet's limits"
             )
@@ -221,8 +219,8 @@ def deploy_policy(
             "real",
             scenario.name,
             [r.namespace for r in fleet.robots],
-            float(runtime.meta.get("control_period_s", 0.1)),
-            runtime.meta,
+            runtime.spec.world.control_period_s,
+            runtime.document,
             profile=profile,
             extra={
                 "target": fleet.target,
@@ -235,7 +233,7 @@ def deploy_policy(
             "params": request.params_text,
             "scenario": dumps(to_mapping(scenario)),
             "fleet": dumps(to_mapping(fleet)),
-            "policy": dumps(runtime.meta),
+            "policy": dumps(runtime.document),
         }
         log = SessionLog(
             request.recording, [r.namespace for r in fleet.robots], session, documents, request.chunk_size_bytes

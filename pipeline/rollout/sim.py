@@ -12,6 +12,7 @@ from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.mappings import to_mapping
+from pipeline.mdp import MdpDefinition
 from pipeline.params import EvalSimConfig, WorldConfig
 from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
@@ -20,6 +21,7 @@ from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
 from pipeline.rollout.errors import EvaluationInterrupted
 from pipeline.rollout.outputs import write_paths_picture
+from pipeline.rollout.tally import EpisodeTally
 from pipeline.sim.env import MultiRobotSim
 
 EPISODE_GAP_NS = NS_PER_S
@@ -52,11 +54,10 @@ def run_episode(
     With `log`, every message of the session layout is recorded at simulated times from `t0_ns`.
     """
     obs = sim.reset(seed)
-    n = sim.n
     names = sim.scenario.robot_names
     period_ns = round(sim.world_config.control_period_s * NS_PER_S)
-    poses = [sim.world.truth.copy()]
-    arrival = np.full(n, np.nan)
+    tally = EpisodeTally(episode, seed, names, sim.world_config.control_period_s)
+    tally.start(sim.world.truth)
     step = 0
     if log is not None:
         log.start_episode(t0_ns, episode, seed)
@@ -75,31 +76,14 @@ def run_episode(
                 log.action(t_ns, episode, step - 1, ns, out[i], cmd)
                 log.cmd_vel(t_ns, ns, *cmd)
             _record_state(log, sim, t_ns + period_ns)
-            for robot, event in result.judge.events:
-                log.event(t_ns + period_ns, episode, step, event, "" if robot < 0 else names[robot])
+        tally.log_events(log, t_ns + period_ns, step, result.judge)
         obs = result.obs
-        poses.append(sim.world.truth.copy())
-        judged = result.judge
-        new = judged.reached & np.isnan(arrival)
-        arrival[new] = sim.judge.steps * sim.world_config.control_period_s
-        if judged.done.all() or judged.truncated:
+        tally.judged(result.judge, sim.judge.steps, sim.world.truth)
+        if result.judge.done.all() or result.judge.truncated:
             break
     if log is not None:
-        outcome = "team_success" if judged.team_success else "incomplete"
-        log.event(t0_ns + step * period_ns, episode, step, "end", detail=outcome)
-    traj = np.array(poses)
-    steps_xy = np.diff(traj[:, :, :2], axis=0)
-    return EpisodeResult(
-        episode=episode,
-        seed=seed,
-        steps=sim.judge.steps,
-        reached=judged.reached.copy(),
-        collided=judged.collided.copy(),
-        time_to_goal_s=arrival,
-        path_length_m=np.hypot(steps_xy[..., 0], steps_xy[..., 1]).sum(axis=0),
-        team_success=judged.team_success,
-        trajectory=traj,
-    )
+        log.event(t0_ns + step * period_ns, episode, step, "end", detail=tally.outcome())
+    return tally.result(sim.judge)
 
 
 def evaluate(
@@ -136,15 +120,18 @@ def evaluate(
     return results
 
 
-def check_action_codec(runtime: PolicyRuntime, world: WorldConfig) -> None:
-    """Refuse a world whose actions (kind, limits, discrete set) decode the policy's outputs otherwise than in
-    training: the same output would be another command (e.g. saturated at a lower limit)."""
-    differences = runtime.codec.differences(world.codec())
+def check_world_fits(runtime: PolicyRuntime, scenario: Scenario, world: WorldConfig) -> None:
+    """Refuse a world whose robots, layout or MDP (actions, reward, timing, judge; :class:`MdpDefinition`) differ
+    from the one the policy was trained in: the same outputs would mean other commands or other scores."""
+    runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
+    differences = runtime.spec.mdp.differences(MdpDefinition.of(world))
     if differences:
         raise PolicyMismatch(
             runtime.name,
-            [f"the policy (policy.json) and params world.actions differ: {d}" for d in differences]
-            + ["evaluate in the world it was trained in, or retrain with these world.actions"],
+            [
+                f"the world it was trained in (policy.json) and params.yaml's differ: {'; '.join(differences)}",
+                "evaluate in the world it was trained in, or retrain in this one",
+            ],
         )
 
 
@@ -162,8 +149,7 @@ def evaluate_policy(
     The policy is refused if it does not fit the world (robots, layout, beams, action kind). The
     recording is opened (and its path checked) before any episode runs and closed on every exit.
     """
-    runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
-    check_action_codec(runtime, world)
+    check_world_fits(runtime, scenario, world)
     sim = MultiRobotSim(scenario, world)
     log = None
     if cfg.record:
@@ -172,7 +158,7 @@ def evaluate_policy(
             scenario.name,
             scenario.robot_names,
             world.control_period_s,
-            runtime.meta,
+            runtime.document,
             profile="sim",
             extra=clock_metadata(None),
         )
@@ -180,7 +166,7 @@ def evaluate_policy(
             "params": params_text,
             "scenario": dumps(to_mapping(scenario)),
             "world": dumps(to_mapping(world)),
-            "policy": dumps(runtime.meta),
+            "policy": dumps(runtime.document),
         }
         log = SessionLog(recording, scenario.robot_names, session, documents, chunk_size=cfg.chunk_size_bytes)
     try:

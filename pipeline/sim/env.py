@@ -3,7 +3,8 @@
 Per control step: actions are decoded by core's action codec (robots that are done get zero
 velocity), MuJoCo advances one control period, the simulated lidar produces a LaserScan-shaped
 scan that core reduces to the policy's beams, core's judge decides goal/collision/timeout and
-the reward, and core's layout builds the observations. Nothing of the MDP is computed here.
+the reward, and core's layout builds the observations; these parts come from pipeline.mdp, as on a
+fleet. Nothing of the MDP is computed here.
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from pipeline.core.judge import EpisodeJudge, JudgeStep
-from pipeline.core.observation import ObservationBuilder
+from pipeline.core.judge import JudgeStep
 from pipeline.core.scenario import Scenario
+from pipeline.mdp import mdp_parts
 from pipeline.params import WorldConfig
 from pipeline.sim.world import SimWorld
 
@@ -38,14 +39,11 @@ class MultiRobotSim:
         self.scenario = scenario
         self.world_config = world
         self.world = SimWorld(scenario, world)
-        self.layout = world.layout()
-        self.codec = world.codec()
-        self.observer = ObservationBuilder(
-            scenario, self.layout, world.lidar.range_min_m, world.lidar.range_max_m, world.lidar.reduction
-        )
-        self.judge = EpisodeJudge(
-            scenario, world.reward, world.max_steps, world.collision_margin_m, world.progress_distance
-        )
+        self.mdp = mdp_parts(scenario, world)
+        self.layout = self.mdp.layout
+        self.codec = self.mdp.codec
+        self.observer = self.mdp.observer
+        self.judge = self.mdp.judge
         self.n = scenario.n_robots
         self.obs_low, self.obs_high = self.observer.low, self.observer.high
         self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))

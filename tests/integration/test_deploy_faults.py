@@ -160,7 +160,7 @@ def test_a_policy_beyond_the_fleet_limits_is_refused(tiny_policy, tmp_path):
     edited = tmp_path / "policy"
     shutil.copytree(tiny_policy, edited)
     meta = json.loads((edited / "policy.json").read_text())
-    meta["actions"]["v_max_mps"] = 4.0
+    meta["world"]["actions"]["v_max_mps"] = 4.0
     (edited / "policy.json").write_text(json.dumps(meta))
     fleet = write_fleet(tmp_path / "fleet.yaml")
     with pytest.raises(Exception) as err:

@@ -51,6 +51,6 @@ def test_a_world_with_other_action_limits_is_refused_before_anything_is_written(
     (tmp_path / "metrics.json").write_text("{}")
     with pytest.raises(PolicyMismatch) as err:
         evaluate_session(scenario, world, PolicyRuntime(tiny_policy), cfg, tmp_path, progress=False)
-    assert "actions.v_max_mps 0.4 vs 0.3" in str(err.value) and "world.actions" in str(err.value)
+    assert "world.actions.v_max_mps 0.4 vs 0.3" in str(err.value) and "policy.json" in str(err.value)
     assert {p.name for p in tmp_path.iterdir()} == {"metrics.json"}
     assert not (tmp_path / STAGING).exists()

@@ -7,11 +7,12 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
+from pipeline.mdp import mdp_parts
 from pipeline.params import world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.session import SessionLog, session_metadata
-from pipeline.rollout.fleet import observation_builder, odom_sample, scan_sample
+from pipeline.rollout.fleet import odom_sample, scan_sample
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
@@ -23,10 +24,10 @@ pytestmark = pytest.mark.integration
 def test_recorded_scans_and_odometry_rebuild_the_simulated_observations(tiny_policy, tmp_path):
     runtime = PolicyRuntime(tiny_policy)
     scenario, world = make_world(world=world_config({**TINY_WORLD, "lidar": {"sim_beams": 360, "noise_sigma_m": 0.02}}))
-    session = session_metadata("sim", scenario.name, scenario.robot_names, 0.1, runtime.meta)
+    session = session_metadata("sim", scenario.name, scenario.robot_names, 0.1, runtime.document)
     with SessionLog(tmp_path / "s.mcap", scenario.robot_names, session) as log:
         evaluate(MultiRobotSim(scenario, world), runtime.actions, 2, 0, progress=False, log=log, layout_name="rich")
-    builder = observation_builder(runtime, scenario)
+    builder = mdp_parts(scenario, runtime.spec.world).observer
     assert builder.reduction == world.lidar.reduction
     recorded: dict[int, dict[str, np.ndarray]] = defaultdict(dict)
     scans: dict[int, dict[str, object]] = defaultdict(dict)
@@ -52,3 +53,32 @@ def test_recorded_scans_and_odometry_rebuild_the_simulated_observations(tiny_pol
         np.testing.assert_allclose(rebuilt, want, rtol=0, atol=2e-6)
         checked += 1
     assert checked >= 20
+
+
+def test_the_deploy_runner_and_the_simulator_get_equal_mdp_parts_from_one_spec(tiny_policy, tmp_path):
+    """The runner's MDP is the policy's (its spec), built by the same function as the simulator's."""
+    from pipeline.rollout.fleet import DeployRunner
+    from pipeline.ros.clock import WallClock
+    from pipeline.ros.fleet import load_fleet
+    from pipeline.ros.transport import open_transport
+    from tests.integration.conftest import write_fleet
+
+    runtime = PolicyRuntime(tiny_policy)
+    spec = runtime.spec
+    fleet = load_fleet(write_fleet(tmp_path / "fleet.yaml"))
+    transport = open_transport(fleet.transport, fleet.network_settings())
+    session = session_metadata("real", spec.scenario.name, fleet.names, spec.world.control_period_s, runtime.document)
+    log = SessionLog(tmp_path / "s.mcap", fleet.names, session)
+    try:
+        runner = DeployRunner(runtime, fleet, spec.scenario, transport, WallClock(), log)
+        sim = MultiRobotSim(spec.scenario, spec.world)
+        assert runner.mdp.definition == sim.mdp.definition == spec.mdp
+        assert runner.period_ns == round(spec.world.control_period_s * 1e9)
+        assert runner.mdp.codec == sim.codec and runner.mdp.layout == sim.layout
+        judge_settings = ("max_steps", "margin_m", "distance", "weights")
+        for name in judge_settings:
+            assert getattr(runner.judge, name) == getattr(sim.judge, name), name
+        runner.close()
+    finally:
+        log.close()
+        transport.close()

@@ -12,8 +12,9 @@ import pytest
 from pipeline.core.observation import ObservationLayout
 from pipeline.policy.errors import PolicyError, PolicyMismatch
 from pipeline.policy.networks import ActionNetwork, Dense
-from pipeline.policy.onnx_graph import INPUT, policy_graph
-from pipeline.policy.runtime import FORMAT, PolicyRuntime
+from pipeline.policy.onnx_graph import policy_graph
+from pipeline.policy.runtime import PolicyRuntime
+from tests.policy_helpers import spec_mapping
 
 ROBOTS = ["robot_1", "robot_2"]
 LAYOUT = ObservationLayout("rich", 15)
@@ -35,17 +36,7 @@ def write_policy(folder: Path, kind: str) -> Path:
     (folder / "policy.onnx").write_bytes(data)
     golden = {"observations": obs.tolist(), "actions": actions, "tolerance": 1e-5}
     (folder / "golden.json").write_text(json.dumps(golden))
-    meta = {
-        "format": FORMAT,
-        "onnx": {"file": "policy.onnx", "sha256": hashlib.sha256(data).hexdigest(), "input": INPUT},
-        "golden": "golden.json",
-        "algorithm": "dqn" if discrete else "sac",
-        "mode": "shared",
-        "robots": ROBOTS,
-        "observation": {"layout": LAYOUT.name, "n_beams": LAYOUT.n_beams, "size": LAYOUT.size},
-        "actions": {"kind": kind, "v_max_mps": 0.4, "w_max_radps": 0.2, "discrete_set": ["forward", "left", "right"]},
-        "training": {},
-    }
+    meta = spec_mapping(hashlib.sha256(data).hexdigest(), kind, len(ROBOTS), LAYOUT.name, LAYOUT.n_beams)
     (folder / "policy.json").write_text(json.dumps(meta))
     return folder
 
@@ -61,12 +52,12 @@ def edit(folder: Path, name: str, change) -> None:
 def test_an_edited_actions_kind_names_the_key_and_both_kinds(tmp_path, trained, edited):
     folder = write_policy(tmp_path / "policy", trained)
     assert PolicyRuntime(folder).codec.kind == trained
-    edit(folder, "policy.json", lambda meta: meta["actions"].update(kind=edited))
+    edit(folder, "policy.json", lambda meta: meta["world"]["actions"].update(kind=edited))
     for verify in (True, False):
         with pytest.raises(PolicyError) as err:
             PolicyRuntime(folder, verify=verify)
         message = str(err.value)
-        assert message.startswith(f"{folder / 'policy.json'}: actions.kind is {edited!r}")
+        assert message.startswith(f"{folder / 'policy.json'}: world.actions.kind is {edited!r}")
         assert f"the policy was trained with {trained!r}" in message
         assert "[[" not in message and "\n" not in message  # no arrays of numbers to compare by eye
 

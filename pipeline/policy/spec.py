@@ -1,0 +1,148 @@
+"""The policy spec: everything a runtime needs to know about an exported policy, as one typed, versioned file.
+
+``policy.json`` beside ``policy.onnx`` is written by export (:mod:`pipeline.learn.export`) and read by
+the runtime (:mod:`pipeline.policy.runtime`) with the same strict rules as params.yaml: an unknown,
+missing, mistyped or out-of-range key is an error naming it, and nothing is filled in by a default.
+It records the whole world the policy was trained in (the same keys as params.yaml's ``world``), so
+the MDP a fleet runs (:func:`pipeline.mdp.mdp_parts`) is the one of training, and the scenario.
+
+Format ``mrl-policy/2``; files of format 1 (free-form, read with defaults) are refused with the
+command that exports them again.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from pipeline.core.observation import LayoutName
+from pipeline.core.scenario import Scenario
+from pipeline.mappings import from_mapping, setting, to_mapping
+from pipeline.mdp import MdpDefinition
+from pipeline.params import Algorithm, Mode, WorldConfig
+from pipeline.policy.errors import PolicyError
+from pipeline.policy.networks import PolicyKind
+
+FORMAT = "mrl-policy/2"
+SPEC_FILE = "policy.json"
+ONNX_FILE = "policy.onnx"
+GOLDEN_FILE = "golden.json"
+
+
+@dataclass(frozen=True)
+class OnnxFile:
+    """The ONNX graph: file name beside the spec, its sha256, opset, input and output names."""
+
+    file: str = setting()
+    sha256: str = setting()
+    opset: int = setting(ge=7, le=30)
+    input: str = setting()
+    output: str = setting()
+
+
+@dataclass(frozen=True)
+class ObservationInput:
+    """The graph's input: the observation layout, its lidar beams and the vector's size per robot."""
+
+    layout: LayoutName = setting()
+    n_beams: int = setting(ge=1, le=4096)
+    size: int = setting(ge=1)
+
+
+@dataclass(frozen=True)
+class TrainingRecord:
+    """Where the weights come from: the checkpoint's digest, seed, budget used, convergence."""
+
+    digest: str = setting()
+    seed: int = setting(ge=0)
+    world_steps: int = setting(ge=0)
+    episodes: int = setting(ge=0)
+    converged_at_episode: int | None = setting(ge=0)
+    interrupted: bool = setting()
+    round: str = setting(allow_empty=True)
+
+
+@dataclass(frozen=True)
+class Versions:
+    """Library versions of training and export."""
+
+    stable_baselines3: str = setting()
+    torch: str = setting()
+    onnx: str = setting()
+    onnxruntime: str = setting()
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """One exported policy (``policy.json``)."""
+
+    format: Literal["mrl-policy/2"] = setting()
+    onnx: OnnxFile = setting()
+    golden: str = setting()
+    algorithm: Algorithm = setting()
+    mode: Mode = setting()
+    policy_kind: PolicyKind = setting()
+    robots: tuple[str, ...] = setting(min_len=1)
+    observation: ObservationInput = setting()
+    world: WorldConfig = setting()
+    """The world the policy was trained in (params.yaml ``world`` keys, calibration included)."""
+    scenario: Scenario = setting()
+    training: TrainingRecord = setting()
+    versions: Versions = setting()
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad: list[tuple[str, object, str]] = []
+        layout = self.world.layout()
+        if (self.observation.layout, self.observation.n_beams, self.observation.size) != (
+            layout.name,
+            layout.n_beams,
+            layout.size,
+        ):
+            bad.append(
+                (
+                    "observation",
+                    to_mapping(self.observation),
+                    f"the layout of world ({layout.name!r} with {layout.n_beams} beams: {layout.size} values)",
+                )
+            )
+        if self.robots != self.scenario.robot_names:
+            bad.append(("robots", list(self.robots), f"the scenario's robots {list(self.scenario.robot_names)}"))
+        return bad
+
+    @property
+    def mdp(self) -> MdpDefinition:
+        """The MDP the policy was trained in."""
+        return MdpDefinition.of(self.world)
+
+    def to_json(self) -> str:
+        return json.dumps(to_mapping(self), indent=2, sort_keys=True) + "\n"
+
+
+def read_policy_spec(path: str | Path) -> PolicySpec:
+    """Read and validate ``policy.json``: PolicyError for an unreadable or old file, ConfigError naming each bad key."""
+    p = Path(path)
+    try:
+        data: Any = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PolicyError(str(p), "missing: export the policy first (dvc repro export)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PolicyError(str(p), f"unreadable or not JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise PolicyError(str(p), "not a policy spec (expected a JSON object)")
+    fmt = data.get("format")
+    if fmt != FORMAT:
+        if isinstance(fmt, str) and fmt.startswith("mrl-policy/"):
+            raise PolicyError(
+                str(p),
+                f"format {fmt!r} was written by an earlier export; this runtime reads {FORMAT!r}: export the policy "
+                "again from its checkpoint (python stages/export.py --round <round>, or dvc repro export)",
+            )
+        raise PolicyError(str(p), f"format {fmt!r} is not a policy spec; this runtime reads {FORMAT!r}")
+    return from_mapping(PolicySpec, data, str(p))
+
+
+def write_policy_spec(spec: PolicySpec, path: str | Path) -> None:
+    """Write `spec` as ``policy.json`` (keys sorted, so equal specs give equal bytes)."""
+    Path(path).write_text(spec.to_json(), encoding="utf-8")
