@@ -30,7 +30,7 @@ from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
-from pipeline.rollout.fleet import DeployRunner
+from pipeline.rollout.runner import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Transport, open_transport

@@ -12,7 +12,7 @@ from pipeline.params import world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.session import SessionLog, session_metadata
-from pipeline.rollout.fleet import odom_sample, scan_sample
+from pipeline.rollout.runner import odom_sample, scan_sample
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
@@ -57,7 +57,7 @@ def test_recorded_scans_and_odometry_rebuild_the_simulated_observations(tiny_pol
 
 def test_the_deploy_runner_and_the_simulator_get_equal_mdp_parts_from_one_spec(tiny_policy, tmp_path):
     """The runner's MDP is the policy's (its spec), built by the same function as the simulator's."""
-    from pipeline.rollout.fleet import DeployRunner
+    from pipeline.rollout.runner import DeployRunner
     from pipeline.ros.clock import WallClock
     from pipeline.ros.fleet import load_fleet
     from pipeline.ros.transport import open_transport
