@@ -29,8 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.core.timebase import NS_PER_S
-
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
@@ -38,6 +36,7 @@ if str(ROOT) not in sys.path:
 from pipeline.analysis.tables import EPISODE_TOPIC, Recording  # noqa: E402
 from pipeline.core.scan import ScanGeometry  # noqa: E402
 from pipeline.core.scenario import load_scenario  # noqa: E402
+from pipeline.core.timebase import NS_PER_S  # noqa: E402
 from pipeline.mappings import to_mapping  # noqa: E402
 from pipeline.messages import convert as C  # noqa: E402
 from pipeline.messages import message_store  # noqa: E402
@@ -51,7 +50,7 @@ EPISODE_S = 60
 RESET_S = 2
 BEAMS = 360
 POOL = 200
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: start events carry the seed in its own field
 _STAMP = struct.Struct("<iI")
 
 
@@ -114,7 +113,7 @@ def generate(path: Path, hours: float, n_robots: int) -> int:
             phase, episode = k % cycle_ticks, k // cycle_ticks
             j = k % POOL
             if phase == 0:
-                log.event(t, episode, 0, "start", detail=f"seed={episode}")
+                log.start_episode(t, episode, episode)
                 count += 1
             for ns in robots:
                 write(f"/{ns}/odom", _stamped(pools[f"/{ns}/odom"][j], t), t, t)

@@ -22,9 +22,11 @@ from pipeline.core.actions import ActionCodec
 from pipeline.core.observation import ObservationBuilder, ObservationLayout
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario, load_scenario
-from pipeline.mappings import to_mapping
+from pipeline.mappings import from_mapping, to_mapping
 from pipeline.policy.errors import PolicyMismatch
+from pipeline.policy.spec import PolicySpec
 from pipeline.record.session import SessionLog, dumps, session_metadata
+from tests.policy_helpers import spec_mapping
 
 POLICY_BEAMS = 36
 PHASES = ("stand", "goal", "turn", "arc")
@@ -61,17 +63,15 @@ class ExcitationRuntime:
         self._phase = ["stand"] * n
         self._left = np.zeros(n, dtype=int)
         self._cmd = np.zeros((n, 2))
-        self.meta: dict[str, Any] = {
-            "algorithm": "scripted",
-            "mode": mode,
-            "robots": list(self.robots),
-            "control_period_s": 0.1,
-            "scenario": {"name": scenario.name},
-            "noise": {
-                "lidar": {"beams": POLICY_BEAMS, "range_min_m": 0.12, "range_max_m": 5.0, "reduction": "sector_min"}
-            },
-            "judge": {"max_steps": max_steps, "collision_margin_m": 0.02, "progress_distance": "euclidean"},
+        world = {
+            "lidar": {"range_min_m": 0.12, "range_max_m": 5.0, "reduction": "sector_min"},
+            "actions": {"v_max_mps": v_max_mps, "w_max_radps": w_max_radps},
+            "max_steps": max_steps,
+            "progress_distance": "euclidean",
         }
+        mapping = spec_mapping("0" * 64, "continuous", n, "rich", POLICY_BEAMS, scenario.name, world)
+        self.spec = from_mapping(PolicySpec, mapping, "<excitation runtime>")
+        self.document = to_mapping(self.spec)
         angles = 2 * math.pi * np.arange(POLICY_BEAMS) / POLICY_BEAMS
         self._front = np.abs(np.angle(np.exp(1j * angles))) <= math.radians(40)
 
@@ -188,9 +188,9 @@ def simulate_session(
     builder = ObservationBuilder(scen, runtime.layout, 0.12, 5.0)
     names = scen.robot_names
     session = session_metadata(
-        "real", scen.name, names, 0.1, runtime.meta, profile=profile, extra={"time_scale": "1.0"}
+        "real", scen.name, names, 0.1, runtime.document, profile=profile, extra={"time_scale": "1.0"}
     )
-    documents = {"scenario": dumps(to_mapping(scen)), "policy": dumps(runtime.meta)}
+    documents = {"scenario": dumps(to_mapping(scen)), "policy": dumps(runtime.document)}
     t = 1_000_000_000
     with SessionLog(path, names, session, documents) as log:
 
@@ -202,7 +202,7 @@ def simulate_session(
             scans = world.scan()
             cmd = np.zeros((scen.n_robots, 2))
             if keep("/mrl/episode"):
-                log.event(t, episode, 0, "start", detail=f"seed={seed * 1000 + episode}")
+                log.start_episode(t, episode, seed * 1000 + episode)
             for tick in range(steps * 5):
                 if tick % 5 == 0:
                     obs = builder.build(list(scans), geometry, world.odometry.pose).obs

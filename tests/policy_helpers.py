@@ -5,24 +5,34 @@ from __future__ import annotations
 from typing import Any
 
 from pipeline.core.scenario import load_scenario
-from pipeline.mappings import to_mapping
+from pipeline.mappings import merge, to_mapping
 from pipeline.params import world_config
 from pipeline.policy.spec import FORMAT
 
 
 def spec_mapping(
-    sha256: str, kind: str = "continuous", n_robots: int = 2, layout: str = "rich", beams: int = 15
+    sha256: str,
+    kind: str = "continuous",
+    n_robots: int = 2,
+    layout: str = "rich",
+    beams: int = 15,
+    scenario_name: str = "obstacles",
+    world: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """What export writes to policy.json for a shared-mode policy of `n_robots` in the obstacles room."""
-    scenario = load_scenario("obstacles", n_robots)
+    """What export writes to policy.json for a shared-mode policy of `n_robots` in `scenario_name`;
+    `world` overrides further keys of the training world."""
+    scenario = load_scenario(scenario_name, n_robots)
     world = world_config(
-        {
-            "scenario": "obstacles",
-            "n_robots": n_robots,
-            "observation": layout,
-            "lidar": {"beams": beams},
-            "actions": {"kind": kind},
-        }
+        merge(
+            {
+                "scenario": scenario_name,
+                "n_robots": n_robots,
+                "observation": layout,
+                "lidar": {"beams": beams},
+                "actions": {"kind": kind},
+            },
+            world or {},
+        )
     )
     size = world.layout().size
     return {

@@ -43,7 +43,7 @@ def contract_messages(t0_ns: int = 1_700_000_000 * NS) -> list[tuple[str, Any, i
     obs = np.arange(17, dtype=np.float32) / 7
     out.append(("/mrl/observation", C.observation(t, 3, 12, "robot_1", "paper", obs, store=s)))
     out.append(("/mrl/action", C.action(t, 3, 12, "robot_1", np.array([0.25, -1.0]), (0.1, -0.2), store=s)))
-    out.append(("/mrl/episode", C.episode_event(t, 3, 0, "start", detail="seed=7", store=s)))
+    out.append(("/mrl/episode", C.episode_event(t, 3, 0, "start", store=s, seed=7)))
     out.append(("/mrl/episode", C.episode_event(t, 3, 40, "collision", robot="robot_2", store=s)))
     out.append(("/mrl/timing", C.timing(t, "receive", "robot_1", "/robot_1/scan", t - 5, 99, 4, store=s)))
     out.append(("/mrl/reset", C.reset_request(t, 4, 2**40 + 3, False, store=s)))

@@ -12,17 +12,22 @@ too many distinct layouts) go through the generic decoder of the message store, 
 land in the same columns, so the result is the same either way, to the bit.
 
 Supported types: :data:`DECODABLE` (the pipeline's recorded sensor, command and bookkeeping types;
-not ``tf2_msgs/msg/TFMessage``, a sequence of structures).
+not ``tf2_msgs/msg/TFMessage``, a sequence of structures). Given the definition a recording carries
+for a type, the layout is the one with the same fields and wire types (:func:`layout_for`), so a
+recording made before a field was added (:data:`LEGACY_LAYOUTS`) decodes without it.
 """
 
 from __future__ import annotations
 
 import operator
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
+from rosbags.interfaces import Nodetype
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from pipeline.core.timebase import NS_PER_S
 from pipeline.messages.errors import MessageError
@@ -97,6 +102,14 @@ def _twist(path: str) -> tuple[Field, ...]:
 
 
 _SCAN_FLOATS = ("angle_min", "angle_max", "angle_increment", "time_increment", "scan_time", "range_min", "range_max")
+_EPISODE_EVENT_V1: tuple[Field, ...] = (
+    *_header(),
+    Prim("episode", "<u4", "episode"),
+    Prim("step", "<u4", "step"),
+    Str("robot", "robot"),
+    Prim("event", "u1", "event"),
+    Str("detail", "detail"),
+)
 
 LAYOUTS: dict[str, tuple[Field, ...]] = {
     "geometry_msgs/msg/PoseStamped": (*_header(), *_pose("pose")),
@@ -125,14 +138,7 @@ LAYOUTS: dict[str, tuple[Field, ...]] = {
         Prim("seq", "<u8", "seq"),
         Prim("tick", "<u4", "tick"),
     ),
-    "mrl_msgs/msg/EpisodeEvent": (
-        *_header(),
-        Prim("episode", "<u4", "episode"),
-        Prim("step", "<u4", "step"),
-        Str("robot", "robot"),
-        Prim("event", "u1", "event"),
-        Str("detail", "detail"),
-    ),
+    "mrl_msgs/msg/EpisodeEvent": (*_EPISODE_EVENT_V1, Prim("seed", "<i8", "seed")),
     "mrl_msgs/msg/Action": (
         *_header(),
         Prim("episode", "<u4", "episode"),
@@ -161,7 +167,13 @@ LAYOUTS: dict[str, tuple[Field, ...]] = {
         Prim("stamp_nanosec", "<u4", "clock.nanosec"),
     ),
 }
-"""Field lists (wire order) of every type :func:`decode` reads; `path` is the attribute path in a decoded message."""
+"""Field lists (wire order) of every type :func:`decode` reads, as ``schemas/`` and ROS 2 Jazzy define them
+today; `path` is the attribute path in a decoded message."""
+
+LEGACY_LAYOUTS: dict[str, tuple[tuple[Field, ...], ...]] = {
+    "mrl_msgs/msg/EpisodeEvent": (_EPISODE_EVENT_V1,),  # before the seed field
+}
+"""Older definitions of a type that recordings still carry; :func:`layout_for` picks by the file's schema."""
 
 DECODABLE: frozenset[str] = frozenset(LAYOUTS)
 
@@ -207,6 +219,117 @@ class Decoded:
     n: int
     columns: dict[str, Column] = field(default_factory=dict)
     generic: int = 0
+
+
+# -- the layout of a recorded definition ------------------------------------------------------
+
+_ROS_DTYPES: dict[str, str] = {
+    "bool": "u1",
+    "byte": "u1",
+    "char": "u1",
+    "int8": "i1",
+    "uint8": "u1",
+    "int16": "<i2",
+    "uint16": "<u2",
+    "int32": "<i4",
+    "uint32": "<u4",
+    "int64": "<i8",
+    "uint64": "<u8",
+    "float32": "<f4",
+    "float64": "<f8",
+}
+Leaves = tuple[tuple[str, str], ...]
+"""(attribute path, wire type) of every primitive of a message in wire order: a numpy type string
+(``<u4``), ``string``, or an element type with ``[]`` (sequence) or ``[n]`` (fixed-size array)."""
+
+
+def _wire(kind: str) -> str | None:
+    if kind == "string":
+        return "string"
+    dtype = _ROS_DTYPES.get(kind)
+    return None if dtype is None else np.dtype(dtype).str
+
+
+def _field_leaves(fields: tuple[Field, ...]) -> Leaves:
+    """The :data:`Leaves` of a layout."""
+    out: list[tuple[str, str]] = []
+    for f in fields:
+        if isinstance(f, Str):
+            out.append((f.path, "string"))
+        elif isinstance(f, Seq):
+            out.append((f.path, f"{np.dtype(f.dtype).str}[]"))
+        elif isinstance(f, Fixed):
+            out.append((f.path, f"{np.dtype(f.dtype).str}[{f.count}]"))
+        else:
+            out.append((f.path, np.dtype(f.dtype).str))
+    return tuple(out)
+
+
+def _definition_leaves(typename: str, definitions: Mapping[str, Any], prefix: str = "") -> Leaves | None:
+    """The :data:`Leaves` of `typename` as rosbags parsed it into `definitions` (nested types missing there: the
+    message store's); None when a field has no layout here (a sequence of structures or of strings)."""
+    if typename in definitions:
+        fields = definitions[typename][1]
+    elif message_store().has(typename):
+        fields = message_store().field_definitions(typename)
+    else:
+        return None
+    out: list[tuple[str, str]] = []
+    for name, (node, detail) in fields:
+        path = f"{prefix}{name}"
+        if node == Nodetype.NAME:
+            inner = _definition_leaves(detail, definitions, f"{path}.")
+            if inner is None:
+                return None
+            out += inner
+            continue
+        if node == Nodetype.BASE:
+            kind, suffix = _wire(detail[0]), ""
+        elif node in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            (element_node, element), count = detail
+            if element_node != Nodetype.BASE or element[0] == "string":
+                return None
+            kind, suffix = _wire(element[0]), ("[]" if node == Nodetype.SEQUENCE else f"[{count}]")
+        else:
+            return None
+        if kind is None:
+            return None
+        out.append((path, kind + suffix))
+    return tuple(out)
+
+
+@lru_cache(maxsize=256)
+def layout_for(typename: str, schema: str | None = None) -> tuple[Field, ...]:
+    """The fields :func:`decode` reads `typename` with.
+
+    Without `schema`: :data:`LAYOUTS`'s (the definition of ``schemas/`` and ROS 2 Jazzy). With
+    `schema`, the ros2msg text a recording carries for the type (dependencies included, as MCAP
+    and rosbag2 store it): the layout of LAYOUTS or :data:`LEGACY_LAYOUTS` with the same fields
+    and wire types, e.g. an ``EpisodeEvent`` without its ``seed``. Comments and constants do not
+    matter. Raises MessageError for a type outside :data:`DECODABLE` or a definition no layout fits.
+    """
+    current = LAYOUTS.get(typename)
+    if current is None:
+        raise MessageError(typename, f"no column decoder for {typename} (known: {', '.join(sorted(LAYOUTS))})")
+    if schema is None:
+        return current
+    try:
+        definitions = get_types_from_msg(schema, typename)
+    except Exception as exc:  # the msg parser raises its own grammar errors
+        raise MessageError(typename, f"the recorded definition of {typename} does not parse: {exc}") from exc
+    leaves = _definition_leaves(typename, definitions)
+    for fields in (current, *LEGACY_LAYOUTS.get(typename, ())):
+        if leaves == _field_leaves(fields):
+            return fields
+    described = ", ".join(f"{_ros_name(kind)} {path}" for path, kind in leaves) if leaves else "fields without a layout"
+    raise MessageError(typename, f"no column decoder for the recorded definition of {typename} ({described})")
+
+
+def _ros_name(kind: str) -> str:
+    """The ROS name of a wire type of :data:`Leaves` (``<f8[]`` -> ``float64[]``), for messages."""
+    base, bracket, rest = kind.partition("[")
+    names = {np.dtype(v).str: k for k, v in _ROS_DTYPES.items() if k not in ("bool", "byte", "char")}
+    return names.get(base, base) + bracket + rest
 
 
 # -- layouts of single messages ---------------------------------------------------------------
@@ -422,18 +545,24 @@ def decode(
     deserialize: Callable[[bytes], Any] | None = None,
     where: str = "",
     log_times_ns: Sequence[int] | np.ndarray | None = None,
+    schema: str | None = None,
 ) -> Decoded:
     """Columns of the CDR messages `datas` (each with its 4-byte encapsulation header) of `typename`.
 
-    With `fast` (the default) messages that share a byte layout are read as strided numpy views;
-    the others, and every message when `fast` is False, go through `deserialize` (by default the
-    repository's message store). Raises MessageError naming `where` and the message (its log time
-    when `log_times_ns` is given, else its index) when a message does not decode, and for a type
-    outside :data:`DECODABLE`.
+    `schema` is the ros2msg definition the messages were written with (an MCAP channel's schema,
+    see :meth:`~pipeline.record.McapLog.schemas`); None: the one of ``schemas/`` and ROS 2 Jazzy.
+    The columns are those of its layout (:func:`layout_for`): an older definition gives fewer. With
+    `fast` (the default) messages that share a byte layout are read as strided numpy views; the
+    others, and every message when `fast` is False, go through `deserialize` (by default the
+    repository's message store, or types built from `schema` where it differs from the store's).
+    Raises MessageError naming `where` and the message (its log time when `log_times_ns` is given,
+    else its index) when a message does not decode, and for a type outside :data:`DECODABLE` or a
+    definition that no layout fits.
     """
-    fields = LAYOUTS.get(typename)
-    if fields is None:
-        raise MessageError(where or typename, f"no column decoder for {typename} (known: {', '.join(sorted(LAYOUTS))})")
+    try:
+        fields = layout_for(typename, schema)
+    except MessageError as exc:
+        raise MessageError(where or typename, exc.problem) from exc.__cause__
     n = len(datas)
     builder = _Builder(fields, n)
     generic_rows: list[int] = []
@@ -442,7 +571,10 @@ def decode(
     elif n:
         generic_rows = list(range(n))
     if generic_rows:
-        generic = deserialize if deserialize is not None else _store_decoder(typename)
+        if deserialize is not None:
+            generic = deserialize
+        else:
+            generic = _store_decoder(typename) if schema is None else _schema_decoder(typename, schema, where)
         for row in generic_rows:
             try:
                 msg = generic(datas[row])
@@ -459,6 +591,28 @@ def _store_decoder(typename: str) -> Callable[[bytes], Any]:
 
     def deserialize(data: bytes) -> Any:
         return store.deserialize(data, typename)
+
+    return deserialize
+
+
+def _schema_decoder(typename: str, schema: str, where: str) -> Callable[[bytes], Any]:
+    """Messages of `typename` as defined by `schema`: the message store's where its definition is the same."""
+    store = message_store()
+    if store.msgdef(typename) == schema:
+        return _store_decoder(typename)
+    try:
+        return _schema_types(typename, schema)
+    except Exception as exc:  # rosbags reports invalid definitions with several error types
+        raise MessageError(where or typename, f"the recorded definition of {typename} is not a type: {exc}") from exc
+
+
+@lru_cache(maxsize=64)
+def _schema_types(typename: str, schema: str) -> Callable[[bytes], Any]:
+    typestore = get_typestore(Stores.EMPTY)
+    typestore.register(get_types_from_msg(schema, typename))
+
+    def deserialize(data: bytes) -> Any:
+        return typestore.deserialize_cdr(data, typename)
 
     return deserialize
 

@@ -4,9 +4,11 @@
 with the recorded ``/mrl/action`` (same file, same robots): did the deployed graph act as the
 exported one does?
 
-``open_loop_divergence``: take each episode's recorded ``cmd_vel`` (as sent) and its first
+``open_loop_divergence``: take each finished episode's recorded ``cmd_vel`` (as sent) and its first
 ground-truth poses, drive the simulated world open loop with those commands at their send
 times, and measure how far the simulated robots drift from the recorded ground truth over time.
+The episodes are the windows of :mod:`pipeline.record.episodes` closed by their ``end`` event
+(``finished``); aborted and unfinished ones are left out.
 A simulator whose actuation matches the fleet's stays close for longer: this is how calibration
 is checked beyond its own fit.
 """
@@ -27,6 +29,7 @@ from pipeline.messages import convert as C
 from pipeline.params import WorldConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
+from pipeline.record.episodes import EPISODE_TOPIC, read_episode_windows
 from pipeline.sim.world import SimWorld
 
 REPLAY_TICK_S = 0.02
@@ -51,7 +54,7 @@ def check_scenario(log: McapLog, expected: str | None, what: str) -> None:
 def action_agreement(path: Path, runtime: PolicyRuntime, tolerance: float = 1e-5) -> Agreement:
     """Re-run `runtime` on every recorded control step of `path`; steps need an observation for every robot."""
     log = McapLog(path)
-    check_scenario(log, runtime.meta.get("scenario", {}).get("name"), f"policy {runtime.name}")
+    check_scenario(log, runtime.spec.scenario.name, f"policy {runtime.name}")
     topics = log.topics()
     for needed in ("/mrl/observation", "/mrl/action"):
         if needed not in topics:
@@ -97,17 +100,13 @@ class Divergence:
         return float(np.interp(t_s, self.times_s, self.mean_error_m))
 
 
-def _episodes(log: McapLog) -> list[tuple[int, int]]:
-    """(start, end) log times of every finished episode."""
-    spans, start = [], None
-    for m in log.messages(["/mrl/episode"]):
-        name = C.EVENT_NAMES.get(int(m.msg.event), "")
-        if name == "start":
-            start = m.log_time_ns
-        elif name == "end" and start is not None:
-            spans.append((start, m.log_time_ns))
-            start = None
-    return spans
+def finished_episodes(log: McapLog) -> list[tuple[int, int]]:
+    """(start, end) log times (ns) of every finished episode of `log`, the ones open-loop replay uses."""
+    if EPISODE_TOPIC not in log.topics():
+        return []
+    return [
+        (w.start_ns, w.end_ns) for w in read_episode_windows(log) if w.outcome == "finished" and w.end_ns is not None
+    ]
 
 
 def open_loop_divergence(
@@ -130,7 +129,7 @@ def open_loop_divergence(
     tick_ns = round(REPLAY_TICK_S * NS_PER_S)
     n_ticks = int(horizon_s / REPLAY_TICK_S)
     errors = []
-    for start_ns, end_ns in _episodes(log)[:max_episodes]:
+    for start_ns, end_ns in finished_episodes(log)[:max_episodes]:
         truth: dict[str, list[tuple[int, np.ndarray]]] = defaultdict(list)
         cmds: dict[str, list[tuple[int, tuple[float, float]]]] = defaultdict(list)
         wanted = [f"/{ns}/{k}" for ns in names for k in ("cmd_vel", "ground_truth")]

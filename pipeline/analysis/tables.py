@@ -2,9 +2,10 @@
 
 A :class:`Recording` opens one MCAP file of the session layout (:mod:`pipeline.record.session`),
 reads the topics an analysis asks for in one pass over the file, and decodes each topic column-wise
-(:mod:`pipeline.analysis.decode`). Episodes are delimited by the ``/mrl/episode`` events: a ``start``
-opens one, an ``end`` (or a team-level ``abort``) closes it; an episode that is never closed (the
-recorder was killed) or that saw any ``abort`` counts as aborted. A salvaged file (no summary, read
+(:mod:`pipeline.analysis.decode`). Episodes are the windows that :mod:`pipeline.record.episodes` reads
+from the ``/mrl/episode`` events (a ``start`` opens one, an ``end`` or a team-level ``abort`` closes
+it), every outcome of them: an episode that is never closed (the recorder was killed, or a new start
+came first) or that saw any ``abort`` counts as aborted. A salvaged file (no summary, read
 up to its last complete chunk) is analysed like any other: the reader's TruncatedLogWarning is
 raised as usual and :attr:`Recording.salvaged` and the ``salvaged`` column say so.
 
@@ -19,8 +20,8 @@ import json
 import math
 import os
 import re
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -32,15 +33,15 @@ from pipeline.core.scenario import Scenario, load_scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
 from pipeline.messages import topics as T
-from pipeline.messages.convert import EVENT_NAMES
+from pipeline.messages.convert import EVENT_NAMES, NO_SEED
 from pipeline.record import McapLog
+from pipeline.record.episodes import EPISODE_TOPIC as EPISODE_TOPIC  # re-exported: mrl and benchmarks use it
+from pipeline.record.episodes import EpisodeWindow, EventRow, episode_windows
 from pipeline.record.errors import MissingTopicError, TopicTypeError
 
-EPISODE_TOPIC = "/mrl/episode"
 PoseKind = Literal["ground_truth", "odom"]
 POSE_TYPES: dict[str, str] = {"ground_truth": T.POSE_STAMPED, "odom": T.ODOMETRY}
 _ROBOT_TOPIC = re.compile(r"^/([^/]+)/(scan|odom|ground_truth|cmd_vel)$")
-_SEED = re.compile(r"(?:^|[\s,;])seed=(-?\d+)")
 _INT64_MAX = np.iinfo(np.int64).max
 DECODE_BATCH = 16384
 """Messages of one topic decoded together while a file is read (bounds the raw bytes held in memory)."""
@@ -90,22 +91,33 @@ class SessionInfo:
     training_digest: str
 
 
-@dataclass
-class _Window:
-    """One episode as its events delimit it (log times in ns)."""
+@dataclass(frozen=True)
+class _Episode:
+    """What the tables read from one episode window (log times in ns)."""
 
-    episode: int
-    start_ns: int
-    seed: int | None
-    end_ns: int | None = None
-    end_step: int | None = None
-    end_detail: str = ""
-    closed: bool = False
-    aborted: bool = False
-    abort_reasons: list[str] = field(default_factory=list)
-    team_success: bool = False
-    max_step: int = 0
-    robot_events: dict[str, dict[str, tuple[int, int]]] = field(default_factory=dict)  # robot -> event -> (t, step)
+    window: EpisodeWindow
+    aborted: bool  # not finished, any abort event, or an end 'aborted'
+    abort_reason: str
+    end: str  # the end event's detail; 'aborted' after a team abort; '' when unfinished
+    team_success: bool  # a team-level success or an end 'team_success', and not aborted
+    max_step: int
+    robot_events: Mapping[str, Mapping[str, tuple[int, int]]]  # robot -> event -> (t, step) of its first
+
+
+def _episode(w: EpisodeWindow) -> _Episode:
+    reasons = list(w.abort_reasons)
+    if w.outcome == "unfinished":
+        why = "the recording stops inside the episode" if w.end_ns is None else "the next episode started"
+        reasons.append(f"no end event ({why})")
+    aborted = w.outcome != "finished" or bool(w.abort_reasons) or w.end_detail == "aborted"
+    team = w.end_detail == "team_success" or any(e.event == "success" and not e.robot for e in w.events)
+    robot_events: dict[str, dict[str, tuple[int, int]]] = {}
+    for e in w.events:
+        if e.robot and e.event != "abort":
+            robot_events.setdefault(e.robot, {}).setdefault(e.event, (e.t_ns, e.step))
+    end = {"finished": w.end_detail, "aborted": "aborted", "unfinished": ""}[w.outcome]
+    max_step = max(e.step for e in w.events)
+    return _Episode(w, aborted, "; ".join(reasons), end, team and not aborted, max_step, robot_events)
 
 
 class Recording:
@@ -126,10 +138,11 @@ class Recording:
         self.session = session if session is not None else self.path.stem
         self._topics = self.log.topics()
         self._metadata = self.log.metadata()
+        self._schemas = self.log.schemas()
         self.info = self._session_info()
         self._decoded: dict[str, tuple[np.ndarray, np.ndarray, Decoded]] = {}
         self._frames: dict[str, pl.DataFrame] = {}
-        self._windows: list[_Window] | None = None
+        self._windows: list[_Episode] | None = None
         self._table: pl.DataFrame | None = None
 
     # -- file facts --------------------------------------------------------------------------
@@ -219,7 +232,7 @@ class Recording:
             log_ns, pub_ns, datas = pending[topic]
             t_ns = np.array(log_ns, dtype=np.int64)
             where = f"{self.where}: topic {topic}"
-            decoded = decode(self._topics[topic], datas, where=where, log_times_ns=t_ns)
+            decoded = decode(self._topics[topic], datas, where=where, log_times_ns=t_ns, schema=self._schemas[topic])
             parts[topic].append((t_ns, np.array(pub_ns, dtype=np.int64), decoded))
             pending[topic] = ([], [], [])
 
@@ -274,51 +287,19 @@ class Recording:
             pl.col("detail"),
         )
 
-    def _episode_windows(self) -> list[_Window]:
-        if self._windows is not None:
-            return self._windows
-        windows: list[_Window] = []
-        current: _Window | None = None
-        by_number: dict[int, _Window] = {}
-        for t, episode, step, robot, event, detail in self.events().iter_rows():
-            if event == "start":
-                if current is not None and not current.closed:
-                    current.end_ns = t - 1  # a start without an end before it: the episode never ended
-                seed_match = _SEED.search(detail)
-                current = _Window(episode, t, int(seed_match.group(1)) if seed_match else None)
-                windows.append(current)
-                by_number[episode] = current
-                continue
-            window = current if current is not None and current.episode == episode else by_number.get(episode)
-            if window is None:
-                continue  # events of an episode whose start is not in the file
-            window.max_step = max(window.max_step, step)
-            if event == "end":
-                window.closed = True
-                window.end_ns, window.end_step, window.end_detail = t, step, detail
-                if detail == "aborted":
-                    window.aborted = True
-                if detail == "team_success":
-                    window.team_success = True
-            elif event == "abort":
-                window.aborted = True
-                window.abort_reasons.append(f"{robot}: {detail}" if robot else detail)
-                if not robot:
-                    window.closed = True
-                    window.end_ns, window.end_step = t, step
-                    window.end_detail = window.end_detail or "aborted"
-            elif event == "success" and not robot:
-                window.team_success = True
-            elif robot:
-                window.robot_events.setdefault(robot, {}).setdefault(event, (t, step))
-        for k, window in enumerate(windows):
-            if not window.closed:
-                window.aborted = True
-                window.abort_reasons.append("no end event (the recording stops inside the episode)")
-                if window.end_ns is None:
-                    window.end_ns = windows[k + 1].start_ns - 1 if k + 1 < len(windows) else None
-        self._windows = windows
-        return windows
+    def _event_rows(self) -> Iterator[EventRow]:
+        """The events with their seeds (-1 where the recording's definition has no seed field)."""
+        events = self.events()
+        raw = self.topic_frame(EPISODE_TOPIC)
+        seed = raw["seed"] if "seed" in raw.columns else pl.Series([NO_SEED] * raw.height)
+        for row in events.with_columns(seed.cast(pl.Int64).alias("seed")).iter_rows():
+            yield EventRow(*row)
+
+    def _episode_windows(self) -> list[_Episode]:
+        """Every episode window of the file (:func:`~pipeline.record.episodes.episode_windows`), any outcome."""
+        if self._windows is None:
+            self._windows = [_episode(w) for w in episode_windows(self._event_rows())]
+        return self._windows
 
     def episodes(self) -> pl.DataFrame:
         """One row per episode: episode, seed, start_ns, end_ns (null when the file stops inside it),
@@ -326,17 +307,17 @@ class Recording:
         abort_reason, team_success."""
         rows = [
             {
-                "episode": w.episode,
-                "seed": w.seed,
-                "start_ns": w.start_ns,
-                "end_ns": w.end_ns,
-                "steps": w.end_step,
-                "end": w.end_detail,
-                "aborted": w.aborted,
-                "abort_reason": "; ".join(w.abort_reasons),
-                "team_success": w.team_success and not w.aborted,
+                "episode": e.window.episode,
+                "seed": e.window.seed,
+                "start_ns": e.window.start_ns,
+                "end_ns": e.window.end_ns,
+                "steps": e.window.end_step,
+                "end": e.end,
+                "aborted": e.aborted,
+                "abort_reason": e.abort_reason,
+                "team_success": e.team_success,
             }
-            for w in self._episode_windows()
+            for e in self._episode_windows()
         ]
         schema = {
             "episode": pl.Int64,
@@ -356,8 +337,8 @@ class Recording:
         windows = self._episode_windows()
         if not windows or not len(t_ns):
             return np.full(len(t_ns), -1, dtype=np.int64)
-        starts = np.array([w.start_ns for w in windows], dtype=np.int64)
-        ends = np.array([_INT64_MAX if w.end_ns is None else w.end_ns for w in windows], dtype=np.int64)
+        starts = np.array([e.window.start_ns for e in windows], dtype=np.int64)
+        ends = np.array([_INT64_MAX if e.window.end_ns is None else e.window.end_ns for e in windows], dtype=np.int64)
         idx = np.searchsorted(starts, t_ns, side="right") - 1
         inside = (idx >= 0) & (t_ns <= ends[np.maximum(idx, 0)])
         return np.where(inside, idx, -1).astype(np.int64)
@@ -386,7 +367,7 @@ class Recording:
         has_events = EPISODE_TOPIC in self._topics
         self.load([*topics.values(), *([EPISODE_TOPIC] if has_events else [])])
         windows = self._episode_windows() if has_events else []
-        numbers = np.array([w.episode for w in windows], dtype=np.int64)
+        numbers = np.array([e.window.episode for e in windows], dtype=np.int64)
         columns = ["t_ns", "stamp_ns", "x_m", "y_m", "yaw_rad"] + (["v_mps", "w_radps"] if kind == "odom" else [])
         parts = []
         for robot, topic in topics.items():
@@ -442,15 +423,15 @@ class Recording:
             )
         info = self.info
         rows: list[tuple[Any, ...]] = []
-        for k, w in enumerate(windows):
+        for k, e in enumerate(windows):
+            w = e.window
             steps = w.end_step
             if steps is None:
                 latest = max((int(last_t[r][k]) for r in self.robots if last_t[r][k] >= 0), default=w.start_ns)
                 by_time = (latest - w.start_ns) // round(period * NS_PER_S) if period else 0
-                steps = max(w.max_step, int(by_time))
-            team = w.team_success and not w.aborted
+                steps = max(e.max_step, int(by_time))
             for robot in self.robots:
-                events = w.robot_events.get(robot, {})
+                events = e.robot_events.get(robot, {})
                 goal = events.get("goal")
                 reached = goal is not None
                 collided = "collision" in events
@@ -476,15 +457,15 @@ class Recording:
                         reached,
                         collided,
                         "timeout" in events,
-                        w.aborted,
+                        e.aborted,
                         ttg,
                         ttg_clock,
                         float(lengths[robot][k]),
                         sources[robot][0],
                         steps,
-                        team,
-                        w.end_detail if w.closed else "",
-                        "; ".join(w.abort_reasons),
+                        e.team_success,
+                        e.end,
+                        e.abort_reason,
                         w.start_ns,
                         w.end_ns,
                         self.salvaged,
@@ -593,7 +574,8 @@ def episodes_table(source: Source) -> pl.DataFrame:
     """One row per (episode, robot) of a session recording.
 
     Columns (:data:`EPISODES_SCHEMA`): session facts (world, scenario, policy, policy_digest,
-    profile, session = file stem, path), episode, seed (from the start event's ``seed=<n>``), robot,
+    profile, session = file stem, path), episode, seed (the start event's seed; in recordings made before
+    its seed field, the ``seed=<n>`` of its detail), robot,
     success (reached its goal without colliding), reached, collided, timeout, aborted (the episode
     saw an abort event, ended ``aborted``, or has no end event), time_to_goal_s (the goal event's
     control step x control period; null if not reached), time_to_goal_clock_s (log time from start

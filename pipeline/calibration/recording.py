@@ -2,7 +2,9 @@
 
 Per robot namespace ``ns``: ``/<ns>/ground_truth`` (PoseStamped), ``/<ns>/scan`` (LaserScan),
 ``/<ns>/odom`` (Odometry) and ``/<ns>/cmd_vel`` (Twist, logged when sent); ``/mrl/episode``
-delimits episodes when present.
+delimits episodes when present: the windows of :mod:`pipeline.record.episodes` that ended (finished
+or aborted) and the one the file stops inside, cut at the last message read. A window that a new
+start cut short is left out: the reset before that start lies somewhere inside it, unmarked.
 
 A recording without ``/mrl/episode`` (a plain ``ros2 bag record``) has its episodes inferred from
 the data: a reset puts the robots back at their starts and restarts their odometry, which shows
@@ -37,8 +39,9 @@ from pipeline.core.scenario import Scenario, load_scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
 from pipeline.mappings import to_mapping
-from pipeline.messages.convert import EVENT_NAMES, quaternion_yaw
+from pipeline.messages.convert import quaternion_yaw
 from pipeline.record import McapLog
+from pipeline.record import episodes as recorded_episodes
 from pipeline.record.errors import MissingTopicError
 
 OFFSET_QUANTILE = 2.0
@@ -125,7 +128,8 @@ class RobotData:
 
 @dataclass(frozen=True)
 class EpisodeWindow:
-    """One episode: recorder-clock times of its start and end events (ns) and its seed if recorded."""
+    """One episode: recorder-clock times (ns) of its start event and of its end (the event that closed it, else
+    the last message read), and its seed if recorded."""
 
     episode: int
     start_ns: int
@@ -217,34 +221,19 @@ def _stamped(log_ns: list[int], stamp_ns: list[int], windows: Sequence[tuple[int
     return Stamped(stamp + offset, stamp, log, offset)
 
 
-def _episodes(log: McapLog, where: str) -> tuple[list[EpisodeWindow], bool]:
-    if "/mrl/episode" not in log.topics():
-        return [], False
-    starts: dict[int, tuple[int, int | None]] = {}
-    out: list[EpisodeWindow] = []
-    last_ns = 0
-    for m in log.messages(["/mrl/episode"]):
-        last_ns = max(last_ns, m.log_time_ns)
-        event = EVENT_NAMES.get(int(m.msg.event), "")
-        episode = int(m.msg.episode)
-        if event == "start":
-            seed: int | None = None
-            detail = str(m.msg.detail)
-            if detail.startswith("seed="):
-                try:
-                    seed = int(detail[5:])
-                except ValueError:
-                    seed = None
-            starts[episode] = (m.log_time_ns, seed)
-        elif event == "end" and episode in starts:
-            start, seed = starts.pop(episode)
-            out.append(EpisodeWindow(episode, start, m.log_time_ns, seed))
-    for episode, (start, seed) in starts.items():  # an episode cut short by the end of the recording
-        out.append(EpisodeWindow(episode, start, last_ns, seed))
-    out.sort(key=lambda e: e.start_ns)
+def _episodes(windows: Sequence[recorded_episodes.EpisodeWindow], last_ns: int, where: str) -> list[EpisodeWindow]:
+    """The recorded windows calibration uses (see the module's description); the one the file stops inside ends at
+    `last_ns`, the last log time read."""
+    out = [
+        EpisodeWindow(w.episode, w.start_ns, max(w.start_ns, last_ns) if w.end_ns is None else w.end_ns, w.seed)
+        for w in windows
+        if w.outcome != "unfinished" or w.end_ns is None
+    ]
     if not out:
-        raise CalibrationError(where, "topic /mrl/episode holds no start event: the recording has no episode")
-    return out, True
+        raise CalibrationError(
+            where, "topic /mrl/episode holds no episode to calibrate with: the next start cut every one short"
+        )
+    return out
 
 
 @dataclass(frozen=True)
@@ -344,7 +333,10 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
         raise CalibrationError(
             where, f"the recording has {len(robots)} robots, scenario {scen.name!r} has {scen.n_robots}"
         )
-    episodes, has_episodes = _episodes(log, where)
+    has_episodes = recorded_episodes.EPISODE_TOPIC in topics
+    recorded = recorded_episodes.read_episode_windows(log) if has_episodes else []
+    if has_episodes and not recorded:
+        raise CalibrationError(where, "topic /mrl/episode holds no start event: the recording has no episode")
     kinds = sorted({kind for part in parts for kind in TOPICS_FOR[part]})
     wanted = [f"/{ns}/{kind}" for ns in robots for kind in kinds]
     if not has_episodes:  # poses that show the resets
@@ -381,7 +373,11 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
                 )
             )
     notes: tuple[str, ...] = ()
-    if not episodes:
+    if has_episodes:
+        last_ns = max((max(b["log"]) for b in raw.values() if b["log"]), default=0)
+        last_ns = max([last_ns, *(e.t_ns for w in recorded for e in w.events)])
+        episodes = _episodes(recorded, last_ns, where)
+    else:
         all_log = [t for b in raw.values() for t in b["log"]]
         if not all_log:
             raise CalibrationError(where, "the recording holds no messages on the robots' topics")

@@ -17,9 +17,11 @@ import numpy as np
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.timebase import NS_PER_S
 from pipeline.messages import topics as T
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import MessageStore, message_store
 
 _ZERO36 = np.zeros(36, dtype=np.float64)
+_INT64_MAX = 2**63 - 1
 
 
 def _store(store: MessageStore | None) -> MessageStore:
@@ -210,10 +212,27 @@ EVENT_CODES: dict[str, int] = {
 EVENT_NAMES: dict[int, str] = {v: k for k, v in EVENT_CODES.items()}
 
 
+NO_SEED = -1
+"""The ``seed`` of an EpisodeEvent that is not a start, or whose episode's seed is unknown."""
+
+
 def episode_event(
-    t_ns: int, episode: int, step: int, event: str, robot: str = "", detail: str = "", store: MessageStore | None = None
+    t_ns: int,
+    episode: int,
+    step: int,
+    event: str,
+    robot: str = "",
+    detail: str = "",
+    store: MessageStore | None = None,
+    seed: int = NO_SEED,
 ) -> Any:
-    """mrl_msgs/EpisodeEvent; `event` is one of EVENT_CODES, `robot` empty for team-level events."""
+    """mrl_msgs/EpisodeEvent; `event` is one of EVENT_CODES, `robot` empty for team-level events.
+
+    `seed` is the episode's seed on ``start`` events (>= 0), NO_SEED on the others and when unknown.
+    """
+    seed = int(seed)
+    if not NO_SEED <= seed <= _INT64_MAX:
+        raise MessageError(T.EPISODE_EVENT, f"seed {seed} is out of range (0 to 2**63 - 1, or {NO_SEED}: none)")
     s = _store(store)
     return s.new(
         T.EPISODE_EVENT,
@@ -223,6 +242,7 @@ def episode_event(
         robot=robot,
         event=EVENT_CODES[event],
         detail=detail,
+        seed=seed,
     )
 
 

@@ -673,6 +673,14 @@ class McapLog:
             out.setdefault(ch.topic, ch.typename)
         return out
 
+    def schemas(self) -> dict[str, str]:
+        """``{topic: ros2msg schema text}`` of every channel, in channel order: the definition (dependencies
+        included) its messages were written with, which may be older than ``schemas/``."""
+        out: dict[str, str] = {}
+        for ch in self._channels.values():
+            out.setdefault(ch.topic, ch.schema_text)
+        return out
+
     def channel_metadata(self) -> dict[str, dict[str, str]]:
         """``{topic: channel metadata}``, e.g. ``offered_qos_profiles``."""
         out: dict[str, dict[str, str]] = {}

@@ -5,7 +5,8 @@ received, or as simulated) and ``/<ns>/cmd_vel`` (as sent). Fleet-wide: ``/tf`` 
 ``<ns>/odom`` -> ``<ns>/base_link`` -> ``<ns>/laser``, and ``map`` -> ``<ns>/ground_truth``),
 ``/mrl/map`` (walls, boxes, goals and robot bodies as markers, at every episode start), ``/mrl/observation`` and
 ``/mrl/action`` (one message per robot and control step), ``/mrl/episode`` (start, goal,
-collision, timeout, success, abort, end), ``/mrl/timing`` (deployments: every send, receive,
+collision, timeout, success, abort, end; a start carries its episode's seed; read back as episodes
+by :mod:`pipeline.record.episodes`), ``/mrl/timing`` (deployments: every send, receive,
 emitter tick and control step), ``/clock`` when the fleet's time is scaled.
 
 Metadata records: ``session`` (world sim|real, scenario, robots, profile, policy digest and
@@ -169,13 +170,26 @@ class SessionLog:
         msg = C.action(t_ns, episode, step, ns, output, command, store=self.store)
         self.recorder.write("/mrl/action", msg, t_ns)
 
-    def event(self, t_ns: int, episode: int, step: int, event: str, robot: str = "", detail: str = "") -> None:
-        msg = C.episode_event(t_ns, episode, step, event, robot, detail, store=self.store)
+    def event(
+        self,
+        t_ns: int,
+        episode: int,
+        step: int,
+        event: str,
+        robot: str = "",
+        detail: str = "",
+        seed: int = C.NO_SEED,
+    ) -> None:
+        """One ``/mrl/episode`` event; `seed` (>= 0) belongs on ``start`` events (see :meth:`start_episode`)."""
+        msg = C.episode_event(t_ns, episode, step, event, robot, detail, store=self.store, seed=seed)
         self.recorder.write("/mrl/episode", msg, t_ns)
 
     def start_episode(self, t_ns: int, episode: int, seed: int) -> None:
-        """The ``start`` event of `episode`, which runs from the seed `seed`."""
-        self.event(t_ns, episode, 0, "start", detail=f"seed={seed}")
+        """The ``start`` event of `episode`, which runs from the seed `seed` (>= 0), carried in its ``seed`` field.
+
+        Readers: :func:`pipeline.record.episodes.episode_windows`.
+        """
+        self.event(t_ns, episode, 0, "start", seed=seed)
 
     def timing(self, t_ns: int, kind: str, robot: str, topic: str, source_stamp_ns: int, seq: int, tick: int) -> None:
         msg = C.timing(t_ns, kind, robot, topic, source_stamp_ns, seq, tick, store=self.store)

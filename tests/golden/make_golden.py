@@ -4,6 +4,10 @@ The recording is a small session over every topic type of the contract, several 
 metadata records, messages written slightly out of log-time order across chunks, and no
 value that depends on the machine, the clock or the installed versions, so the file is
 byte-identical on every run. ``session.json`` holds what the reader must decode from it.
+
+``session_v1.mcap`` and ``session_v1.json`` are the golden pair as it was before ``EpisodeEvent``
+got its ``seed`` field (the seed of a start was the text ``seed=<n>`` of its detail): frozen, never
+regenerated, so that recordings of that format are tested to read as they always did.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from tests.record_helpers import contract_messages, plain, topic_table
 HERE = Path(__file__).resolve().parent
 GOLDEN_MCAP = HERE / "session.mcap"
 GOLDEN_JSON = HERE / "session.json"
+GOLDEN_V1_MCAP = HERE / "session_v1.mcap"
+GOLDEN_V1_JSON = HERE / "session_v1.json"
 LIBRARY = "multirobot-sim2real (golden file)"
 METADATA = {
     "params": {"world.scenario": "obstacles", "eval.episodes": "2", "seed": "7"},

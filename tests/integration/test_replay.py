@@ -3,6 +3,8 @@ divergence of recorded commands in the simulator, on real recordings of a tiny p
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -27,12 +29,23 @@ WORLD = {**TINY_WORLD, "max_steps": 60}
 
 
 @pytest.fixture(scope="module")
-def recording(tiny_policy: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def long_policy(tiny_policy: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny policy with 60-step episodes (its spec's world.max_steps edited), for longer recordings."""
+    folder = tmp_path_factory.mktemp("long") / "policy"
+    shutil.copytree(tiny_policy, folder)
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["world"]["max_steps"] = WORLD["max_steps"]
+    (folder / "policy.json").write_text(json.dumps(spec))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def recording(long_policy: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three episodes of the tiny policy in the simulated obstacles room, recorded."""
     scenario, world = make_world(world=world_config(WORLD))
     cfg = EvalSimConfig(episodes=3, seed=77, record=True)
     path = tmp_path_factory.mktemp("replay") / "session.mcap"
-    evaluate_policy(scenario, world, PolicyRuntime(tiny_policy), cfg, path, progress=False)
+    evaluate_policy(scenario, world, PolicyRuntime(long_policy), cfg, path, progress=False)
     return path
 
 

@@ -9,7 +9,18 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from pipeline.analysis.decode import DECODABLE, MAX_LAYOUTS_PER_LENGTH, Decoded, Ragged, Strings, concat, decode
+from pipeline.analysis.decode import (
+    DECODABLE,
+    LAYOUTS,
+    LEGACY_LAYOUTS,
+    MAX_LAYOUTS_PER_LENGTH,
+    Decoded,
+    Ragged,
+    Strings,
+    concat,
+    decode,
+    layout_for,
+)
 from pipeline.core.scan import ScanGeometry
 from pipeline.messages import convert as C
 from pipeline.messages import message_store
@@ -18,6 +29,7 @@ from pipeline.messages.errors import MessageError
 from pipeline.record import McapLog
 
 GOLDEN = Path(__file__).resolve().parents[1] / "golden" / "session.mcap"
+GOLDEN_V1 = Path(__file__).resolve().parents[1] / "golden" / "session_v1.mcap"
 NS = 1_000_000_000
 SPECIAL = np.array([np.nan, np.inf, -np.inf, -0.0, 5e-324, 1e308])
 
@@ -206,6 +218,34 @@ def test_unknown_type_is_refused():
 def test_empty_input_gives_empty_columns():
     out = decode(T.LASER_SCAN, [])
     assert out.n == 0 and out.columns["stamp_ns"].shape == (0,)
+
+
+def test_layouts_are_the_definitions_of_the_schemas():
+    s = message_store()
+    for typename in DECODABLE:
+        assert layout_for(typename, s.msgdef(typename)) is LAYOUTS[typename], typename
+    assert "seed" in [f.name for f in LAYOUTS[T.EPISODE_EVENT]]
+
+
+def test_a_recording_made_before_the_seed_field_decodes_by_its_own_schema():
+    log = McapLog(GOLDEN_V1)
+    schema = log.schemas()["/mrl/episode"]
+    assert layout_for(T.EPISODE_EVENT, schema) is LEGACY_LAYOUTS[T.EPISODE_EVENT][0]
+    datas = [m.data for m in log.raw("/mrl/episode")]
+    fast = decode(T.EPISODE_EVENT, datas, schema=schema)
+    slow = decode(T.EPISODE_EVENT, datas, schema=schema, fast=False)
+    assert_same(fast, slow)
+    assert fast.generic == 0 and slow.generic == len(datas) == 6
+    assert "seed" not in fast.columns
+    assert isinstance(fast.columns["detail"], Strings) and "seed=7" in fast.columns["detail"].values
+    with pytest.raises(MessageError):  # the old bytes are not today's definition
+        decode(T.EPISODE_EVENT, datas, fast=False)
+
+
+def test_a_definition_no_layout_fits_is_refused():
+    other = message_store().msgdef(T.EPISODE_EVENT).replace("int64 seed", "float64 seed")
+    with pytest.raises(MessageError, match=r"f\.mcap: no column decoder for the recorded definition.*float64.*seed"):
+        decode(T.EPISODE_EVENT, [], schema=other, where="f.mcap")
 
 
 def test_golden_recording_decodes_the_same_both_ways():

@@ -57,8 +57,12 @@ def write_session(
     episodes: list = EPISODES,
     timing: bool = False,
     scenario_name: str = "empty",
+    legacy_seeds: bool = False,
 ) -> Path:
     """Two robots moving +0.1 m in x per control step; the events of `episodes` (EPISODES by default).
+
+    With `legacy_seeds`, start events carry their seed as recordings made before the seed field
+    did: the text ``seed=<n>`` of their detail, the seed field left at -1.
 
     With `timing`, the deploy buffers' records too: five 20 ms emitter ticks per step, each sending
     both robots' commands 50 us apart, and a control step 5 ms after each robot's odometry and scan
@@ -70,7 +74,10 @@ def write_session(
     with SessionLog(path, ROBOTS, session, docs, chunk_size=chunk_size) as log:
         for k, (seed, steps, robot_events, team_events) in enumerate(episodes):
             t0 = start_ns(k, episodes)
-            log.event(t0, k, 0, "start", detail=f"seed={seed}")
+            if legacy_seeds:
+                log.event(t0, k, 0, "start", detail=f"seed={seed}")
+            else:
+                log.start_episode(t0, k, seed)
             for step in range(steps + 1):
                 t = t0 + step * PERIOD_NS
                 for i, ns in enumerate(ROBOTS):
@@ -163,6 +170,17 @@ def test_episodes_and_events_frames(recording_path):
     assert events.columns == ["t_ns", "episode", "step", "robot", "event", "detail"]
     assert events.filter(pl.col("event") == "start").height == 5
     assert events.filter(pl.col("event") == "collision")["robot"].to_list() == ["robot_2"]
+
+
+def test_seeds_in_the_legacy_detail_text_are_read_the_same(recording_path, tmp_path):
+    legacy = write_session(tmp_path / "legacy.mcap", legacy_seeds=True)
+    events = McapLog(legacy).messages(["/mrl/episode"])
+    assert {(m.msg.seed, m.msg.detail) for m in events if m.msg.event == C.EVENT_CODES["start"]} == {
+        (-1, f"seed={seed}") for seed, *_ in EPISODES
+    }
+    assert Recording(legacy).episodes()["seed"].to_list() == [5, 6, 7, 8, 9]
+    columns = [c for c in EPISODES_SCHEMA if c not in ("session", "path")]
+    assert episodes_table(legacy).select(columns).equals(episodes_table(recording_path).select(columns))
 
 
 def test_pose_frames_carry_robot_and_episode(recording_path):
