@@ -34,6 +34,8 @@ _WORLD_KEYS = {
     "progress_distance": "world.progress_distance",
 }
 """Where each field of a definition lives in params.yaml."""
+REWARD_FIELDS = ("reward", "progress_distance")
+"""The fields that only shape the reward."""
 
 
 @dataclass(frozen=True)
@@ -70,10 +72,16 @@ class MdpDefinition:
             progress_distance=world.progress_distance,
         )
 
-    def differences(self, other: MdpDefinition) -> list[str]:
-        """One line per setting that differs: its params.yaml key, this value, then the other's."""
+    def differences(self, other: MdpDefinition, reward: bool = True) -> list[str]:
+        """One line per setting that differs: its params.yaml key, this value, then the other's.
+
+        With `reward` False the reward's settings (weights, progress measure) are left out: they do
+        not change what a policy observes or does, nor how an episode ends.
+        """
         out = []
         for f in fields(self):
+            if not reward and f.name in REWARD_FIELDS:
+                continue
             mine, theirs = getattr(self, f.name), getattr(other, f.name)
             if mine == theirs:
                 continue

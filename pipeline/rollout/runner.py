@@ -125,36 +125,38 @@ class DeployRunner:
         self._check_scans(deadline, timeout_s)
 
     def _check_scans(self, deadline: float, timeout_s: float) -> None:
-        """Wait for every robot's first scan; refuse a lidar that leaves some of the policy's beams blind."""
+        """Wait for every robot's first scan; refuse lidars that leave some of the policy's beams blind,
+        naming each such robot in fleet order."""
         n_beams = self.builder.layout.n_beams
-        pending = list(self.fleet.robots)
-        while pending:
-            for robot in list(pending):
+        first: dict[str, ScanSample] = {}
+        while len(first) < len(self.fleet.robots):
+            for robot in self.fleet.robots:
                 sample = self.receiver.latest("scan", robot.namespace)
-                if not isinstance(sample, ScanSample):
-                    continue
-                pending.remove(robot)
-                g = sample.geometry
-                blind = uncovered_beams(g, n_beams)
-                if blind:
-                    first, last = (
-                        np.degrees(g.angle_min_rad),
-                        np.degrees(g.angle_min_rad + g.angle_increment_rad * (g.n_beams - 1)),
-                    )
-                    raise PolicyMismatch(
-                        self.runtime.name,
-                        [
-                            f"it reads {n_beams} lidar beams around the robot, but {robot.topics()['scan'].name} "
-                            f"has {g.n_beams} beams from {first:.0f} to {last:.0f} deg, which leave {len(blind)} "
-                            f"of them without a return (policy beams {blind})"
-                        ],
-                    )
-            if pending:
+                if isinstance(sample, ScanSample):
+                    first.setdefault(robot.namespace, sample)
+            if len(first) < len(self.fleet.robots):
                 self._check_alive()
                 if time.monotonic() > deadline:
+                    pending = [r for r in self.fleet.robots if r.namespace not in first]
                     names = ", ".join(f"{r.name} ({r.topics()['scan'].name})" for r in pending)
                     raise FleetNotReady(f"no scan received within {timeout_s:g} s from {names}")
                 time.sleep(0.01)
+        problems = []
+        for robot in self.fleet.robots:
+            g = first[robot.namespace].geometry
+            blind = uncovered_beams(g, n_beams)
+            if blind:
+                start, end = (
+                    np.degrees(g.angle_min_rad),
+                    np.degrees(g.angle_min_rad + g.angle_increment_rad * (g.n_beams - 1)),
+                )
+                problems.append(
+                    f"it reads {n_beams} lidar beams around the robot, but {robot.topics()['scan'].name} "
+                    f"has {g.n_beams} beams from {start:.0f} to {end:.0f} deg, which leave {len(blind)} "
+                    f"of them without a return (policy beams {blind})"
+                )
+        if problems:
+            raise PolicyMismatch(self.runtime.name, problems)
 
     def _check_alive(self) -> None:
         problem = self.fleet_alive()

@@ -121,10 +121,11 @@ def evaluate(
 
 
 def check_world_fits(runtime: PolicyRuntime, scenario: Scenario, world: WorldConfig) -> None:
-    """Refuse a world whose robots, layout or MDP (actions, reward, timing, judge; :class:`MdpDefinition`) differ
-    from the one the policy was trained in: the same outputs would mean other commands or other scores."""
+    """Refuse a world whose robots, layout or MDP (observation, actions, timing, episode end; :class:`MdpDefinition`)
+    differ from the one the policy was trained in: the same outputs would mean other commands or other
+    outcomes. Reward settings may differ: evaluation reports outcomes, not returns."""
     runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
-    differences = runtime.spec.mdp.differences(MdpDefinition.of(world))
+    differences = runtime.spec.mdp.differences(MdpDefinition.of(world), reward=False)
     if differences:
         raise PolicyMismatch(
             runtime.name,

@@ -102,3 +102,13 @@ def read_policy_spec_from(mapping) -> PolicySpec:
     from pipeline.mappings import from_mapping
 
     return from_mapping(PolicySpec, mapping, "<test>")
+
+
+def test_reward_settings_can_be_left_out_of_the_comparison():
+    base = read_policy_spec_from(spec_mapping("ab" * 32))
+    other = spec_mapping("ab" * 32)
+    other["world"]["reward"]["heading_per_rad"] = 2.0
+    other["world"]["progress_distance"] = "euclidean"
+    changed = read_policy_spec_from(other)
+    assert len(base.mdp.differences(changed.mdp)) == 2
+    assert base.mdp.differences(changed.mdp, reward=False) == []
