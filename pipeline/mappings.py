@@ -30,13 +30,27 @@ def setting(
     le: float | None = None,
     lt: float | None = None,
     min_len: int | None = None,
+    max_len: int | None = None,
     allow_empty: bool = False,
+    optional: bool = False,
 ) -> Any:
     """A dataclass field with numeric bounds (inclusive `ge`/`le`, exclusive `gt`/`lt`).
 
-    Strings must be non-empty unless `allow_empty`.
+    Strings must be non-empty unless `allow_empty`. Every key must be given unless `optional`: an
+    optional key that is absent takes its default.
     """
-    meta = {"ge": ge, "gt": gt, "le": le, "lt": lt, "min_len": min_len, "allow_empty": allow_empty}
+    if optional and default is dataclasses.MISSING:
+        raise TypeError("an optional setting needs a default")
+    meta = {
+        "ge": ge,
+        "gt": gt,
+        "le": le,
+        "lt": lt,
+        "min_len": min_len,
+        "max_len": max_len,
+        "allow_empty": allow_empty,
+        "optional": optional,
+    }
     if default is dataclasses.MISSING:
         return dataclasses.field(metadata=meta)
     if isinstance(default, (list, dict)):
@@ -100,9 +114,11 @@ class _Converter:
             if not isinstance(value, (list, tuple)):
                 self.fail(key, value, _describe(tp))
                 return None
-            min_len = meta.get("min_len")
+            min_len, max_len = meta.get("min_len"), meta.get("max_len")
             if min_len is not None and len(value) < min_len:
                 self.fail(key, value, f"a list with at least {min_len} item(s)")
+            if max_len is not None and len(value) > max_len:
+                self.fail(key, value, f"a list with at most {max_len} item(s)")
             return tuple(self.convert(item_tp, item, f"{key}[{i}]", meta) for i, item in enumerate(value))
         if tp is bool:
             if not isinstance(value, bool):
@@ -161,6 +177,9 @@ class _Converter:
         before = len(self.problems)
         for name, f in fields.items():
             if name not in value:
+                if f.metadata.get("optional"):
+                    kwargs[name] = f.default
+                    continue
                 self.fail(prefix + name, MISSING, "required: " + _describe(hints[name]))
                 continue
             kwargs[name] = self.convert(hints[name], value[name], prefix + name, f.metadata)

@@ -69,8 +69,10 @@ def laser_scan(
     geometry: ScanGeometry,
     scan_time_s: float = 0.1,
     store: MessageStore | None = None,
+    time_increment_s: float | None = None,
 ) -> Any:
-    """sensor_msgs/LaserScan of `ranges_m` (n_beams,) laid out as `geometry`."""
+    """sensor_msgs/LaserScan of `ranges_m` (n_beams,) laid out as `geometry`; beams `time_increment_s` apart
+    (by default spread evenly over `scan_time_s`; 0 for a scan taken at one instant)."""
     s = _store(store)
     n = geometry.n_beams
     return s.new(
@@ -79,7 +81,7 @@ def laser_scan(
         angle_min=float(geometry.angle_min_rad),
         angle_max=float(geometry.angle_min_rad + geometry.angle_increment_rad * (n - 1)),
         angle_increment=float(geometry.angle_increment_rad),
-        time_increment=float(scan_time_s / n),
+        time_increment=float(scan_time_s / n if time_increment_s is None else time_increment_s),
         scan_time=float(scan_time_s),
         range_min=float(geometry.range_min_m),
         range_max=float(geometry.range_max_m),

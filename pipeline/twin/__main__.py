@@ -25,7 +25,7 @@ from pipeline.errors import MrlError
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.fleet import load_fleet
 from pipeline.ros.transport import open_transport
-from pipeline.twin.profile import load_profile
+from pipeline.twin.profile import load_profile_for
 from pipeline.twin.twin import HardwareTwin, Silence
 
 
@@ -91,8 +91,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         watch_lifeline(stop)
     try:
         fleet = load_fleet(args.fleet)
-        name, profile = load_profile(args.profile or fleet.twin.profile)
         scenario = load_scenario(fleet.scenario)
+        name, profile = load_profile_for(args.profile or fleet.twin.profile, scenario)
         scale = fleet.twin.time_scale if args.time_scale is None else args.time_scale
         if not 0 < scale <= 20:
             raise MrlError(f"--time-scale {scale}: must be in (0, 20]")

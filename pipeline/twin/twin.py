@@ -1,12 +1,19 @@
-"""The hardware twin: N robots' drivers on ROS 2 topics, with physics, noise, delay and loss of its own.
+"""The hardware twin: N robots' drivers on ROS 2 topics, on physics and sensors of its own.
 
-Every tick (20 ms of twin time) it applies each robot's latest ``cmd_vel`` (zero after
-`DRIVER_TIMEOUT_NS` without one, as robot drivers do), advances MuJoCo, and publishes odometry
-(at the profile's rate), ground truth (every tick, like motion capture), scans (at the lidar's
-rate, `beams` rays over 360 degrees, turned by the mounting yaw) and, when time is scaled,
-``/clock``. Each outgoing message is lost with the profile's probability or delayed by up to
-its jitter. ``/mrl/reset`` puts every robot back at its start and is answered on
-``/mrl/reset_done``.
+It does not use the training simulator: the robots are wheel-level MuJoCo bases
+(:mod:`pipeline.twin.physics`: two driven wheels with motors that lag, have a deadband and an
+acceleration limit, wheel-ground friction with slip, in a room whose boxes and walls stand where
+the profile's ``map`` puts them), and the sensors are the twin's own (:mod:`pipeline.twin.sensors`).
+
+The driver of each robot turns its latest ``cmd_vel`` (zero after `DRIVER_TIMEOUT_NS` without one,
+as robot drivers do) into wheel speeds with the NOMINAL wheel radius and separation, after the
+profile's actuation delay, first-order lag and gains. Physics advances in `PHYSICS_STEP_S` steps;
+each stream is published at its own rate, not on a common tick: odometry (encoder ticks, stamped
+in the robot's clock) at ``odometry.rate_hz``, scans when a sweep completes (``lidar.rate_hz``,
+each beam taken at its own time when the profile asks for motion distortion), ground truth at
+`TRUTH_RATE_HZ` (motion capture, on the host's clock) and, when time is scaled, ``/clock`` every
+`CLOCK_PERIOD_S`. Each outgoing message is lost (in bursts) or delayed by up to its jitter.
+``/mrl/reset`` puts every robot back at its start and is answered on ``/mrl/reset_done``.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ import heapq
 import itertools
 import math
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -27,50 +35,26 @@ from pipeline.core.timebase import NS_PER_S
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
-from pipeline.params import WorldConfig, world_config
 from pipeline.ros.clock import Clock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Publisher, Transport
-from pipeline.sim.world import SimWorld
-from pipeline.twin.profile import RealityProfile
+from pipeline.twin.physics import BaseParams, FleetPhysics
+from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M, ActuationProfile, RealityProfile
+from pipeline.twin.sensors import (
+    LIDAR_RANGE_MAX_M,
+    LIDAR_RANGE_MIN_M,
+    BurstLoss,
+    EncoderOdometry,
+    LidarSweep,
+    RobotClock,
+)
 
-TICK_S = 0.02
-PHYSICS_STEP_S = 0.005
+PHYSICS_STEP_S = 0.002
+TRUTH_RATE_HZ = 50.0
+CLOCK_PERIOD_S = 0.02
 DRIVER_TIMEOUT_NS = 500_000_000
-LIDAR_RANGE_MIN_M = 0.12
-LIDAR_RANGE_MAX_M = 8.0
-"""The twin's lidar: a 360-degree scanner measuring 0.12 to 8 m."""
-
-
-def twin_world(profile: RealityProfile) -> WorldConfig:
-    """The simulated physics and sensors of the twin's robots, from its reality profile."""
-    lidar = profile.lidar
-    return world_config(
-        {
-            "control_period_s": TICK_S,
-            "physics_timestep_s": PHYSICS_STEP_S,
-            "max_steps": 100_000,
-            "lidar": {
-                "beams": lidar.beams,
-                "sim_beams": lidar.beams,
-                "range_min_m": LIDAR_RANGE_MIN_M,
-                "range_max_m": LIDAR_RANGE_MAX_M,
-                "noise_sigma_m": lidar.noise_sigma_m,
-                "dropout_prob": lidar.dropout_prob,
-                "bias_m": lidar.bias_m,
-                "robot_radius_seen_m": 0.0,
-                "mount_yaw_rad": lidar.mount_yaw_rad,
-            },
-            "actuation": {
-                "delay_s": profile.actuation.delay_s,
-                "time_constant_s": profile.actuation.time_constant_s,
-                "linear_gain": profile.actuation.linear_gain,
-                "angular_gain": profile.actuation.angular_gain,
-            },
-            "odometry": {"drift_per_m": profile.odometry.drift_per_m},
-        },
-        source="<reality profile>",
-    )
+MAX_WAKE_NS = 20_000_000
+"""The loop wakes at least this often (twin time) to take resets and commands."""
 
 
 @dataclass(frozen=True)
@@ -84,11 +68,14 @@ class Silence:
 
 
 class LossyLink:
-    """Publishes with the profile's loss probability and delay jitter (a background thread keeps order by due time)."""
+    """Publishes with the profile's loss (in bursts, per topic) and delay jitter (a background thread keeps the
+    messages in order of their due times)."""
 
-    def __init__(self, clock: Clock, loss_prob: float, jitter_s: float, rng: np.random.Generator) -> None:
+    def __init__(
+        self, clock: Clock, loss_prob: float, jitter_s: float, rng: np.random.Generator, burst_len: float = 1.0
+    ) -> None:
         self.clock = clock
-        self.loss_prob = loss_prob
+        self.loss = BurstLoss(loss_prob, burst_len, rng)
         self.jitter_ns = int(jitter_s * NS_PER_S)
         self.rng = rng
         self._heap: list[tuple[int, int, Publisher, Any]] = []
@@ -102,7 +89,7 @@ class LossyLink:
             self._thread.start()
 
     def send(self, pub: Publisher, msg: Any, reliable: bool = False) -> None:
-        if not reliable and self.loss_prob > 0 and self.rng.random() < self.loss_prob:
+        if not reliable and self.loss.lost(pub.spec.name if hasattr(pub, "spec") else str(id(pub))):
             self.lost += 1
             return
         self.sent += 1
@@ -141,6 +128,40 @@ class LossyLink:
             self._thread.join(timeout=1.0)
 
 
+class BaseDriver:
+    """The robots' drivers: delay, first-order lag and gains on (v, w), then wheel speeds by the nominal geometry."""
+
+    def __init__(self, n: int, actuation: ActuationProfile) -> None:
+        self.actuation = actuation
+        self.delay_ns = round(actuation.delay_s * NS_PER_S)
+        self.history: deque[tuple[int, np.ndarray]] = deque()
+        self.effective = np.zeros((n, 2))
+        self.n = n
+
+    def reset(self) -> None:
+        self.history.clear()
+        self.effective = np.zeros((self.n, 2))
+
+    def wheel_targets(self, t_ns: int, commands: np.ndarray, dt_s: float) -> np.ndarray:
+        """(n, 2) wheel speeds (rad/s, left and right) for the commands (v m/s, w rad/s) received by `t_ns`."""
+        self.history.append((t_ns, np.array(commands, dtype=float)))
+        due = t_ns - self.delay_ns
+        current = np.zeros((self.n, 2))
+        while self.history and self.history[0][0] <= due:
+            current = self.history.popleft()[1]
+            if self.history and self.history[0][0] <= due:
+                continue
+            self.history.appendleft((due, current))
+            break
+        a = self.actuation
+        alpha = 1.0 - math.exp(-dt_s / a.time_constant_s) if a.time_constant_s > 0 else 1.0
+        self.effective += alpha * (current - self.effective)
+        v = self.effective[:, 0] * a.linear_gain
+        w = self.effective[:, 1] * a.angular_gain
+        half = NOMINAL_WHEEL_SEPARATION_M / 2
+        return np.stack([(v - w * half) / NOMINAL_WHEEL_RADIUS_M, (v + w * half) / NOMINAL_WHEEL_RADIUS_M], axis=1)
+
+
 class HardwareTwin:
     """Plays the drivers of `fleet`'s robots in `scenario` with the reality of `profile`."""
 
@@ -170,27 +191,51 @@ class HardwareTwin:
         self.silence = silence
         self.log = log
         self.store = message_store()
-        self.world = SimWorld(scenario, twin_world(profile))
-        self.world.reset(seed)
-        self.rng = np.random.default_rng(seed + 1)
-        self.link = LossyLink(
-            clock, profile.network.loss_prob, profile.network.jitter_s, np.random.default_rng(seed + 2)
+        base = profile.base
+        self.physics = FleetPhysics(
+            scenario,
+            BaseParams(
+                wheel_radius_left_m=base.wheel_radius_left_m,
+                wheel_radius_right_m=base.wheel_radius_right_m,
+                wheel_separation_m=base.wheel_separation_m,
+                mass_kg=base.mass_kg,
+                motor_time_constant_s=base.motor_time_constant_s,
+                deadband_radps=base.deadband_radps,
+                max_wheel_accel_radps2=base.max_wheel_accel_radps2,
+                friction=base.friction,
+            ),
+            box_offsets_m=np.array(profile.map.box_offsets_m, dtype=float).reshape(-1, 2),
+            wall_offset_m=profile.map.wall_offset_m,
+            timestep_s=PHYSICS_STEP_S,
         )
+        self.step_ns = round(self.physics.timestep_s * NS_PER_S)
         self.namespaces = [r.namespace for r in fleet.robots]
         n = len(self.namespaces)
+        self.driver = BaseDriver(n, profile.actuation)
+        self.rng = np.random.default_rng(seed + 1)
+        self.link = LossyLink(
+            clock,
+            profile.network.loss_prob,
+            profile.network.jitter_s,
+            np.random.default_rng(seed + 2),
+            profile.network.burst_len,
+        )
         self._cmd = np.zeros((n, 2))
         self._cmd_ns = np.full(n, -(2**62), dtype=np.int64)
+        self._inbox: deque[tuple[int, int, float, float]] = deque()
+        """Commands received and not yet in effect: (receive time, robot, v, w); physics takes each one at
+        its receive time, never earlier."""
         self._lock = threading.Lock()
         self._reset_request: tuple[int, int] | None = None
         self.ticks = 0
         self._silenced_at_ns: int | None = None
         self._first_reset_ns: int | None = None
-        rate = 1.0 / TICK_S
-        self.odom_every = max(1, round(rate / profile.odometry.rate_hz))
-        self.scan_every = max(1, round(rate / profile.lidar.rate_hz))
+        now = clock.now_ns()
+        self.robot_clock = RobotClock(profile.clock, now)
         self.scan_geometry = ScanGeometry(
             profile.lidar.beams, 0.0, 2 * math.pi / profile.lidar.beams, LIDAR_RANGE_MIN_M, LIDAR_RANGE_MAX_M
         )
+        self._begin_episode(now, seed)
         self.pubs: dict[str, dict[str, Publisher]] = {}
         for robot in fleet.robots:
             topics = robot.topics()
@@ -202,14 +247,30 @@ class HardwareTwin:
         ]
         self.subs.append(transport.subscribe(T.FLEET_TOPICS["reset"], self._on_reset))
 
+    def _begin_episode(self, now_ns: int, episode_seed: int) -> None:
+        """Robots at their starts, sensors restarted, with random streams of their own for this episode."""
+        streams = np.random.SeedSequence([self.seed, episode_seed]).spawn(len(self.namespaces) + 1)
+        self.physics.reset(self.scenario.starts)
+        self.driver.reset()
+        self.physics_ns = now_ns
+        self.odometry = EncoderOdometry(len(self.namespaces), self.profile.odometry, np.random.default_rng(streams[-1]))
+        self.odometry.reset(self.scenario.starts, self.physics.wheel_angles())
+        self.lidars = [
+            LidarSweep(self.profile.lidar, np.random.default_rng(streams[i]), now_ns) for i in range(len(streams) - 1)
+        ]
+        self.next_odom_ns = now_ns
+        self.odom_period_ns = round(NS_PER_S / self.profile.odometry.rate_hz)
+        self.next_truth_ns = now_ns
+        self.truth_period_ns = round(NS_PER_S / TRUTH_RATE_HZ)
+        self.last_odom_ns = now_ns
+
     def _on_cmd(self, index: int) -> Callable[[Any, Any, int], None]:
         def callback(spec: Any, msg: Any, receive_ns: int) -> None:
             v, w = C.twist_command(msg)
             if not (math.isfinite(v) and math.isfinite(w)):
                 return  # a driver ignores non-finite commands
             with self._lock:
-                self._cmd[index] = (v, w)
-                self._cmd_ns[index] = self.clock.now_ns()
+                self._inbox.append((self.clock.now_ns(), index, v, w))
 
         return callback
 
@@ -220,7 +281,12 @@ class HardwareTwin:
             self._reset_request = (int(msg.episode), int(msg.seed))
 
     def _commands(self, now_ns: int) -> np.ndarray:
+        """Each robot's latest command received by `now_ns` (zero once older than the driver's timeout)."""
         with self._lock:
+            while self._inbox and self._inbox[0][0] <= now_ns:
+                t, index, v, w = self._inbox.popleft()
+                self._cmd[index] = (v, w)
+                self._cmd_ns[index] = t
             fresh = (now_ns - self._cmd_ns) < DRIVER_TIMEOUT_NS
             return np.where(fresh[:, None], self._cmd, 0.0)
 
@@ -231,8 +297,9 @@ class HardwareTwin:
                 return
             self._cmd[:] = 0.0
             self._cmd_ns[:] = -(2**62)
+            self._inbox.clear()
         episode, seed = request
-        self.world.reset(int(np.random.SeedSequence([self.seed, seed]).generate_state(1)[0]))
+        self._begin_episode(now_ns, seed)
         if self._first_reset_ns is None:
             self._first_reset_ns = now_ns
         self.link.send(self.reset_pub, C.reset_request(now_ns, episode, seed, True, store=self.store), reliable=True)
@@ -244,47 +311,90 @@ class HardwareTwin:
         since = now_ns - self._first_reset_ns
         return since >= s.after_s * NS_PER_S and (s.duration_s is None or since < (s.after_s + s.duration_s) * NS_PER_S)
 
-    def step(self) -> None:
-        """One twin tick at time t: messages out describing the state at t, then commands in and physics to t + tick."""
-        now = self.clock.now_ns()
+    # -- physics and sensors ---------------------------------------------------------------
+
+    def _advance(self, until_ns: int) -> None:
+        """Physics steps up to `until_ns`; lidar beams taken at their times; complete sweeps published."""
+        dt = self.physics.timestep_s
+        while self.physics_ns + self.step_ns <= until_ns:
+            targets = self.driver.wheel_targets(self.physics_ns, self._commands(self.physics_ns), dt)
+            self.physics.set_wheel_targets(targets)
+            self.physics.step(1)
+            self.physics_ns += self.step_ns
+            self._take_beams(self.physics_ns)
+
+    def _take_beams(self, now_ns: int) -> None:
+        poses = None
+        for i, lidar in enumerate(self.lidars):
+            k = lidar.due(now_ns)
+            if len(k):
+                poses = self.physics.poses() if poses is None else poses
+                origin, heading = lidar.pose_of_lidar(poses[i])
+                lidar.measure(k, self.physics.cast(i, origin, lidar.world_angles(heading, k)))
+            if lidar.complete and now_ns >= lidar.end_ns:
+                self._publish_scan(i, lidar)
+                lidar.restart(lidar.end_ns)
+
+    def _publish_scan(self, i: int, lidar: LidarSweep) -> None:
+        ns = self.namespaces[i]
+        if self._silenced(ns, lidar.end_ns):
+            return
+        period_s = lidar.period_ns / NS_PER_S
+        msg = C.laser_scan(
+            self.robot_clock.stamp(lidar.start_ns),
+            f"{ns}/laser",
+            lidar.ranges.copy(),
+            self.scan_geometry,
+            period_s,
+            self.store,
+            time_increment_s=period_s / lidar.beams if self.profile.lidar.motion_distortion else 0.0,
+        )
+        self.link.send(self.pubs[ns]["scan"], msg)
+
+    def step(self, now: int | None = None) -> None:
+        """Advance to `now` (the clock's time by default) and publish every stream that is due."""
+        now = self.clock.now_ns() if now is None else now
         self._handle_reset(now)
         self.ticks += 1
-        self._publish(now)
-        self.world.step(self._commands(now))
-
-    def _publish(self, now: int) -> None:
-        truth = self.world.truth
-        odom_pose = self.world.odometry.pose
-        velocity = self.world.body_velocity()
-        scans = self.world.scan() if self.ticks % self.scan_every == 0 else None
-        for i, ns in enumerate(self.namespaces):
-            if self._silenced(ns, now):
-                continue
-            pubs = self.pubs[ns]
-            self.link.send(pubs["ground_truth"], C.pose_stamped(now, "map", truth[i], store=self.store))
-            if self.ticks % self.odom_every == 0:
-                vel = (float(velocity[i, 0]), float(velocity[i, 1]))
-                self.link.send(pubs["odom"], C.odometry(now, ns, odom_pose[i], vel, store=self.store))
-            if scans is not None:
-                msg = C.laser_scan(
-                    now, f"{ns}/laser", scans[i], self.scan_geometry, 1.0 / self.profile.lidar.rate_hz, self.store
-                )
-                self.link.send(pubs["scan"], msg)
+        self._advance(now)
+        t = self.physics_ns
+        if t >= self.next_truth_ns:
+            truth = self.physics.poses()
+            for i, ns in enumerate(self.namespaces):
+                if not self._silenced(ns, t):
+                    msg = C.pose_stamped(t, "map", truth[i], store=self.store)
+                    self.link.send(self.pubs[ns]["ground_truth"], msg)
+            self.next_truth_ns += self.truth_period_ns * max(1, (t - self.next_truth_ns) // self.truth_period_ns + 1)
+        if t >= self.next_odom_ns:
+            self.odometry.update(self.physics.wheel_angles(), (t - self.last_odom_ns) / NS_PER_S)
+            self.last_odom_ns = t
+            stamp = self.robot_clock.stamp(t)
+            for i, ns in enumerate(self.namespaces):
+                if not self._silenced(ns, t):
+                    vel = (float(self.odometry.velocity[i, 0]), float(self.odometry.velocity[i, 1]))
+                    msg = C.odometry(stamp, ns, self.odometry.pose[i], vel, store=self.store)
+                    self.link.send(self.pubs[ns]["odom"], msg)
+            self.next_odom_ns += self.odom_period_ns * max(1, (t - self.next_odom_ns) // self.odom_period_ns + 1)
         if self.clock_pub is not None:
             self.clock_pub.publish(C.clock(now, store=self.store))
 
+    def next_wake_ns(self) -> int:
+        """The next time a stream is due (or `MAX_WAKE_NS` from now, to take resets and commands)."""
+        due = [self.next_truth_ns, self.next_odom_ns, *(lidar.end_ns for lidar in self.lidars)]
+        if self.clock_pub is not None:
+            due.append(self.physics_ns + round(CLOCK_PERIOD_S * NS_PER_S))
+        return min(min(due), self.physics_ns + MAX_WAKE_NS)
+
     def run(self, stop: threading.Event) -> None:
-        """Tick every TICK_S of twin time until `stop` is set."""
-        period = round(TICK_S * NS_PER_S)
-        next_t = self.clock.now_ns()
+        """Run until `stop` is set, waking when a stream is due."""
         while not stop.is_set():
-            if not self.clock.sleep_until(next_t, stop):
+            wake = max(self.next_wake_ns(), self.physics_ns + self.step_ns)
+            if not self.clock.sleep_until(wake, stop):
                 break
-            self.step()
-            next_t += period
-            behind = self.clock.now_ns() - next_t
-            if behind > 5 * period:  # the host stalled: do not replay the missed ticks in a burst
-                next_t += (behind // period) * period
+            behind = self.clock.now_ns() - wake
+            if behind > 5 * MAX_WAKE_NS:  # the host stalled: jump instead of replaying the missed time in a burst
+                self.physics_ns += (behind // self.step_ns) * self.step_ns
+            self.step(wake)
 
     def close(self) -> None:
         self.link.close()
@@ -295,4 +405,3 @@ class HardwareTwin:
                 pub.close()
         if self.clock_pub is not None:
             self.clock_pub.close()
-        self.reset_pub.close()

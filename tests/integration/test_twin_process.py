@@ -52,3 +52,72 @@ def test_twin_refuses_bad_input_with_a_clear_message(tmp_path):
     proc = start_twin("--fleet", str(fleet), "--silence", "robot_9@1.0")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and "no robot 'robot_9' in the fleet" in err and "Traceback" not in err
+
+
+def test_the_lab_twin_publishes_each_stream_at_its_own_rate_in_the_robots_clock(tmp_path):
+    """40 Hz odometry is 40 Hz and 8 Hz lidar 8 Hz (no common tick); scan and odometry stamps run 35 ms ahead
+    of the host and 40 ppm fast; motion capture stays on the host's clock; a sweep takes its beams over 125 ms."""
+    import dataclasses
+    import threading
+
+    import numpy as np
+
+    from pipeline.core.scenario import load_scenario
+    from pipeline.messages import convert as C
+    from pipeline.ros.clock import WallClock
+    from pipeline.ros.fleet import load_fleet
+    from pipeline.ros.transport import open_transport
+    from pipeline.twin.profile import load_profile_for
+    from pipeline.twin.twin import HardwareTwin
+
+    fleet = load_fleet(write_fleet(tmp_path / "fleet.yaml"))
+    scenario = load_scenario(fleet.scenario)
+    _, lab = load_profile_for("lab", scenario)
+    lab = dataclasses.replace(lab, network=dataclasses.replace(lab.network, loss_prob=0.0, jitter_s=0.0))
+    twin_side = open_transport(fleet.transport, fleet.network_settings())
+    listener = open_transport(fleet.transport, fleet.network_settings())
+    received: dict[str, list[tuple[int, int]]] = {"scan": [], "odom": [], "ground_truth": []}
+    increments = []
+    lock = threading.Lock()
+
+    def on(kind: str):
+        def callback(spec, msg, receive_ns):
+            stamp = C.time_ns(msg.header.stamp)
+            with lock:
+                received[kind].append((stamp, receive_ns))
+                if kind == "scan":
+                    increments.append(float(msg.time_increment) * len(msg.ranges))
+
+        return callback
+
+    topics = fleet.robots[0].topics()
+    subs = [listener.subscribe(topics[k], on(k)) for k in received]
+    twin = HardwareTwin(fleet, scenario, lab, twin_side, WallClock(), seed=0)
+    stop = threading.Event()
+    thread = threading.Thread(target=twin.run, args=(stop,))
+    try:
+        assert listener.wait_for_match(topics["scan"], 1, 10.0)
+        time.sleep(0.5)
+        with lock:
+            for k in received:
+                received[k].clear()
+        thread.start()
+        time.sleep(4.0)
+    finally:
+        stop.set()
+        thread.join(5.0)
+        twin.close()
+        for s in subs:
+            s.close()
+        listener.close()
+        twin_side.close()
+    rates = {}
+    for kind, rows in received.items():
+        stamps = np.array([s for s, _ in rows])
+        rates[kind] = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
+    assert rates["odom"] == pytest.approx(40.0, rel=0.01) and rates["scan"] == pytest.approx(8.0, rel=0.01)
+    assert rates["ground_truth"] == pytest.approx(50.0, rel=0.01)
+    odom_ahead = np.median([s - r for s, r in received["odom"]]) / 1e6
+    truth_ahead = np.median([s - r for s, r in received["ground_truth"]]) / 1e6
+    assert 30.0 < odom_ahead < 36.0 and -5.0 < truth_ahead <= 0.5  # the robots' clock is 35 ms ahead
+    assert increments and all(x == pytest.approx(0.125, rel=1e-6) for x in increments)  # beams spread over a sweep

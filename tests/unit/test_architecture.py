@@ -45,6 +45,8 @@ FORBIDDEN = {
     "rollout": ("pipeline.learn", "stable_baselines3", "torch"),
     "sim": ("pipeline.ros", "pipeline.twin", "cyclonedds", "rclpy"),
     "learn": ("pipeline.ros", "pipeline.twin", "cyclonedds", "rclpy"),
+    # the twin stands for reality: physics and sensors of its own, never the training simulator
+    "twin": ("pipeline.sim", "pipeline.learn", "pipeline.rollout", "pipeline.policy", "pipeline.mdp"),
     "analysis": ("pipeline.ros", "cyclonedds", "rclpy"),
     "calibration": ("pipeline.ros", "pipeline.learn", "cyclonedds", "rclpy"),
 }
