@@ -128,18 +128,6 @@ class LossyLink:
             self._thread.join(timeout=1.0)
 
 
-def _due(next_ns: int, period_ns: int, now_ns: int) -> tuple[int | None, int]:
-    """(the latest sample time of a stream at or before `now_ns`, or None if none is due; its next one).
-
-    Samples fall on the stream's own grid (next_ns + k * period_ns): a 40 Hz stream is stamped every 25 ms
-    exactly, whatever the physics step; samples missed while the host stalled are skipped.
-    """
-    if now_ns < next_ns:
-        return None, next_ns
-    stamp = next_ns + ((now_ns - next_ns) // period_ns) * period_ns
-    return stamp, stamp + period_ns
-
-
 class BaseDriver:
     """The robots' drivers: delay, first-order lag and gains on (v, w), then wheel speeds by the nominal geometry."""
 
@@ -369,60 +357,44 @@ class HardwareTwin:
         self._handle_reset(now)
         self.ticks += 1
         self._advance(now)
-        stamp, self.next_truth_ns = _due(self.next_truth_ns, self.truth_period_ns, now)
-        if stamp is not None:
+        t = self.physics_ns
+        if t >= self.next_truth_ns:
             truth = self.physics.poses()
             for i, ns in enumerate(self.namespaces):
-                if not self._silenced(ns, stamp):
-                    msg = C.pose_stamped(stamp, "map", truth[i], store=self.store)
+                if not self._silenced(ns, t):
+                    msg = C.pose_stamped(t, "map", truth[i], store=self.store)
                     self.link.send(self.pubs[ns]["ground_truth"], msg)
-        stamp, self.next_odom_ns = _due(self.next_odom_ns, self.odom_period_ns, now)
-        if stamp is not None:
-            self.odometry.update(self.physics.wheel_angles(), (stamp - self.last_odom_ns) / NS_PER_S)
-            self.last_odom_ns = stamp
-            robot_stamp = self.robot_clock.stamp(stamp)
+            self.next_truth_ns += self.truth_period_ns * max(1, (t - self.next_truth_ns) // self.truth_period_ns + 1)
+        if t >= self.next_odom_ns:
+            self.odometry.update(self.physics.wheel_angles(), (t - self.last_odom_ns) / NS_PER_S)
+            self.last_odom_ns = t
+            stamp = self.robot_clock.stamp(t)
             for i, ns in enumerate(self.namespaces):
-                if not self._silenced(ns, stamp):
+                if not self._silenced(ns, t):
                     vel = (float(self.odometry.velocity[i, 0]), float(self.odometry.velocity[i, 1]))
-                    msg = C.odometry(robot_stamp, ns, self.odometry.pose[i], vel, store=self.store)
+                    msg = C.odometry(stamp, ns, self.odometry.pose[i], vel, store=self.store)
                     self.link.send(self.pubs[ns]["odom"], msg)
+            self.next_odom_ns += self.odom_period_ns * max(1, (t - self.next_odom_ns) // self.odom_period_ns + 1)
         if self.clock_pub is not None:
             self.clock_pub.publish(C.clock(now, store=self.store))
 
     def next_wake_ns(self) -> int:
-        """The next time a stream is due (or `MAX_WAKE_NS` from now, to take resets and commands).
-
-        Odometry and ground truth are due at their own sample times; a sweep is due at the first physics
-        step at or after its end (its last beams are taken by physics steps).
-        """
-        step = self.step_ns
-
-        def on_grid(t: int) -> int:
-            return self.physics_ns + max(1, -(-(t - self.physics_ns) // step)) * step
-
-        due = [self.next_truth_ns, self.next_odom_ns, *(on_grid(lidar.end_ns) for lidar in self.lidars)]
+        """The next time a stream is due (or `MAX_WAKE_NS` from now, to take resets and commands)."""
+        due = [self.next_truth_ns, self.next_odom_ns, *(lidar.end_ns for lidar in self.lidars)]
         if self.clock_pub is not None:
             due.append(self.physics_ns + round(CLOCK_PERIOD_S * NS_PER_S))
-        return min([*due, self.physics_ns + MAX_WAKE_NS])
+        return min(min(due), self.physics_ns + MAX_WAKE_NS)
 
     def run(self, stop: threading.Event) -> None:
         """Run until `stop` is set, waking when a stream is due."""
         while not stop.is_set():
-            wake = self.next_wake_ns()
+            wake = max(self.next_wake_ns(), self.physics_ns + self.step_ns)
             if not self.clock.sleep_until(wake, stop):
                 break
-            now = self.clock.now_ns()
-            if now - wake > 5 * MAX_WAKE_NS:  # the host stalled: jump instead of replaying the missed time in a burst
-                self._resync(now)
-                wake = now
+            behind = self.clock.now_ns() - wake
+            if behind > 5 * MAX_WAKE_NS:  # the host stalled: jump instead of replaying the missed time in a burst
+                self.physics_ns += (behind // self.step_ns) * self.step_ns
             self.step(wake)
-
-    def _resync(self, now_ns: int) -> None:
-        """After a stall: physics jumps to `now_ns` (on its grid), sweeps under way start again, and the
-        streams' missed samples are skipped (see `_due`)."""
-        self.physics_ns = now_ns - (now_ns - self.physics_ns) % self.step_ns
-        for lidar in self.lidars:
-            lidar.restart(now_ns)
 
     def close(self) -> None:
         self.link.close()
