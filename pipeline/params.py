@@ -8,7 +8,7 @@ out-of-range keys are reported together in one ConfigError naming the file and d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -36,6 +36,10 @@ class LidarConfig:
     height_m: float = setting(0.1, gt=0.0)
     mount_yaw_rad: float = setting(0.0, ge=-3.15, le=3.15)
     """The simulated lidar's mounting yaw: beam k of sim_beams points at 2 pi k / sim_beams + mount_yaw_rad."""
+    noise_per_m: float = setting(0.0, ge=0.0, le=0.2, optional=True)
+    """Range-dependent noise: a beam's sigma is noise_sigma_m + noise_per_m * range."""
+    mount_xy_m: tuple[float, ...] = setting((0.0, 0.0), ge=-0.3, le=0.3, min_len=2, max_len=2, optional=True)
+    """Where the beams start in the robot frame (forward, left) (m)."""
 
     def check(self) -> list[tuple[str, object, str]]:
         if not self.range_max_m > self.range_min_m:
@@ -58,6 +62,81 @@ class ActuationConfig:
     time_constant_s: float = setting(0.05, gt=0.0, le=2.0)
     linear_gain: float = setting(1.0, gt=0.0, le=5.0)
     angular_gain: float = setting(1.0, gt=0.0, le=5.0)
+    yaw_rate_per_mps: float = setting(0.0, ge=-2.0, le=2.0, optional=True)
+    """Yaw rate (rad/s) per m/s of forward speed: unequal wheels turn a straight command into an arc."""
+    deadband_radps: float = setting(0.0, ge=0.0, le=50.0, optional=True)
+    """Wheel speeds (rad/s, from the command by the nominal wheel geometry below) under this stay at 0."""
+    wheel_radius_m: float = setting(0.034, gt=0.0, le=0.5, optional=True)
+    wheel_separation_m: float = setting(0.281, gt=0.0, le=2.0, optional=True)
+
+
+Range = tuple[float, ...]
+"""A [low, high] range for per-episode draws; [] leaves the key at its world value."""
+
+
+def _range() -> Any:
+    return setting((), max_len=2, optional=True)
+
+
+@dataclass(frozen=True)
+class LidarRanges:
+    noise_sigma_m: Range = _range()
+    noise_per_m: Range = _range()
+    dropout_prob: Range = _range()
+    bias_m: Range = _range()
+    mount_yaw_rad: Range = _range()
+
+
+@dataclass(frozen=True)
+class ActuationRanges:
+    delay_s: Range = _range()
+    time_constant_s: Range = _range()
+    linear_gain: Range = _range()
+    angular_gain: Range = _range()
+    yaw_rate_per_mps: Range = _range()
+    deadband_radps: Range = _range()
+
+
+@dataclass(frozen=True)
+class OdometryRanges:
+    drift_per_m: Range = _range()
+
+
+@dataclass(frozen=True)
+class RandomizeConfig:
+    """Domain randomization: per episode, each key with a [low, high] range is drawn uniformly from it.
+
+    Keys name the world's own settings (``lidar.noise_sigma_m`` is ``world.lidar.noise_sigma_m``);
+    a key left out or ``[]`` keeps its world value, so each range is its own off switch.
+    """
+
+    lidar: LidarRanges = setting(LidarRanges(), optional=True)
+    actuation: ActuationRanges = setting(ActuationRanges(), optional=True)
+    odometry: OdometryRanges = setting(OdometryRanges(), optional=True)
+
+    def ranges(self) -> dict[str, tuple[float, float]]:
+        """Dotted world key -> (low, high) of every range that is on, in a fixed order."""
+        out: dict[str, tuple[float, float]] = {}
+        for group in fields(self):
+            section = getattr(self, group.name)
+            for f in fields(section):
+                value = getattr(section, f.name)
+                if len(value) == 2:
+                    out[f"{group.name}.{f.name}"] = (float(value[0]), float(value[1]))
+        return out
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad: list[tuple[str, object, str]] = []
+        for group in fields(self):
+            section = getattr(self, group.name)
+            for f in fields(section):
+                value = getattr(section, f.name)
+                key = f"{group.name}.{f.name}"
+                if len(value) == 1:
+                    bad.append((key, list(value), "[low, high] or [] (off)"))
+                elif len(value) == 2 and not value[0] <= value[1]:
+                    bad.append((key, list(value), "[low, high] with low <= high"))
+        return bad
 
 
 @dataclass(frozen=True)
@@ -93,18 +172,43 @@ class WorldConfig:
     actuation: ActuationConfig = setting(ActuationConfig())
     actions: ActionConfig = setting(ActionConfig())
     reward: RewardWeights = setting(RewardWeights())
+    randomize: RandomizeConfig = setting(RandomizeConfig(), optional=True)
 
     def check(self) -> list[tuple[str, object, str]]:
+        bad = self._randomized_bounds()
         ratio = self.control_period_s / self.physics_timestep_s
         if abs(ratio - round(ratio)) > 1e-9 * ratio:
-            return [
+            bad.append(
                 (
                     "physics_timestep_s",
                     self.physics_timestep_s,
                     f"a value that divides control_period_s ({self.control_period_s}) evenly",
                 )
-            ]
-        return []
+            )
+        return bad
+
+    def _randomized_bounds(self) -> list[tuple[str, object, str]]:
+        """Ranges that reach outside the bounds of the key they draw."""
+        bad = []
+        for key, (low, high) in self.randomize.ranges().items():
+            group, name = key.split(".")
+            meta = next(f for f in fields(getattr(self, group)) if f.name == name).metadata
+            lo_ok = (meta["ge"] is None or low >= meta["ge"]) and (meta["gt"] is None or low > meta["gt"])
+            hi_ok = meta["le"] is None or high <= meta["le"]
+            if not (lo_ok and hi_ok):
+                allowed = " and ".join(
+                    f"{op} {meta[k]}" for k, op in (("ge", ">="), ("gt", ">"), ("le", "<=")) if meta[k] is not None
+                )
+                bad.append((f"randomize.{key}", [low, high], f"a range inside the key's bounds ({allowed})"))
+        return bad
+
+    def with_values(self, values: dict[str, float]) -> WorldConfig:
+        """This world with dotted keys (``actuation.delay_s``) set to `values` (the draws of one episode)."""
+        groups: dict[str, dict[str, float]] = {}
+        for key, value in values.items():
+            group, name = key.split(".")
+            groups.setdefault(group, {})[name] = value
+        return replace(self, **{g: replace(getattr(self, g), **kv) for g, kv in groups.items()})
 
     @property
     def substeps(self) -> int:

@@ -1,4 +1,5 @@
-"""Lidar noise, dropout probability, bias and mounting yaw from scans taken while robots stood still.
+"""Lidar noise, dropout, bias, mounting, blocked sectors and the room's true geometry from scans taken while
+robots stood still.
 
 While a robot stands still its smoothed true pose is exact and the scan's timing does not matter,
 so every beam can be compared with the range cast in the known map from that pose. Beams are used
@@ -6,17 +7,25 @@ only where the comparison is clean: the cast range lies well inside the sensor's
 meets its surface at a moderate angle (not grazing), its angular neighbours hit the same surface
 (no corners or box edges), and it passes no other robot.
 
+0. Blocked sectors: beams (by index in the scan) without a valid return in at least
+   `BLOCKED_SHARE` of the scans of at least `BLOCKED_MIN_SPANS` spans are blocked by the robot
+   itself (a mast); they are reported as sectors of the lidar's frame and used for nothing else.
 1. Mounting yaw: a 1-D search over the offset added to every beam angle, minimising a robust
    (truncated absolute) cost of the residuals of the per-span mean scans, first on a coarse grid
-   over the search range, then on a fine grid; then Gauss-Newton steps on yaw and bias with Huber
-   weights. Its uncertainty comes from a bootstrap over the stationary spans.
-2. Dropout probability: the share of usable beams without a valid return (+inf, NaN, or outside
+   over the search range, then on a fine grid.
+2. Geometry: Huber-weighted Gauss-Newton on the mounting (yaw, forward and left offset of the beams'
+   origin), the range bias, how far the walls stand outward of the map and where each box really
+   is (dx, dy): a wall or box face moved by D lengthens a beam that meets it at t by D . n / (u . n)
+   (n its normal, u the beam's direction), so the map's terms are linear. Parameters that too few
+   beams see are unidentifiable. Uncertainties: the wider of the formula for independent beams and
+   a bootstrap over the stationary spans (clusters of scans that share a pose), so what the model
+   leaves unexplained between spans widens them.
+3. Dropout probability: the share of usable beams without a valid return (+inf, NaN, or outside
    the scan's range limits).
-3. Bias and noise sigma: mean and standard deviation of the residuals (measured - cast) of the
-   valid returns after iterative 4-sigma clipping (corrected for the clipping).
-Bias, sigma and dropout carry bootstrap uncertainties over stationary spans (clusters of scans
-that share a pose) when there are at least `MIN_SPANS_FOR_BOOTSTRAP`, else the textbook standard
-errors of independent beams.
+4. Noise: the spread of each beam's returns about its own mean within a span. This leaves out
+   everything static (map, mounting, bias), which the geometry fit handles, so it is the sensor's
+   own noise; its growth with range comes from a line fitted to the clipped spreads in range bins
+   (``sigma = noise_sigma_m + noise_per_m * range``).
 """
 
 from __future__ import annotations
@@ -29,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from pipeline.calibration.estimates import Z_95, Estimate, binomial_estimate, bootstrap, normal_interval, spread
+from pipeline.calibration.estimates import Z_95, Estimate, binomial_estimate, bootstrap, spread
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry, cast_circles, wrap
 from pipeline.calibration.smoothing import Track
@@ -51,6 +60,14 @@ STILL_AVERAGE_S = 0.5
 GAUSS_NEWTON_STEPS = 6
 HUBER_K = 2.0
 """Huber weights down-weight span-mean residuals beyond this many robust standard deviations."""
+BLOCKED_SHARE = 0.9
+BLOCKED_MIN_SPANS = 3
+MIN_MAP_BEAMS = 30
+"""A wall or box offset seen by fewer clean beams than this is unidentifiable."""
+RANGE_BIN_M = 0.5
+MIN_BIN_SAMPLES = 50
+MOUNT_XY_MAX_SE_M = 0.03
+"""A mounting offset less certain than this is reported unidentifiable."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +104,14 @@ class LidarFit:
     bias_m: Estimate
     mount_yaw_rad: Estimate
     residuals_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    noise_per_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m/m"))
+    mount_x_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m"))
+    mount_y_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m"))
+    wall_offset_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m"))
+    box_offsets_m: tuple[tuple[Estimate, Estimate], ...] = ()
+    blocked_sectors_rad: tuple[tuple[float, float], ...] = ()
+    noise_curve: tuple[np.ndarray, np.ndarray] | None = None
+    """(range bin centres m, clipped within-span spread m) the noise line is fitted to."""
     spans: int = 0
     stationary_s: float = 0.0
     beams_used: int = 0
@@ -140,15 +165,6 @@ def _span_means(span: ScanSpan) -> tuple[np.ndarray, np.ndarray]:
     return mean, count
 
 
-def _cast_span(
-    geometry: MapGeometry, span: ScanSpan, yaw_offsets: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Static casts of the span's beams for each mount yaw offset: (range, surface, cos) each (n_offsets, beams)."""
-    angles = span.pose[2] + span.beam_angles_rad[None, :] + np.asarray(yaw_offsets)[:, None]
-    hits = geometry.cast(span.pose[None, None, :2], angles)
-    return hits.range_m, hits.surface, hits.cos_incidence
-
-
 def _coarse_cost(
     geometry: MapGeometry, spans: Sequence[ScanSpan], means: Sequence[np.ndarray], offsets: np.ndarray
 ) -> np.ndarray:
@@ -195,12 +211,147 @@ def _robot_free(span: ScanSpan, yaw: float, reach: np.ndarray, radius_m: float, 
     return free
 
 
-def _mount_yaw(
-    geometry: MapGeometry, spans: Sequence[ScanSpan], settings: CalibrationSettings, rng: np.random.Generator
-) -> tuple[float, Estimate, tuple[np.ndarray, np.ndarray]]:
-    """Mounting yaw (rad): coarse and fine robust searches, then Huber-weighted Gauss-Newton on (yaw, bias)."""
-    means = [_span_means(s) for s in spans]
-    mean_ranges = [m for m, _ in means]
+def blocked_beams(spans: Sequence[ScanSpan]) -> dict[int, np.ndarray]:
+    """Per scan layout (beam count): (beams,) mask of the beams that the robot itself blocks.
+
+    A beam is blocked where it has no valid return in at least `BLOCKED_SHARE` of the scans of each of
+    at least `BLOCKED_MIN_SPANS` spans (different poses), so a beam that only points out of range from
+    some poses is not.
+    """
+    votes: dict[int, np.ndarray] = {}
+    seen: dict[int, int] = {}
+    for span in spans:
+        n = span.ranges.shape[1]
+        r = span.ranges
+        valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m)
+        dark = (~valid).mean(axis=0) >= BLOCKED_SHARE
+        votes[n] = votes.get(n, np.zeros(n, dtype=np.int64)) + dark
+        seen[n] = seen.get(n, 0) + 1
+    out = {}
+    for n, v in votes.items():
+        need = max(BLOCKED_MIN_SPANS, math.ceil(BLOCKED_SHARE * seen[n]))
+        out[n] = v >= need if seen[n] >= BLOCKED_MIN_SPANS else np.zeros(n, dtype=bool)
+    return out
+
+
+def blocked_sectors(mask: np.ndarray, angles_rad: np.ndarray) -> tuple[tuple[float, float], ...]:
+    """Sectors [from, to] (rad, in the scan's frame) covered by the runs of blocked beams of `mask`."""
+    n = len(mask)
+    if not mask.any():
+        return ()
+    if mask.all():
+        return ((float(angles_rad[0]), float(angles_rad[0] + 2 * math.pi - 1e-6)),)
+    inc = float(angles_rad[1] - angles_rad[0]) if n > 1 else 2 * math.pi
+    first = int(np.flatnonzero(~mask)[0])
+    order = np.roll(np.arange(n), -first)  # start at an open beam so runs do not wrap
+    out = []
+    k = 0
+    while k < n:
+        if mask[order[k]]:
+            j = k
+            while j + 1 < n and mask[order[j + 1]]:
+                j += 1
+            a = float(angles_rad[order[k]]) - inc / 2
+            b = a + (j - k + 1) * inc
+            out.append((round(a, 4), round(b, 4)))
+            k = j + 1
+        else:
+            k += 1
+    return tuple(out)
+
+
+def _origin(span: ScanSpan, mount_xy: tuple[float, float]) -> np.ndarray:
+    x, y, yaw = span.pose
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([x + c * mount_xy[0] - s * mount_xy[1], y + s * mount_xy[0] + c * mount_xy[1]])
+
+
+def _cast_span(
+    geometry: MapGeometry, span: ScanSpan, yaw_offsets: np.ndarray, mount_xy: tuple[float, float] = (0.0, 0.0)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Static casts of the span's beams for each mount yaw offset: (range, surface, cos) each (n_offsets, beams)."""
+    angles = span.pose[2] + span.beam_angles_rad[None, :] + np.asarray(yaw_offsets)[:, None]
+    hits = geometry.cast(_origin(span, mount_xy)[None, None, :], angles)
+    return hits.range_m, hits.surface, hits.cos_incidence
+
+
+@dataclass(frozen=True)
+class _Design:
+    """The geometry fit's parameters: yaw, mount x, mount y, bias, wall offset, then (dx, dy) per box."""
+
+    n_boxes: int
+    wall_of: np.ndarray
+    """(segments,) +1 for a room wall, 0 for a box face."""
+    box_of: np.ndarray
+    """(segments,) the box a face belongs to, -1 for walls."""
+    outward: np.ndarray
+    """(segments, 2) unit normals pointing away from the room's inside (walls) or out of the box (faces)."""
+
+    @property
+    def size(self) -> int:
+        return 5 + 2 * self.n_boxes
+
+    @staticmethod
+    def of(geometry: MapGeometry) -> _Design:
+        n_seg = len(geometry.names)
+        wall_of = np.array([1.0 if n.startswith("wall_") else 0.0 for n in geometry.names])
+        box_of = np.array([int(n.split("_")[1]) if n.startswith("box_") else -1 for n in geometry.names])
+        mid = (geometry.a + geometry.b) / 2
+        centre = mid[wall_of > 0].mean(axis=0) if wall_of.any() else np.zeros(2)
+        outward = geometry.normal.copy()
+        for k in range(n_seg):
+            ref = centre if wall_of[k] > 0 else mid[box_of == box_of[k]].mean(axis=0)
+            if np.dot(mid[k] - ref, outward[k]) < 0:
+                outward[k] = -outward[k]
+        n_boxes = int(box_of.max()) + 1 if (box_of >= 0).any() else 0
+        return _Design(n_boxes, wall_of, box_of, outward)
+
+    def moved(self, geometry: MapGeometry, p: np.ndarray) -> MapGeometry:
+        """`geometry` with the walls moved outward by p[4] and box b's faces by (p[5 + 2b], p[6 + 2b])."""
+        shift = self.outward * (self.wall_of * p[4])[:, None]
+        for b in range(self.n_boxes):
+            shift[self.box_of == b] = p[5 + 2 * b : 7 + 2 * b]
+        return dataclasses.replace(geometry, a=geometry.a + shift, b=geometry.b + shift)
+
+    def map_columns(self, surface: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """(beams, 1 + 2 n_boxes) derivative of each beam's range by the wall offset and each box's (dx, dy)."""
+        out = np.zeros((len(surface), 1 + 2 * self.n_boxes))
+        hit = surface >= 0
+        seg = surface[hit]
+        u = np.stack([np.cos(angles[hit]), np.sin(angles[hit])], axis=1)
+        n = self.outward[seg]
+        un = np.einsum("ij,ij->i", u, n)
+        un = np.where(np.abs(un) < 1e-6, np.sign(un) * 1e-6 + (un == 0) * 1e-6, un)
+        cols = np.zeros((int(hit.sum()), out.shape[1]))
+        # a wall moved outward by w: its points move by w n (n outward), the range grows by w (n . n) / (u . n)
+        cols[:, 0] = self.wall_of[seg] / un
+        box = self.box_of[seg]
+        for b in range(self.n_boxes):
+            mine = box == b
+            cols[mine, 1 + 2 * b] = n[mine, 0] / un[mine]
+            cols[mine, 2 + 2 * b] = n[mine, 1] / un[mine]
+        out[hit] = cols
+        return out
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """The geometry fit: parameters, their standard errors and intervals, how many beams see each."""
+
+    params: np.ndarray
+    std_error: np.ndarray
+    interval: np.ndarray
+    """(size, 2)"""
+    seen: np.ndarray
+    method: str
+    beams: int
+    reason: str = ""
+
+
+def _coarse_yaw(
+    geometry: MapGeometry, spans: Sequence[ScanSpan], mean_ranges: Sequence[np.ndarray], settings: CalibrationSettings
+) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
+    """The mounting yaw of the robust coarse and fine searches, and the cost curve."""
     order = np.argsort([-s.ranges.shape[0] for s in spans])[:12]
     sub = [spans[i] for i in order]
     sub_means = [mean_ranges[i] for i in order]
@@ -216,93 +367,229 @@ def _mount_yaw(
     fine = best + np.arange(-FINE_HALF_WIDTH_RAD, FINE_HALF_WIDTH_RAD + 1e-12, FINE_STEP_RAD)
     fine_costs = _coarse_cost(geometry, spans, mean_ranges, fine)
     yaw = float(fine[int(np.argmin(fine_costs))])
-    curve = (np.r_[coarse, fine], np.r_[costs, fine_costs])
-    # Gauss-Newton on (yaw, bias) with Huber weights over a beam set fixed at the current yaw
-    edge = settings.lidar_edge_rad + 2 * FINE_STEP_RAD + 0.01
-    sets = []
-    for span, (_, count) in zip(spans, means, strict=True):
-        use = _usable(geometry, span, yaw, settings, edge) & (count > 0)
-        rng0, _, _ = _cast_span(geometry, span, np.array([yaw]))
-        free = _robot_free(span, yaw, rng0[0], geometry.robot_radius_m, settings.lidar_robot_margin_m).all(axis=0)
-        sets.append(use & free)
-    total = sum(int(s.sum()) for s in sets)
-    if total < 20:
-        return yaw, Estimate.unidentifiable("fewer than 20 clean beams in the stationary spans", "rad"), curve
-    bias = 0.0
-    a = np.zeros((len(spans), 2, 2))
-    g = np.zeros((len(spans), 2))
-    r = j = w = np.zeros(0)
-    for _ in range(GAUSS_NEWTON_STEPS):
-        base = yaw
-        r, j, w, who = _linearised(geometry, spans, means, sets, yaw)
-        e = r - bias
-        scale = 1.4826 * float(np.median(np.abs(e - np.median(e)) * np.sqrt(w))) + 1e-6
-        delta = HUBER_K * scale / np.sqrt(w)
-        w = w * np.minimum(1.0, delta / np.maximum(np.abs(e), 1e-12))
-        # per-span normal equations of r = j * (yaw step) + bias
-        a = np.zeros((len(spans), 2, 2))
-        g = np.zeros((len(spans), 2))
-        np.add.at(a[:, 0, 0], who, w * j * j)
-        np.add.at(a[:, 0, 1], who, w * j)
-        np.add.at(a[:, 1, 1], who, w)
-        np.add.at(g[:, 0], who, w * j * r)
-        np.add.at(g[:, 1], who, w * r)
-        a[:, 1, 0] = a[:, 0, 1]
-        A = a.sum(axis=0)
-        if abs(np.linalg.det(A)) < 1e-12:
-            return yaw, Estimate.unidentifiable("no clean beam hits a surface obliquely", "rad"), curve
-        step, bias = np.linalg.solve(A, g.sum(axis=0))
-        yaw = base + float(step)
-        if abs(step) < 1e-7:
-            break
-    A = a.sum(axis=0)
-    sigma_e = math.sqrt(float(np.sum((r - bias) ** 2 * w) / max(float(np.sum(w)) - 2, 1.0)))
-    se = sigma_e * math.sqrt(float(np.linalg.inv(A)[0, 0]))
-    interval = normal_interval(yaw, se)
-    method = "Gauss-Newton standard error (independent beams)"
-    spans_used = int(sum(1 for s in sets if s.any()))
-    if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
-
-        def stat(counts: np.ndarray) -> np.ndarray:
-            Ab = np.tensordot(counts, a, axes=1)
-            if abs(np.linalg.det(Ab)) < 1e-12:
-                return np.array([np.nan])
-            return np.array([base + float(np.linalg.solve(Ab, np.tensordot(counts, g, axes=1))[0])])
-
-        boot_se, boot_interval = spread(bootstrap(stat, len(spans), settings.bootstrap, rng)[:, 0])
-        if math.isfinite(boot_se):
-            # the wider of the bootstrap over spans and the formula for independent beams
-            se = max(se, boot_se)
-            interval = (min(boot_interval[0], yaw - Z_95 * se), max(boot_interval[1], yaw + Z_95 * se))
-            method = f"bootstrap over {spans_used} stationary spans"
-    wrapped = float(wrap(yaw))
-    interval = (interval[0] + wrapped - yaw, interval[1] + wrapped - yaw)
-    if not se < MAX_YAW_STD_ERROR_RAD:
-        reason = f"the mounting yaw is uncertain by {se:.3f} rad"
-        return wrapped, Estimate.unidentifiable(reason, "rad", total), curve
-    return wrapped, Estimate.of(wrapped, se, interval, "rad", method, total), curve
+    return yaw, (np.r_[coarse, fine], np.r_[costs, fine_costs])
 
 
-def _linearised(
+def _normal_equations(
     geometry: MapGeometry,
+    design: _Design,
     spans: Sequence[ScanSpan],
     means: Sequence[tuple[np.ndarray, np.ndarray]],
     sets: Sequence[np.ndarray],
-    yaw: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per clean beam: residual of the span-mean range (m), its derivative by the mount yaw (m/rad), weight (scans)
-    and span index."""
-    h = 1e-4
-    residual, jac, weight, owner = [], [], [], []
+    p: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per clean beam at parameters `p`: residual of the span-mean range to the model (m), Jacobian rows,
+    weight (scans) and span index; plus how many beams see each parameter."""
+    h_yaw, h_xy = 1e-4, 1e-4
+    yaw, mx, my = float(p[0]), float(p[1]), float(p[2])
+    room = design.moved(geometry, p)
+    res, jac, weight, owner = [], [], [], []
     for k, (span, (mean, count), use) in enumerate(zip(spans, means, sets, strict=True)):
         if not use.any():
             continue
-        rng3, _, _ = _cast_span(geometry, span, np.array([yaw - h, yaw, yaw + h]))
-        residual.append(mean[use] - rng3[1, use])
-        jac.append((rng3[2, use] - rng3[0, use]) / (2 * h))
+        rng3, surf3, _ = _cast_span(room, span, np.array([yaw - h_yaw, yaw, yaw + h_yaw]), (mx, my))
+        rx = _cast_span(room, span, np.array([yaw]), (mx + h_xy, my))[0][0]
+        ry = _cast_span(room, span, np.array([yaw]), (mx, my + h_xy))[0][0]
+        # a beam that the moved room lets through a corner, or onto another face, says nothing here
+        use = use & np.isfinite(rng3).all(axis=0) & np.isfinite(rx) & np.isfinite(ry)
+        use &= (surf3[0] == surf3[1]) & (surf3[2] == surf3[1])
+        if not use.any():
+            continue
+        angles = span.pose[2] + span.beam_angles_rad + yaw
+        cols = design.map_columns(surf3[1], angles)[use]
+        model = rng3[1, use] + p[3]
+        rows = np.zeros((int(use.sum()), design.size))
+        rows[:, 0] = (rng3[2, use] - rng3[0, use]) / (2 * h_yaw)
+        rows[:, 1] = (rx[use] - rng3[1, use]) / h_xy
+        rows[:, 2] = (ry[use] - rng3[1, use]) / h_xy
+        rows[:, 3] = 1.0
+        rows[:, 4:] = cols
+        res.append(mean[use] - model)
+        jac.append(rows)
         weight.append(count[use].astype(np.float64))
         owner.append(np.full(int(use.sum()), k))
-    return np.concatenate(residual), np.concatenate(jac), np.concatenate(weight), np.concatenate(owner)
+    r, j = np.concatenate(res), np.concatenate(jac)
+    seen = (np.abs(j) > 1e-9).sum(axis=0)
+    return r, j, np.concatenate(weight), np.concatenate(owner), seen
+
+
+def _fit_geometry(
+    geometry: MapGeometry,
+    spans: Sequence[ScanSpan],
+    means: Sequence[tuple[np.ndarray, np.ndarray]],
+    blocked: dict[int, np.ndarray],
+    yaw0: float,
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+) -> _Geometry:
+    """Huber-weighted Gauss-Newton on mounting, bias and the room's geometry (see the module's description)."""
+    design = _Design.of(geometry)
+    size = design.size
+    p = np.zeros(size)
+    p[0] = yaw0
+    edge = settings.lidar_edge_rad + 2 * FINE_STEP_RAD + 0.01
+    sets = []
+    for span, (_, count) in zip(spans, means, strict=True):
+        use = _usable(geometry, span, yaw0, settings, edge) & (count > 0) & ~blocked[span.ranges.shape[1]]
+        rng0, _, _ = _cast_span(geometry, span, np.array([yaw0]))
+        free = _robot_free(span, yaw0, rng0[0], geometry.robot_radius_m, settings.lidar_robot_margin_m).all(axis=0)
+        sets.append(use & free)
+    total = sum(int(s.sum()) for s in sets)
+    nan = np.full(size, np.nan)
+    if total < 20:
+        return _Geometry(p, nan, np.full((size, 2), np.nan), np.zeros(size), "", total, "fewer than 20 clean beams")
+    a = np.zeros((len(spans), size, size))
+    g = np.zeros((len(spans), size))
+    r = w = np.zeros(0)
+    seen = np.zeros(size)
+    ridge = np.eye(size) * 1e-9
+    for _ in range(GAUSS_NEWTON_STEPS):
+        r, j, w, who, seen = _normal_equations(geometry, design, spans, means, sets, p)
+        scale = 1.4826 * float(np.median(np.abs(r - np.median(r)) * np.sqrt(w))) + 1e-6
+        delta = HUBER_K * scale / np.sqrt(w)
+        w = w * np.minimum(1.0, delta / np.maximum(np.abs(r), 1e-12))
+        a = np.zeros((len(spans), size, size))
+        g = np.zeros((len(spans), size))
+        np.add.at(a, who, w[:, None, None] * j[:, :, None] * j[:, None, :])
+        np.add.at(g, who, (w * r)[:, None] * j)
+        step = np.linalg.solve(a.sum(axis=0) + ridge, g.sum(axis=0))
+        p = p + step
+        if np.all(np.abs(step[:3]) < 1e-7) and np.all(np.abs(step[3:]) < 1e-6):
+            break
+    A = a.sum(axis=0) + ridge
+    # sandwich covariance: each beam's own residual, so noise that grows with range is not pooled away
+    inv = np.linalg.inv(A)
+    wr = (w * r)[:, None] * j
+    meat = wr.T @ wr
+    n_beams = len(r)
+    cov = inv @ meat @ inv * (n_beams / max(n_beams - size, 1))
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    interval = np.stack([p - Z_95 * se, p + Z_95 * se], axis=1)
+    method = "Gauss-Newton sandwich standard error (independent beams)"
+    spans_used = int(sum(1 for s in sets if s.any()))
+    if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
+        base = p.copy()
+
+        def stat(counts: np.ndarray) -> np.ndarray:
+            Ab = np.tensordot(counts, a, axes=1) + ridge
+            gb = np.tensordot(counts, g, axes=1)
+            try:
+                return base + np.linalg.solve(Ab, gb)
+            except np.linalg.LinAlgError:
+                return np.full(size, np.nan)
+
+        samples = bootstrap(stat, len(spans), settings.bootstrap, rng)
+        for k in range(size):
+            boot_se, boot_ci = spread(samples[:, k])
+            if math.isfinite(boot_se):
+                # the wider of the bootstrap over spans and the formula for independent beams
+                se[k] = max(se[k], boot_se)
+                shift = p[k] - float(np.nanmedian(samples[:, k]))
+                interval[k] = (
+                    min(boot_ci[0] + shift, p[k] - Z_95 * se[k]),
+                    max(boot_ci[1] + shift, p[k] + Z_95 * se[k]),
+                )
+        method = f"bootstrap over {spans_used} stationary spans"
+    return _Geometry(p, se, interval, seen, method, total)
+
+
+def _geometry_estimate(fit: _Geometry, k: int, unit: str, max_se: float | None = None, what: str = "") -> Estimate:
+    if fit.reason:
+        return Estimate.unidentifiable(fit.reason, unit, fit.beams)
+    if fit.seen[k] < MIN_MAP_BEAMS:
+        return Estimate.unidentifiable(f"{what} is seen by {int(fit.seen[k])} clean beams (need {MIN_MAP_BEAMS})", unit)
+    se = float(fit.std_error[k])
+    if max_se is not None and not se < max_se:
+        return Estimate.unidentifiable(f"{what} is uncertain by {se:.3g} {unit}", unit, int(fit.seen[k]))
+    lo, hi = fit.interval[k]
+    return Estimate.of(float(fit.params[k]), se, (float(lo), float(hi)), unit, fit.method, int(fit.seen[k]))
+
+
+def _within_span_noise(
+    spans: Sequence[ScanSpan], masks: Sequence[np.ndarray], rng: np.random.Generator, settings: CalibrationSettings
+) -> tuple[Estimate, Estimate, tuple[np.ndarray, np.ndarray] | None]:
+    """noise_sigma_m and noise_per_m from each beam's spread about its own mean within a span."""
+    dev: list[np.ndarray] = []
+    rng_of: list[np.ndarray] = []
+    who: list[np.ndarray] = []
+    for k, (span, mask) in enumerate(zip(spans, masks, strict=True)):
+        r = span.ranges
+        valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m) & mask
+        n = valid.sum(axis=0)
+        keep = n >= 2
+        if not keep.any():
+            continue
+        mean = np.where(valid, r, 0.0).sum(axis=0) / np.maximum(n, 1)
+        d = (np.where(valid, r, mean[None, :]) - mean[None, :]) * np.sqrt(n / np.maximum(n - 1, 1))[None, :]
+        sel = valid & keep[None, :]
+        dev.append(d[sel])
+        rng_of.append(np.broadcast_to(mean[None, :], r.shape)[sel])
+        who.append(np.full(int(sel.sum()), k))
+    if not dev:
+        reason = "no beam returned twice within a stationary span"
+        return Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"), None
+    d, R, owner = np.concatenate(dev), np.concatenate(rng_of), np.concatenate(who)
+    bins = np.floor(R / RANGE_BIN_M).astype(np.int64)
+    labels = np.unique(bins)
+    rows = []  # (bin, centre, half-width of the clip)
+    for b in labels:
+        sel = bins == b
+        if sel.sum() < MIN_BIN_SAMPLES:
+            continue
+        _, _, half = clipped_moments(d[sel])
+        rows.append((b, float(R[sel].mean()), half))
+    if len(rows) < 1:
+        reason = f"fewer than {MIN_BIN_SAMPLES} repeated returns in any {RANGE_BIN_M:g} m range bin"
+        return Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"), None
+    correction = truncation_correction(CLIP_SIGMAS)
+    n_spans = len(spans)
+    # per span and bin: count, sum and sum of squares of the clipped deviations, and the sum of ranges
+    sums = np.zeros((n_spans, len(rows), 4))
+    for i, (b, _, half) in enumerate(rows):
+        sel = (bins == b) & (np.abs(d) <= half)
+        np.add.at(sums[:, i, 0], owner[sel], 1.0)
+        np.add.at(sums[:, i, 1], owner[sel], d[sel])
+        np.add.at(sums[:, i, 2], owner[sel], d[sel] ** 2)
+        np.add.at(sums[:, i, 3], owner[sel], R[sel])
+
+    def line(total: np.ndarray) -> np.ndarray:
+        n = total[:, 0]
+        ok = n >= 2
+        if not ok.any():
+            return np.array([np.nan, np.nan])
+        sigma = np.sqrt(np.maximum(total[ok, 2] / n[ok] - (total[ok, 1] / n[ok]) ** 2, 0.0)) * correction
+        centre = total[ok, 3] / n[ok]
+        if ok.sum() < 2 or np.ptp(centre) < RANGE_BIN_M:
+            return np.array([float(np.average(sigma, weights=n[ok])), np.nan])
+        slope, intercept = np.polyfit(centre, sigma, 1, w=np.sqrt(n[ok]))
+        return np.array([intercept, slope])
+
+    full = line(sums.sum(axis=0))
+    total = sums.sum(axis=0)
+    curve = (
+        total[:, 3] / np.maximum(total[:, 0], 1),
+        np.sqrt(np.maximum(total[:, 2] / np.maximum(total[:, 0], 1), 0)) * correction,
+    )
+    n_dev = int(total[:, 0].sum())
+    method = f"within-span spread, bootstrap over {n_spans} stationary spans"
+    if n_spans >= MIN_SPANS_FOR_BOOTSTRAP:
+        samples = bootstrap(lambda c: line(np.tensordot(c, sums, axes=1)), n_spans, settings.bootstrap, rng)
+    else:
+        samples = np.full((2, 2), np.nan)
+        method = "within-span spread (too few spans to resample)"
+    ests = []
+    for k, unit in ((0, "m"), (1, "m/m")):
+        value = float(full[k])
+        if not math.isfinite(value):
+            reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
+            ests.append(Estimate.unidentifiable(reason, unit, n_dev))
+            continue
+        se, ci = spread(samples[:, k])
+        if not math.isfinite(se):
+            ests.append(Estimate.unidentifiable("too few stationary spans to tell its uncertainty", unit, n_dev))
+            continue
+        ests.append(Estimate.of(value, se, ci, unit, method, n_dev))
+    return ests[0], ests[1], curve
 
 
 def clipped_moments(
@@ -337,23 +624,54 @@ def truncation_correction(sigmas: float) -> float:
 def estimate_lidar(
     geometry: MapGeometry, spans: Sequence[ScanSpan], settings: CalibrationSettings, rng: np.random.Generator
 ) -> LidarFit:
-    """Noise sigma (m), dropout probability, bias (m) and mounting yaw (rad) from stationary `spans`."""
+    """Noise (sigma m and growth m/m), dropout probability, bias (m), mounting (yaw rad, x and y m), blocked
+    sectors and the room's true walls and boxes from stationary `spans`."""
     min_s = settings.stationary_min_s
     spans = [s for s in spans if s.ranges.shape[0] > 0]
     if not spans:
         return _unidentifiable(f"robots never stood still for >= {min_s:g} s while scanning")
     stationary_s = float(sum(s.duration_s for s in spans))
-    yaw, yaw_est, curve = _mount_yaw(geometry, spans, settings, rng)
-    # per-scan residuals and dropouts at the estimated yaw over the clean beams
+    blocked = blocked_beams(spans)
+    sectors: tuple[tuple[float, float], ...] = ()
+    for span in spans:
+        mask = blocked[span.ranges.shape[1]]
+        if mask.any():
+            sectors = blocked_sectors(mask, span.beam_angles_rad)
+            break
+    means = [_span_means(s) for s in spans]
+    yaw0, curve = _coarse_yaw(geometry, spans, [m for m, _ in means], settings)
+    geo = _fit_geometry(geometry, spans, means, blocked, yaw0, settings, rng)
+    yaw_est = _geometry_estimate(geo, 0, "rad", MAX_YAW_STD_ERROR_RAD, "the mounting yaw")
+    yaw = float(geo.params[0]) if yaw_est.ok else yaw0
+    if yaw_est.ok:
+        wrapped = float(wrap(yaw))
+        lo, hi = yaw_est.interval or (math.nan, math.nan)
+        yaw_est = dataclasses.replace(yaw_est, value=wrapped, interval=(lo + wrapped - yaw, hi + wrapped - yaw))
+    mount_x = _geometry_estimate(geo, 1, "m", MOUNT_XY_MAX_SE_M, "the mounting's forward offset")
+    mount_y = _geometry_estimate(geo, 2, "m", MOUNT_XY_MAX_SE_M, "the mounting's left offset")
+    mount_xy = (float(geo.params[1]), float(geo.params[2])) if mount_x.ok and mount_y.ok else (0.0, 0.0)
+    bias_geo = _geometry_estimate(geo, 3, "m", None, "the range bias")
+    walls = _geometry_estimate(geo, 4, "m", None, "the walls' offset")
+    n_boxes = (geo.params.size - 5) // 2
+    boxes = tuple(
+        (
+            _geometry_estimate(geo, 5 + 2 * b, "m", None, f"box {b}'s x"),
+            _geometry_estimate(geo, 6 + 2 * b, "m", None, f"box {b}'s y"),
+        )
+        for b in range(n_boxes)
+    )
+    # per-scan residuals and dropouts at the fitted mounting over the clean, unblocked beams
     per_span_res: list[np.ndarray] = []
+    masks: list[np.ndarray] = []
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
     for k, span in enumerate(spans):
-        use = _usable(geometry, span, yaw, settings, settings.lidar_edge_rad)
-        cast, _, _ = _cast_span(geometry, span, np.array([yaw]))
+        use = _usable(geometry, span, yaw, settings, settings.lidar_edge_rad) & ~blocked[span.ranges.shape[1]]
+        cast, _, _ = _cast_span(geometry, span, np.array([yaw]), mount_xy)
         cast = cast[0]
         free = _robot_free(span, yaw, cast, geometry.robot_radius_m, settings.lidar_robot_margin_m)
         mask = free & use[None, :]
+        masks.append(mask)
         r = span.ranges
         valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m)
         trials[k] = mask.sum()
@@ -361,44 +679,46 @@ def estimate_lidar(
         per_span_res.append((r - cast[None, :])[mask & valid])
     n_trials = int(trials.sum())
     notes = [f"{len(spans)} stationary spans, {stationary_s:.1f} s, {sum(s.ranges.shape[0] for s in spans)} scans"]
+    if sectors:
+        shown = ", ".join(f"[{a:.2f}, {b:.2f}]" for a, b in sectors)
+        notes.append(f"beams blocked by the robot itself in {shown} rad (left out)")
     if n_trials < MIN_BEAMS:
         reason = f"only {n_trials} usable beams in {len(spans)} stationary spans (need {MIN_BEAMS})"
         fit = _unidentifiable(reason, notes, spans=len(spans), stationary_s=stationary_s, beams_used=n_trials)
-        return dataclasses.replace(fit, mount_yaw_rad=yaw_est, yaw_cost=curve)
+        return dataclasses.replace(fit, mount_yaw_rad=yaw_est, yaw_cost=curve, blocked_sectors_rad=sectors)
     residuals = np.concatenate(per_span_res)
-    bias, sigma, half = clipped_moments(residuals)
-    correction = truncation_correction(CLIP_SIGMAS)
-    kept = [r[np.abs(r - bias) <= half] for r in per_span_res]
-    sums = np.array([[len(k), k.sum(), np.square(k).sum()] for k in kept])
-    n_res = int(sums[:, 0].sum())
+    sigma_est, per_m_est, noise_curve = _within_span_noise(spans, masks, rng, settings)
     spans_used = int(np.sum(trials > 0))
     if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
-
-        def stat(counts: np.ndarray) -> np.ndarray:
-            s = counts @ sums
-            t = counts @ trials
-            if s[0] < 2 or t <= 0:
-                return np.array([np.nan, np.nan, np.nan])
-            mean = s[1] / s[0]
-            var = max(s[2] / s[0] - mean * mean, 0.0) * s[0] / (s[0] - 1)
-            return np.array([mean, math.sqrt(var) * correction, (counts @ drops) / t])
-
-        samples = bootstrap(stat, len(spans), settings.bootstrap, rng)
-        method = f"bootstrap over {spans_used} stationary spans"
-        bias_se, bias_ci = spread(samples[:, 0])
-        sigma_se, sigma_ci = spread(samples[:, 1])
-        drop_se, drop_ci = spread(samples[:, 2])
+        samples = bootstrap(
+            lambda c: np.array([(c @ drops) / (c @ trials) if c @ trials > 0 else np.nan]),
+            len(spans),
+            settings.bootstrap,
+            rng,
+        )
+        drop_se, drop_ci = spread(samples[:, 0])
         p = float(drops.sum() / n_trials)
-        bias_est = Estimate.of(bias, bias_se, bias_ci, "m", method, n_res)
-        sigma_est = Estimate.of(sigma, sigma_se, sigma_ci, "m", method, n_res)
-        drop_est = Estimate.of(p, drop_se, drop_ci, "probability", method, n_trials)
+        drop_est = Estimate.of(
+            p, drop_se, drop_ci, "probability", f"bootstrap over {spans_used} stationary spans", n_trials
+        )
     else:
-        method = "normal theory (independent beams)"
-        bias_se = sigma / math.sqrt(n_res)
-        sigma_se = sigma / math.sqrt(2 * (n_res - 1))
-        bias_est = Estimate.of(bias, bias_se, normal_interval(bias, bias_se), "m", method, n_res)
-        sigma_est = Estimate.of(sigma, sigma_se, normal_interval(sigma, sigma_se), "m", method, n_res)
         drop_est = binomial_estimate(int(drops.sum()), n_trials)
     return LidarFit(
-        sigma_est, drop_est, bias_est, yaw_est, residuals, len(spans), stationary_s, n_trials, curve, tuple(notes)
+        noise_sigma_m=sigma_est,
+        dropout_prob=drop_est,
+        bias_m=bias_geo,
+        mount_yaw_rad=yaw_est,
+        residuals_m=residuals,
+        spans=len(spans),
+        stationary_s=stationary_s,
+        beams_used=n_trials,
+        yaw_cost=curve,
+        notes=tuple(notes),
+        noise_per_m=per_m_est,
+        mount_x_m=mount_x,
+        mount_y_m=mount_y,
+        wall_offset_m=walls,
+        box_offsets_m=boxes,
+        blocked_sectors_rad=sectors,
+        noise_curve=noise_curve,
     )

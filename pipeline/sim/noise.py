@@ -6,15 +6,23 @@ import numpy as np
 
 
 def noisy_ranges(
-    true_m: np.ndarray, rng: np.random.Generator, sigma_m: float, dropout_prob: float, bias_m: float
+    true_m: np.ndarray,
+    rng: np.random.Generator,
+    sigma_m: float,
+    dropout_prob: float,
+    bias_m: float,
+    noise_per_m: float = 0.0,
 ) -> np.ndarray:
     """Measured ranges (same shape) from true ones (m); +inf (no return) stays +inf.
 
-    Adds `bias_m` and zero-mean Gaussian noise of `sigma_m`; each beam drops out (reads +inf)
-    with probability `dropout_prob`.
+    Adds `bias_m` and zero-mean Gaussian noise of `sigma_m` + `noise_per_m` * range; each beam
+    drops out (reads +inf) with probability `dropout_prob`.
     """
     out = true_m + bias_m
-    if sigma_m > 0:
+    if noise_per_m > 0:
+        finite = np.where(np.isfinite(true_m), true_m, 0.0)
+        out = out + rng.standard_normal(size=true_m.shape) * (sigma_m + noise_per_m * finite)
+    elif sigma_m > 0:
         out = out + rng.normal(0.0, sigma_m, size=true_m.shape)
     if dropout_prob > 0:
         out = np.where(rng.random(true_m.shape) < dropout_prob, np.inf, out)

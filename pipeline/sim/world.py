@@ -23,13 +23,17 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
 class SimWorld:
     """N differential-drive robots in a scenario, stepped one control period at a time.
 
-    Commands are (n_robots, 2) (v m/s, w rad/s). All randomness (lidar noise, odometry errors)
-    comes from one generator seeded at reset, so a seed fixes a rollout to the bit.
+    Commands are (n_robots, 2) (v m/s, w rad/s). All randomness (lidar noise, odometry errors, the
+    draws of domain randomization) comes from one generator seeded at reset, so a seed fixes a
+    rollout to the bit. With ``world.randomize`` ranges, each episode runs in its own world: the
+    ranged keys are drawn at reset (`episode_world`, `draws`), in the ranges' fixed order.
     """
 
     def __init__(self, scenario: Scenario, world: WorldConfig) -> None:
         self.scenario = scenario
-        self.mount_yaw_rad = world.lidar.mount_yaw_rad
+        self.base_world = world
+        self._ranges = world.randomize.ranges()
+        self.draws: dict[str, float] = {}
         self.world = world
         self.model, self.index = build_model(scenario, world)
         self.data = mujoco.MjData(self.model)
@@ -56,11 +60,12 @@ class SimWorld:
         else:
             group[GROUP_ROBOT] = 1
         self._geomgroup = group
-        self._gain = np.array([world.actuation.linear_gain, world.actuation.angular_gain])
         self._ctrl_v = self.index.ctrl[:, 0]
         self._ctrl_w = self.index.ctrl[:, 2]
         self._qpos = self.index.qpos
+        self._kv = (self.model.actuator_gainprm[self._ctrl_v, 0].copy(), self.model.actuator_gainprm[self._ctrl_w, 0].copy())
         self.odometry = OdometryDrift(world.odometry.drift_per_m)
+        self._use(world)
         self.rng = np.random.default_rng(0)
         self._pending: deque[tuple[int, np.ndarray]] = deque()
         self._substep = 0
@@ -70,10 +75,34 @@ class SimWorld:
     def time_s(self) -> float:
         return float(self.data.time)
 
+    def _use(self, world: WorldConfig) -> None:
+        """Take the dynamics and sensor settings of `world` (the episode's draw)."""
+        self.world = world
+        act = world.actuation
+        self.mount_yaw_rad = world.lidar.mount_yaw_rad
+        self._gain = np.array([act.linear_gain, act.angular_gain])
+        self._wheels = act.deadband_radps > 0
+        self.odometry.drift_per_m = world.odometry.drift_per_m
+        if world.actuation.time_constant_s != self.base_world.actuation.time_constant_s or self._ranges:
+            scale = self.base_world.actuation.time_constant_s / act.time_constant_s
+            for ids, kv in zip((self._ctrl_v, self._ctrl_w), self._kv, strict=True):
+                self.model.actuator_gainprm[ids, 0] = kv * scale
+                self.model.actuator_biasprm[ids, 2] = -kv * scale
+
+    def _draw(self) -> None:
+        """Draw the randomized keys of this episode from the generator, in the ranges' order."""
+        self.draws = {key: float(self.rng.uniform(low, high)) for key, (low, high) in self._ranges.items()}
+        self._use(self.base_world.with_values(self.draws))
+
     def reset(self, seed: int | None = None, starts: np.ndarray | None = None) -> None:
-        """Place every robot at its start (or at `starts`, (n, 3)), at rest; reseed the noise when `seed` is given."""
+        """Place every robot at its start (or at `starts`, (n, 3)), at rest; reseed the noise when `seed` is given.
+
+        With randomization on, the episode's draws come first from the (reseeded) generator.
+        """
         if seed is not None:
             self.rng = np.random.default_rng(seed)
+        if self._ranges:
+            self._draw()
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self._qpos] = self.scenario.starts if starts is None else starts
         mujoco.mj_forward(self.model, self.data)
@@ -90,6 +119,16 @@ class SimWorld:
 
     def _apply(self, cmd: np.ndarray) -> None:
         target = cmd * self._gain
+        act = self.world.actuation
+        if self._wheels:
+            # wheel speeds by the nominal geometry; the motors do not turn under the deadband
+            half = act.wheel_separation_m / 2
+            wheels = np.stack([target[:, 0] - half * target[:, 1], target[:, 0] + half * target[:, 1]], axis=1)
+            wheels[np.abs(wheels) < act.deadband_radps * act.wheel_radius_m] = 0.0
+            target = np.stack([wheels.mean(axis=1), (wheels[:, 1] - wheels[:, 0]) / (2 * half)], axis=1)
+        if act.yaw_rate_per_mps != 0.0:
+            target = target.copy()
+            target[:, 1] += act.yaw_rate_per_mps * target[:, 0]
         self.data.ctrl[self._ctrl_v] = target[:, 0]
         self.data.ctrl[self._ctrl_w] = target[:, 1]
 
@@ -127,8 +166,12 @@ class SimWorld:
         """(n_robots, sim_beams) exact ranges (m) to the nearest visible geom; +inf where none within range_max."""
         lidar = self.world.lidar
         out = np.empty((self.n, lidar.sim_beams))
+        dx, dy = lidar.mount_xy_m
         for i in range(self.n):
             x, y, yaw = self.truth[i]
+            if dx != 0.0 or dy != 0.0:
+                cb, sb = math.cos(yaw), math.sin(yaw)
+                x, y = x + cb * dx - sb * dy, y + sb * dx + cb * dy
             yaw += self.mount_yaw_rad
             c, s = math.cos(yaw), math.sin(yaw)
             vec = self._vec.reshape(-1, 3)
@@ -160,5 +203,7 @@ class SimWorld:
         very observation the simulator gave the policy.
         """
         lidar = self.world.lidar
-        noisy = noisy_ranges(self.true_ranges(), self.rng, lidar.noise_sigma_m, lidar.dropout_prob, lidar.bias_m)
+        noisy = noisy_ranges(
+            self.true_ranges(), self.rng, lidar.noise_sigma_m, lidar.dropout_prob, lidar.bias_m, lidar.noise_per_m
+        )
         return noisy.astype(np.float32).astype(np.float64)

@@ -1,7 +1,9 @@
-"""Lidar noise, dropout, bias and mounting yaw from synthetic stationary scans with known parameters."""
+"""Lidar noise, dropout, bias, mounting, blocked sectors and the room's true geometry from synthetic stationary
+scans with known parameters."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -30,16 +32,29 @@ def spans(
     mount_yaw: float,
     scans: int = 15,
     range_max: float = 8.0,
+    mount_xy: tuple[float, float] = (0.0, 0.0),
+    per_m: float = 0.0,
+    blocked: tuple[float, float] | None = None,
+    room: MapGeometry = GEOMETRY,
+    poses: list[tuple[float, float, float]] = POSES,
 ) -> list[ScanSpan]:
     out = []
-    for k, (x, y, yaw) in enumerate(POSES):
+    for k, (x, y, yaw) in enumerate(poses):
         angles = yaw + mount_yaw + ANGLES
-        true = GEOMETRY.cast(np.array([x, y]), angles).range_m
-        body, _ = cast_circles(np.array([x, y]), angles, OTHER[None], SCENARIO.robot.radius_m)
+        origin = np.array(
+            [
+                x + math.cos(yaw) * mount_xy[0] - math.sin(yaw) * mount_xy[1],
+                y + math.sin(yaw) * mount_xy[0] + math.cos(yaw) * mount_xy[1],
+            ]
+        )
+        true = room.cast(origin, angles).range_m
+        body, _ = cast_circles(origin, angles, OTHER[None], SCENARIO.robot.radius_m)
         true = np.minimum(true, body)
-        ranges = true + bias + rng.normal(0, sigma, size=(scans, BEAMS))
+        ranges = true + bias + rng.normal(0, 1, size=(scans, BEAMS)) * (sigma + per_m * true)
         ranges[rng.random((scans, BEAMS)) < dropout] = np.inf
         ranges[:, true > range_max] = np.inf
+        if blocked is not None:
+            ranges[:, (ANGLES >= blocked[0]) & (ANGLES <= blocked[1])] = 0.04
         others = np.tile(OTHER, (scans, 1, 1))
         out.append(
             ScanSpan(
@@ -72,7 +87,7 @@ def test_noise_dropout_bias_and_mounting_are_recovered(sigma, dropout, bias, mou
     for est in (fit.noise_sigma_m, fit.bias_m, fit.dropout_prob, fit.mount_yaw_rad):
         assert est.ok and est.std_error is not None and est.interval is not None
         assert est.interval[0] <= est.value <= est.interval[1]
-        assert est.method == "bootstrap over 6 stationary spans"
+        assert est.method.endswith("bootstrap over 6 stationary spans")
     assert fit.spans == 6 and len(fit.residuals_m) > 5000
 
 
@@ -98,3 +113,82 @@ def test_clipped_moments_ignore_outliers():
     assert mean == pytest.approx(0.03, abs=0.001)
     assert sigma == pytest.approx(0.05, rel=0.02)
     assert half == pytest.approx(4 * sigma)
+
+
+MOVED = load_scenario("obstacles")
+MOVED = dataclasses.replace(
+    MOVED,
+    room=dataclasses.replace(
+        MOVED.room,
+        x_min_m=MOVED.room.x_min_m - 0.015,
+        x_max_m=MOVED.room.x_max_m + 0.015,
+        y_min_m=MOVED.room.y_min_m - 0.015,
+        y_max_m=MOVED.room.y_max_m + 0.015,
+    ),
+    obstacles=tuple(
+        dataclasses.replace(box, x_m=box.x_m + dx, y_m=box.y_m + dy)
+        for box, (dx, dy) in zip(MOVED.obstacles, [(0.03, -0.02), (-0.025, 0.04)], strict=False)
+    ),
+)
+MANY_POSES = [
+    (x, y, yaw)
+    for x in (0.8, 1.6, 2.4, 3.6, 4.4, 5.2)
+    for y, yaw in ((0.9, 0.4), (2.1, -2.0), (3.2, 1.9))
+    if GEOMETRY.clearance(np.array([[x, y]]))[0] > 0.4
+]
+
+
+def test_a_lab_lidar_in_a_room_that_is_not_where_the_map_says():
+    """The lab's lidar: 5 cm ahead of the axle, turned, noise growing with range, a mast behind it; walls 1.5 cm
+    further out and boxes a few cm off: every one is recovered, with intervals that contain the truth."""
+    rng = np.random.default_rng(7)
+    data = spans(
+        rng,
+        0.01,
+        0.02,
+        0.01,
+        0.03,
+        mount_xy=(0.05, 0.0),
+        per_m=0.004,
+        blocked=(2.9, 3.38),
+        room=MapGeometry.from_scenario(MOVED),
+        poses=MANY_POSES,
+    )
+    fit = estimate_lidar(GEOMETRY, data, SETTINGS, rng)
+    truth = {
+        "noise_sigma_m": 0.01,
+        "noise_per_m": 0.004,
+        "dropout_prob": 0.02,
+        "bias_m": 0.01,
+        "mount_yaw_rad": 0.03,
+        "mount_x_m": 0.05,
+        "mount_y_m": 0.0,
+        "wall_offset_m": 0.015,
+    }
+    for key, value in truth.items():
+        est = getattr(fit, key)
+        assert est.ok, (key, est.reason)
+        assert est.interval[0] <= value <= est.interval[1], (key, est.value, est.interval)
+    assert fit.noise_sigma_m.value == pytest.approx(0.01, rel=0.15)
+    assert fit.noise_per_m.value == pytest.approx(0.004, rel=0.15)
+    assert fit.mount_x_m.value == pytest.approx(0.05, abs=0.005)
+    for (ex, ey), (dx, dy) in zip(fit.box_offsets_m, [(0.03, -0.02), (-0.025, 0.04)], strict=True):
+        # about 30-70 beams see a box: millimetres
+        assert ex.ok and ey.ok
+        assert ex.value == pytest.approx(dx, abs=0.002) and ey.value == pytest.approx(dy, abs=0.002)
+    (sector,) = fit.blocked_sectors_rad
+    assert sector[0] == pytest.approx(2.9, abs=0.02) and sector[1] == pytest.approx(3.38, abs=0.02)
+    assert fit.dropout_prob.value == pytest.approx(0.02, abs=0.004)
+
+
+def test_static_errors_do_not_read_as_noise():
+    """Noise comes from each beam's spread about its own mean: a 5 cm mounting offset and moved boxes, which
+    put centimetres between the scans and the map, do not read as noise."""
+    rng = np.random.default_rng(8)
+    data = spans(
+        rng, 0.01, 0.0, 0.0, 0.0, mount_xy=(0.05, 0.0), room=MapGeometry.from_scenario(MOVED), poses=MANY_POSES
+    )
+    fit = estimate_lidar(GEOMETRY, data, SETTINGS, rng)
+    assert fit.noise_sigma_m.value == pytest.approx(0.01, rel=0.1)
+    assert fit.noise_per_m.interval[0] <= 0.0 <= fit.noise_per_m.interval[1]
+    assert fit.mount_x_m.value == pytest.approx(0.05, abs=0.002)
