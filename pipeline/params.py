@@ -189,7 +189,7 @@ class WorldConfig:
 
     def _randomized_bounds(self) -> list[tuple[str, object, str]]:
         """Ranges that reach outside the bounds of the key they draw."""
-        bad = []
+        bad: list[tuple[str, object, str]] = []
         for key, (low, high) in self.randomize.ranges().items():
             group, name = key.split(".")
             meta = next(f for f in fields(getattr(self, group)) if f.name == name).metadata

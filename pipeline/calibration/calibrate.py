@@ -6,7 +6,10 @@ ground truth, and hands each estimator its data:
 - lidar: scans taken during stationary spans (:mod:`pipeline.calibration.lidar`);
 - actuation: commanded vs achieved velocity on contact-free stretches (:mod:`pipeline.calibration.actuation`);
 - odometry: odometry vs truth per robot and episode (:mod:`pipeline.calibration.odometry`);
-- network: stamp gaps and delivery delays of the sensor topics (:mod:`pipeline.calibration.network`).
+- odometry also gives the true wheel radii and separation (:mod:`pipeline.calibration.wheels`);
+- network: stamp gaps and delivery delays of the sensor topics (:mod:`pipeline.calibration.network`),
+  and each robot's clock against the recorder's from the stamps of its own sensors
+  (:mod:`pipeline.calibration.clock`).
 
 Uncertainties that resample data do so over sessions' robots, episodes and spans, pooled across
 the recordings.
@@ -22,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.calibration.actuation import ActuationFit, CommandTimeline, VelocityTrack, estimate_actuation
+from pipeline.calibration.clock import ClockFit, estimate_clock
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
@@ -31,15 +35,62 @@ from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry
 from pipeline.calibration.recording import SessionData, read_session
 from pipeline.calibration.smoothing import SmootherNoise, Trajectory, smooth_trajectory
+from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, WheelFit, estimate_wheels
 from pipeline.core.scenario import Scenario
 
 PROFILE_KEYS: dict[str, tuple[str, ...]] = {
-    "lidar": ("beams", "rate_hz", "noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad"),
+    "lidar": ("beams", "rate_hz", "noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"),
     "actuation": ("delay_s", "time_constant_s", "linear_gain", "angular_gain"),
     "odometry": ("rate_hz", "drift_per_m"),
     "network": ("loss_prob", "jitter_s"),
+    "base": ("wheel_radius_left_m", "wheel_radius_right_m", "wheel_separation_m"),
+    "clock": ("offset_s", "drift_ppm"),
+    "map": ("wall_offset_m",),
 }
-"""The reality profile's keys, in its order."""
+"""The reality profile's scalar keys, in its order. Pairs are estimated per component, as
+``lidar.mount_xy_m[0]`` and ``map.box_offsets_m[k][1]`` (see :func:`split_key`)."""
+
+
+MIN_RANDOMIZE_HALF_WIDTH = 0.1
+"""Training on a calibration draws each identified key within at least +-10 % of its value."""
+RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
+    "lidar.noise_sigma_m": (0.0, 1.0),
+    "lidar.noise_per_m": (0.0, 0.2),
+    "lidar.dropout_prob": (0.0, 0.99),
+    "actuation.delay_s": (0.0, 1.0),
+    "actuation.time_constant_s": (0.005, 2.0),
+    "actuation.linear_gain": (0.01, 5.0),
+    "actuation.angular_gain": (0.01, 5.0),
+    "odometry.drift_per_m": (0.0, 1.0),
+}
+"""The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
+
+
+def _arc_half_width(values: dict[str, Estimate]) -> float:
+    """Half-width of the arc per metre over the corners of the wheel radii's and separation's intervals."""
+    ivs = [
+        values[k].interval for k in ("base.wheel_radius_left_m", "base.wheel_radius_right_m", "base.wheel_separation_m")
+    ]
+    if any(i is None for i in ivs):
+        return 0.0
+    corners = [
+        (right - left) / (NOMINAL_WHEEL_RADIUS_M * b)
+        for left in ivs[0] or ()
+        for right in ivs[1] or ()
+        for b in ivs[2] or ()
+    ]
+    return (max(corners) - min(corners)) / 2
+
+
+def split_key(key: str) -> tuple[str, str, tuple[int, ...]]:
+    """(group, name, indices) of a dotted estimate key.
+
+    ``map.box_offsets_m[1][0]`` is ("map", "box_offsets_m", (1, 0)).
+    """
+    group, rest = key.split(".", 1)
+    name, _, tail = rest.partition("[")
+    indices = tuple(int(i) for i in ("[" + tail).replace("]", "").split("[")[1:]) if tail else ()
+    return group, name, indices
 
 
 @dataclass(frozen=True)
@@ -67,33 +118,60 @@ class Calibration:
     odometry: OdometryFit | None = None
     network: NetworkFit | None = None
     settings: CalibrationSettings = field(default_factory=CalibrationSettings)
+    wheels: WheelFit | None = None
+    clock: ClockFit | None = None
 
     def estimate(self, key: str) -> Estimate:
         """The estimate of a dotted profile key, e.g. ``actuation.delay_s``; KeyError if it was not asked for."""
         return self.values[key]
 
-    def profile(self) -> dict[str, dict[str, float | int]]:
-        """The identified values in the reality profile's layout (unidentifiable keys are absent)."""
-        out: dict[str, dict[str, float | int]] = {}
-        for group, keys in PROFILE_KEYS.items():
-            for key in keys:
-                est = self.values.get(f"{group}.{key}")
-                if est is not None and est.ok and est.value is not None:
-                    value: float | int = round(est.value) if key == "beams" else _short(est.value)
-                    out.setdefault(group, {})[key] = value
-        return out
+    def profile(self) -> dict[str, dict[str, object]]:
+        """The identified values in the reality profile's layout (unidentifiable keys are absent; a pair with one
+        component identified keeps the other at its ideal value 0; blocked lidar sectors when seen)."""
+        out: dict[str, dict[str, object]] = {}
+        pairs: dict[tuple[str, str], dict[tuple[int, ...], float]] = {}
+        for key, est in self.values.items():
+            if not (est.ok and est.value is not None):
+                continue
+            group, name, indices = split_key(key)
+            if indices:
+                pairs.setdefault((group, name), {})[indices] = _short(est.value)
+            else:
+                value: float | int = round(est.value) if name == "beams" else _short(est.value)
+                out.setdefault(group, {})[name] = value
+        for (group, name), parts in pairs.items():
+            if len(next(iter(parts))) == 1:
+                out.setdefault(group, {})[name] = [parts.get((i,), 0.0) for i in range(2)]
+            else:
+                n = max(k[0] for k in parts) + 1
+                out.setdefault(group, {})[name] = [[parts.get((b, i), 0.0) for i in range(2)] for b in range(n)]
+        if self.lidar is not None and self.lidar.blocked_sectors_rad:
+            out.setdefault("lidar", {})["blocked_sectors_rad"] = [list(s) for s in self.lidar.blocked_sectors_rad]
+        order = list(PROFILE_KEYS)
+        return {g: out[g] for g in sorted(out, key=lambda g: order.index(g) if g in order else len(order))}
+
+    def arc_per_m(self) -> float | None:
+        """Yaw rate (rad/s) per m/s that unequal wheels add to a straight command: (r_right - r_left) / (r_nominal b).
+
+        None unless both radii and the separation are identified."""
+        keys = ("base.wheel_radius_left_m", "base.wheel_radius_right_m", "base.wheel_separation_m")
+        est = [self.values.get(k) for k in keys]
+        if not all(e is not None and e.ok and e.value is not None for e in est):
+            return None
+        left, right, sep = (float(e.value) for e in est if e is not None and e.value is not None)
+        return (right - left) / (NOMINAL_WHEEL_RADIUS_M * sep)
 
     def unidentified(self) -> dict[str, str]:
         """Dotted keys that the data cannot determine, with the reason."""
         return {k: e.reason for k, e in self.values.items() if not e.ok}
 
-    def world_overrides(self) -> dict[str, dict[str, float | int]]:
+    def world_overrides(self) -> dict[str, dict[str, object]]:
         """Simulator settings (keys of ``pipeline.params.WorldConfig``) for training on top of params.yaml's ``world``.
 
         Only identified values appear; the simulated lidar gets the real beam count (its scan is reduced
         to the policy's beams as the real one is) and sees the real robot bodies.
         """
-        out: dict[str, dict[str, float | int]] = {}
+        out: dict[str, dict[str, object]] = {}
 
         def put(group: str, key: str, source: str) -> None:
             est = self.values.get(source)
@@ -102,12 +180,50 @@ class Calibration:
 
         for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad"):
             put("lidar", key, f"lidar.{key}")
+        per_m = self.values.get("lidar.noise_per_m")
+        if per_m is not None and per_m.ok and per_m.value is not None:
+            out.setdefault("lidar", {})["noise_per_m"] = _short(min(max(per_m.value, 0.0), 0.2))
+        mount = [self.values.get(f"lidar.mount_xy_m[{i}]") for i in range(2)]
+        if all(m is not None and m.ok and m.value is not None for m in mount):
+            out.setdefault("lidar", {})["mount_xy_m"] = [_short(m.value) for m in mount if m and m.value is not None]
         put("lidar", "sim_beams", "lidar.beams")
         if "lidar" in out:
             out["lidar"]["robot_radius_seen_m"] = 0.0
         for key in PROFILE_KEYS["actuation"]:
             put("actuation", key, f"actuation.{key}")
+        arc = self.arc_per_m()
+        if arc is not None:
+            out.setdefault("actuation", {})["yaw_rate_per_mps"] = _short(arc)
         put("odometry", "drift_per_m", "odometry.drift_per_m")
+        ranges = self.randomize_ranges()
+        if ranges:
+            out["randomize"] = dict(ranges)
+        return out
+
+    def randomize_ranges(self) -> dict[str, dict[str, list[float]]]:
+        """Domain randomization for training on this calibration: each identified key is drawn from its 95 %
+        interval, widened to at least `MIN_RANDOMIZE_HALF_WIDTH` of its value on each side (a model fitted to
+        one lab's recording explains it only so well), kept inside the key's bounds. Keys left out keep
+        params.yaml's ranges."""
+        out: dict[str, dict[str, list[float]]] = {}
+        sources = {f"lidar.{k}": f"lidar.{k}" for k in ("noise_sigma_m", "noise_per_m", "dropout_prob", "bias_m")}
+        sources["lidar.mount_yaw_rad"] = "lidar.mount_yaw_rad"
+        sources.update({f"actuation.{k}": f"actuation.{k}" for k in PROFILE_KEYS["actuation"]})
+        sources["odometry.drift_per_m"] = "odometry.drift_per_m"
+        for world_key, source in sources.items():
+            est = self.values.get(source)
+            if est is None or not est.ok or est.value is None or est.interval is None:
+                continue
+            lo, hi = est.interval
+            half = MIN_RANDOMIZE_HALF_WIDTH * abs(est.value)
+            lo, hi = min(lo, est.value - half), max(hi, est.value + half)
+            group, name = world_key.split(".")
+            low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key, (-math.inf, math.inf))
+            out.setdefault(group, {})[name] = [_short(max(lo, low_bound)), _short(min(hi, high_bound))]
+        arc = self.arc_per_m()
+        if arc is not None:
+            half = max(abs(arc) * MIN_RANDOMIZE_HALF_WIDTH, _arc_half_width(self.values))
+            out.setdefault("actuation", {})["yaw_rate_per_mps"] = [_short(arc - half), _short(arc + half)]
         return out
 
 
@@ -317,7 +433,7 @@ def calibrate(
         if "network" in parts:
             streams += _network_streams(tag, data)
     values: dict[str, Estimate] = {}
-    lidar = actuation = odometry = network = None
+    lidar = actuation = odometry = network = wheels = clock = None
     if "lidar" in parts:
         lidar = estimate_lidar(geometry, spans, settings, rng)
         if beams:
@@ -328,8 +444,14 @@ def calibrate(
         else:
             values["lidar.beams"] = Estimate.unidentifiable("no scan recorded", "beams")
         values["lidar.rate_hz"] = rate_estimate(scan_stamps)
-        for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad"):
+        for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"):
             values[f"lidar.{key}"] = getattr(lidar, key)
+        values["lidar.mount_xy_m[0]"] = lidar.mount_x_m
+        values["lidar.mount_xy_m[1]"] = lidar.mount_y_m
+        values["map.wall_offset_m"] = lidar.wall_offset_m
+        for b, (dx, dy) in enumerate(lidar.box_offsets_m):
+            values[f"map.box_offsets_m[{b}][0]"] = dx
+            values[f"map.box_offsets_m[{b}][1]"] = dy
     if "actuation" in parts:
         actuation = estimate_actuation(tracks, settings, rng)
         for key in PROFILE_KEYS["actuation"]:
@@ -340,9 +462,29 @@ def calibrate(
         inferred = tuple(note for d in sessions for note in d.notes)
         odometry = replace(odometry, notes=inferred + odometry.notes)
         values["odometry.drift_per_m"] = odometry.drift_per_m
+        wheels = estimate_wheels(episodes, settings)
+        values["base.wheel_radius_left_m"] = wheels.radius_left_m
+        values["base.wheel_radius_right_m"] = wheels.radius_right_m
+        values["base.wheel_separation_m"] = wheels.separation_m
     if "network" in parts:
         network = estimate_network(streams, settings, rng)
         values["network.loss_prob"] = network.loss_prob
         values["network.jitter_s"] = network.jitter_s
+        clock = estimate_clock(_own_clock_streams(streams), settings)
+        values["clock.offset_s"] = clock.offset_s
+        values["clock.drift_ppm"] = clock.drift_ppm
     sources = tuple(Source(str(d.path), dict(d.session), len(d.episodes)) for d in sessions)
-    return Calibration(scenario.name, sources, values, lidar, actuation, odometry, network, settings)
+    return Calibration(
+        scenario.name, sources, values, lidar, actuation, odometry, network, settings, wheels=wheels, clock=clock
+    )
+
+
+def _own_clock_streams(streams: Sequence[StampStream]) -> dict[str, list[StampStream]]:
+    """Per recording and robot, the topics its own clock stamps (scan, odom; not the motion capture's ground truth)."""
+    out: dict[str, list[StampStream]] = {}
+    for stream in streams:
+        where, _, topic = stream.topic.rpartition(" ")
+        parts = topic.strip("/").split("/")
+        if len(parts) >= 2 and parts[-1] in ("scan", "odom"):
+            out.setdefault(f"{where} /{'/'.join(parts[:-1])}".strip(), []).append(stream)
+    return out

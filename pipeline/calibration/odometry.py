@@ -85,7 +85,7 @@ class OdometryFit:
     notes: tuple[str, ...] = ()
 
 
-def _increments(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pose_increments(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Forward and left displacement (m) in the previous pose's frame and the turn (rad) between consecutive poses."""
     d = np.diff(pose[:, :2], axis=0)
     c, s = np.cos(pose[:-1, 2]), np.sin(pose[:-1, 2])
@@ -106,7 +106,7 @@ def _aligned_error(odom: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.
     return travelled, error
 
 
-def _chunks(t_ns: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def chunk_bounds(t_ns: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First and last pose indices of consecutive chunks of about CHUNK_S seconds, none crossing pieces."""
     starts: list[int] = []
     ends: list[int] = []
@@ -124,7 +124,7 @@ def _chunks(t_ns: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.asarray(starts, dtype=np.int64), np.asarray(ends, dtype=np.int64)
 
 
-def _pieces(episode: OdometryEpisode) -> np.ndarray:
+def continuous_stretches(episode: OdometryEpisode) -> np.ndarray:
     """(n,) stretch numbers: the episode's pieces of continuous truth, cut again where the odometry jumps."""
     piece = episode.piece if episode.piece is not None else np.zeros(len(episode.t_ns), dtype=np.int64)
     restarts = np.zeros(len(piece), dtype=np.int64)
@@ -137,11 +137,11 @@ def _pieces(episode: OdometryEpisode) -> np.ndarray:
 
 def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> EpisodeDrift:
     """The draws of one robot-episode (see the module's description)."""
-    piece = _pieces(episode)
-    a, b = _chunks(episode.t_ns, piece)
+    piece = continuous_stretches(episode)
+    a, b = chunk_bounds(episode.t_ns, piece)
     same = piece[1:] == piece[:-1]
-    fo, lo, to = _increments(episode.odom)
-    _, _, tt = _increments(episode.truth)
+    fo, lo, to = pose_increments(episode.odom)
+    _, _, tt = pose_increments(episode.truth)
     cum_to = np.r_[0.0, np.cumsum(np.where(same, to, 0.0))]
     cum_tt = np.r_[0.0, np.cumsum(np.where(same, tt, 0.0))]
     cum_path = np.r_[0.0, np.cumsum(np.where(same, np.hypot(fo, lo), 0.0))]

@@ -2,7 +2,8 @@
 
 Layout of ``calibration.yaml``:
 
-- ``profile``: the identified values in the reality profile's keys (lidar, actuation, odometry, network);
+- ``profile``: the identified values in the reality profile's keys (lidar, actuation, odometry, network, base,
+  clock, map);
 - ``uncertainty``: every estimated key with its status, and either its value, standard error, 95 %
   interval, unit, method and sample count, or the reason it is unidentifiable;
 - ``world``: simulator settings (keys of ``pipeline.params.WorldConfig``) that training applies on
@@ -20,7 +21,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration
+from pipeline.calibration.calibrate import Calibration, split_key
 from pipeline.calibration.errors import CalibrationError
 from pipeline.errors import ConfigError
 from pipeline.mappings import to_mapping
@@ -33,11 +34,9 @@ REPORT_FILE = "calibration.md"
 def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
     """The content of ``calibration.yaml`` as plain mappings (see the module's description)."""
     uncertainty: dict[str, dict[str, Any]] = {}
-    for group, keys in PROFILE_KEYS.items():
-        for key in keys:
-            est = calibration.values.get(f"{group}.{key}")
-            if est is not None:
-                uncertainty.setdefault(group, {})[key] = est.as_mapping()
+    for key, est in calibration.values.items():
+        group, name, indices = split_key(key)
+        uncertainty.setdefault(group, {})[name + "".join(f"[{i}]" for i in indices)] = est.as_mapping()
     world = calibration.world_overrides()
     try:
         world_config(world, source="<calibrated world>")

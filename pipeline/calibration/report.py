@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration
+from pipeline.calibration.calibrate import Calibration
 from pipeline.calibration.estimates import Estimate
 
 LIDAR_PLOT = "lidar_residuals.png"
@@ -164,13 +164,15 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
         profile = s.session.get("profile", "")
         lines.append(f"- `{s.path}`: {s.episodes} episode(s), world {s.session.get('world', '?')}, profile `{profile}`")
     lines += ["", "| key | estimate | std. error | 95 % interval | method / reason |", "|---|---|---|---|---|"]
-    for group, keys in PROFILE_KEYS.items():
-        for key in keys:
-            est = calibration.values.get(f"{group}.{key}")
-            if est is not None:
-                lines.append(_row(f"{group}.{key}", est))
+    for key, est in calibration.values.items():
+        lines.append(_row(key, est))
+    ranges = calibration.randomize_ranges()
+    if ranges:
+        lines += ["", "Training on this calibration randomizes (per episode, uniform):", ""]
+        lines += [f"- `{g}.{k}`: [{lo:g}, {hi:g}]" for g, kv in ranges.items() for k, (lo, hi) in kv.items()]
     notes: list[str] = []
-    for part in (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network):
+    fits = (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network)
+    for part in (*fits, calibration.wheels, calibration.clock):
         if part is not None:
             notes += list(part.notes)
     if calibration.actuation is not None and calibration.actuation.residual_rms is not None:

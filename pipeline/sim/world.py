@@ -63,7 +63,10 @@ class SimWorld:
         self._ctrl_v = self.index.ctrl[:, 0]
         self._ctrl_w = self.index.ctrl[:, 2]
         self._qpos = self.index.qpos
-        self._kv = (self.model.actuator_gainprm[self._ctrl_v, 0].copy(), self.model.actuator_gainprm[self._ctrl_w, 0].copy())
+        self._kv = (
+            self.model.actuator_gainprm[self._ctrl_v, 0].copy(),
+            self.model.actuator_gainprm[self._ctrl_w, 0].copy(),
+        )
         self.odometry = OdometryDrift(world.odometry.drift_per_m)
         self._use(world)
         self.rng = np.random.default_rng(0)

@@ -70,6 +70,14 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
         "method": "test",
         "n": 100,
     }
+    randomize = data["world"].pop("randomize")
+    # each identified key is drawn from its 95 % interval, at least +-10 % of its value
+    assert randomize["actuation"] == {
+        "delay_s": [0.036, 0.044],
+        "time_constant_s": [0.144, 0.176],
+        "linear_gain": [0.855, 1.045],
+    }
+    assert randomize["lidar"]["noise_sigma_m"] == [0.0189, 0.0231]
     assert data["world"] == {
         "lidar": {
             "noise_sigma_m": 0.021,
@@ -90,6 +98,7 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
     assert world.lidar.sim_beams == 360 and world.lidar.noise_sigma_m == 0.021
     assert world.actuation.delay_s == 0.04 and world.actuation.angular_gain == WorldConfig().actuation.angular_gain
     assert world.odometry.drift_per_m == 0.041
+    assert world.randomize.actuation.delay_s == (0.036, 0.044) and world.randomize.actuation.angular_gain == ()
     # the report sits next to it (no fits here: a table and no plots)
     report = (tmp_path / "calibration.md").read_text()
     assert "| `actuation.angular_gain` | unidentifiable |" in report
@@ -117,3 +126,21 @@ def test_estimates_as_mappings():
         "unit": "m",
         "n": 0,
     }
+
+
+def test_pairs_are_written_in_the_profile_layout(tmp_path):
+    """Mounting offsets and box offsets are estimated per component; the profile holds them as the twin's
+    profile does, a box with one unidentified component keeping 0 there."""
+    pairs = {
+        "lidar.mount_xy_m[0]": ok(0.05, 0.001, "m"),
+        "lidar.mount_xy_m[1]": ok(-0.002, 0.001, "m"),
+        "map.box_offsets_m[0][0]": ok(0.03, 0.001, "m"),
+        "map.box_offsets_m[0][1]": ok(-0.02, 0.001, "m"),
+        "map.box_offsets_m[1][0]": Estimate.unidentifiable("seen by 3 clean beams (need 30)", "m"),
+        "map.box_offsets_m[1][1]": ok(0.04, 0.001, "m"),
+    }
+    data = yaml.safe_load(write_calibration(calibration(**pairs), tmp_path, report=False).read_text())
+    assert data["profile"]["lidar"]["mount_xy_m"] == [0.05, -0.002]
+    assert data["profile"]["map"] == {"box_offsets_m": [[0.03, -0.02], [0.0, 0.04]]}
+    assert data["uncertainty"]["map"]["box_offsets_m[1][0]"]["status"] == "unidentifiable"
+    assert data["world"]["lidar"]["mount_xy_m"] == [0.05, -0.002]

@@ -1,0 +1,280 @@
+"""True wheel radii and separation from odometry vs truth: kinematic data, the twin's MuJoCo base, coverage."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pipeline.calibration.odometry import OdometryEpisode
+from pipeline.calibration.options import CalibrationSettings
+from pipeline.calibration.wheels import (
+    NOMINAL_WHEEL_RADIUS_M,
+    NOMINAL_WHEEL_SEPARATION_M,
+    WheelFit,
+    estimate_wheels,
+    wheel_chunks,
+)
+from pipeline.core.scenario import load_scenario
+from pipeline.twin import profile
+from pipeline.twin.physics import BaseParams, FleetPhysics
+from pipeline.twin.profile import OdometryProfile
+from pipeline.twin.sensors import EncoderOdometry
+
+NS = 1_000_000_000
+SETTINGS = CalibrationSettings()
+TRUE = {"radius_left_m": 0.0335, "radius_right_m": 0.0342, "separation_m": 0.287}
+"""The lab robots' real wheels; their drivers integrate with the nominal 0.034 m and 0.281 m."""
+KEYS = tuple(TRUE)
+MOCAP_SIGMA_M = 0.001
+MOCAP_SIGMA_RAD = 0.002
+"""Noise of the twin's ground truth as the calibration sees it (a motion-capture system, smoothed)."""
+
+
+def commands(rng: np.random.Generator, seconds: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) forward speed (m/s) and yaw rate (rad/s), held 0.5-2 s: straight runs, arcs and turns on the spot."""
+    n = round(seconds / dt)
+    v, w = np.zeros(n), np.zeros(n)
+    k = 0
+    while k < n:
+        hold = round(rng.uniform(0.5, 2.0) / dt)
+        kind = rng.integers(3)
+        speed = rng.uniform(0.1, 0.3) * rng.choice([-1.0, 1.0])
+        rate = rng.uniform(0.3, 1.5) * rng.choice([-1.0, 1.0])
+        v[k : k + hold] = 0.0 if kind == 2 else speed
+        w[k : k + hold] = 0.0 if kind == 0 else rate
+        k += hold
+    return v, w
+
+
+def integrate(start: np.ndarray, ds: np.ndarray, dth: np.ndarray) -> np.ndarray:
+    """(n + 1, 3) poses from steps of ds (m) along the mean heading and turns dth (rad), as the driver integrates."""
+    yaw = start[2] + np.r_[0.0, np.cumsum(dth)]
+    mid = yaw[:-1] + dth / 2
+    x = start[0] + np.r_[0.0, np.cumsum(ds * np.cos(mid))]
+    y = start[1] + np.r_[0.0, np.cumsum(ds * np.sin(mid))]
+    return np.stack([x, y, np.angle(np.exp(1j * yaw))], axis=1)
+
+
+def kinematic_episode(
+    seed: int,
+    slip: float = 0.0,
+    seconds: float = 30.0,
+    dt: float = 0.04,
+    turning: bool = True,
+    nominal: tuple[float, float] = (NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M),
+    stuck: slice | None = None,
+) -> OdometryEpisode:
+    """A robot with the TRUE geometry driven by random commands; its odometry integrated with the `nominal` one.
+
+    The wheels turn as the driver commands through the nominal (radius, separation); each step the
+    base moves as its true wheels carry it, plus slip: each wheel loses or gains a share of its
+    travel drawn once per episode (its floor and load, spread slip / 20) and noise of `slip` times
+    its travel (and 1 mm per square-root second) every step. During the steps `stuck` the wheels
+    turn and the base stays put (it pushes a wall).
+    """
+    rng = np.random.default_rng(seed)
+    v, w = commands(rng, seconds, dt)
+    if not turning:
+        w[:] = 0.0
+    r, b = nominal
+    dphi = np.stack([(v - w * b / 2) / r, (v + w * b / 2) / r], axis=1) * dt  # wheel angles (rad) per step
+    dl, dr = dphi[:, 0] * TRUE["radius_left_m"], dphi[:, 1] * TRUE["radius_right_m"]
+    if slip > 0:
+        dl, dr = dl * (1 + rng.normal(0.0, slip / 20)), dr * (1 + rng.normal(0.0, slip / 20))
+        dl = dl + rng.normal(0.0, 1.0, len(dl)) * (slip * np.abs(dl) + 1e-3 * math.sqrt(dt))
+        dr = dr + rng.normal(0.0, 1.0, len(dr)) * (slip * np.abs(dr) + 1e-3 * math.sqrt(dt))
+    if stuck is not None:
+        dl[stuck] = dr[stuck] = 0.0
+    start = np.array([rng.uniform(0, 5), rng.uniform(0, 3), rng.uniform(-3, 3)])
+    truth = integrate(start, (dl + dr) / 2, (dr - dl) / TRUE["separation_m"])
+    odom = integrate(np.zeros(3), r * dphi.sum(axis=1) / 2, r * (dphi[:, 1] - dphi[:, 0]) / b)
+    t_ns = (np.arange(len(truth)) * dt * NS).astype(np.int64)
+    return OdometryEpisode(f"robot_{seed % 3 + 1}", f"episode {seed}", t_ns, odom, truth)
+
+
+def relative_errors(fit: WheelFit) -> dict[str, float]:
+    """Estimate / truth - 1 of each key; every key must be identified."""
+    out = {}
+    for key in KEYS:
+        est = getattr(fit, key)
+        assert est.ok, est.reason
+        assert est.unit == "m" and est.interval is not None
+        out[key] = est.value / TRUE[key] - 1.0
+    return out
+
+
+def covers(fit: WheelFit) -> dict[str, bool]:
+    """Whether each key's 95 % interval holds the truth."""
+    return {key: getattr(fit, key).interval[0] <= TRUE[key] <= getattr(fit, key).interval[1] for key in KEYS}
+
+
+# -- kinematic data -------------------------------------------------------------------------------
+
+
+def test_the_nominal_defaults_are_the_twins_nominal_geometry():
+    assert NOMINAL_WHEEL_RADIUS_M == profile.NOMINAL_WHEEL_RADIUS_M
+    assert NOMINAL_WHEEL_SEPARATION_M == profile.NOMINAL_WHEEL_SEPARATION_M
+
+
+def test_noise_free_data_give_the_true_geometry():
+    episodes = [kinematic_episode(seed) for seed in range(4)]
+    fit = estimate_wheels(episodes, SETTINGS)
+    errors = relative_errors(fit)
+    assert all(abs(e) < 0.005 for e in errors.values()), errors
+    assert all(abs(e) < 1e-4 for e in errors.values()), errors  # the chunk model is exact to far better than that
+    assert "4 robot-episodes" in fit.separation_m.method and "t interval (3 dof)" in fit.separation_m.method
+    assert estimate_wheels(episodes, SETTINGS) == fit  # the same seed gives the same bootstrap
+
+
+def test_other_nominal_values_are_honoured():
+    episodes = [kinematic_episode(seed, nominal=(0.036, 0.27)) for seed in range(3)]
+    errors = relative_errors(estimate_wheels(episodes, SETTINGS, nominal_radius_m=0.036, nominal_separation_m=0.27))
+    assert all(abs(e) < 1e-3 for e in errors.values()), errors
+
+
+def test_no_chunk_spans_a_gap_in_the_truth_or_a_restart_of_the_odometry():
+    episodes = []
+    for seed in range(3):
+        e = kinematic_episode(seed)
+        half = len(e.t_ns) // 2
+        truth, odom = e.truth.copy(), e.odom.copy()
+        truth[half:, :2] += [0.7, -0.3]  # the robot reappears elsewhere after a gap in the truth...
+        piece = (np.arange(len(truth)) >= half).astype(np.int64)
+        # ...and later its driver restarted: the odometry goes on from the origin, in a frame turned by its heading
+        later = 3 * len(e.t_ns) // 4
+        x0, y0, yaw0 = odom[later]
+        c, s = math.cos(yaw0), math.sin(yaw0)
+        dx, dy = odom[later:, 0] - x0, odom[later:, 1] - y0
+        odom[later:] = np.stack([c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (odom[later:, 2] - yaw0)))], 1)
+        episodes.append(OdometryEpisode(e.robot, e.label, e.t_ns, odom, truth, piece))
+    for episode in episodes:  # every chunk moves as the true wheels say: none holds the jump
+        chunks = wheel_chunks(episode)
+        k = np.array([TRUE["radius_left_m"], TRUE["radius_right_m"]]) / NOMINAL_WHEEL_RADIUS_M
+        assert np.abs(chunks.distance_m - chunks.travel @ k / 2).max() < 1e-4
+        assert np.abs(chunks.turn_rad - chunks.travel @ (k * [-1, 1]) / TRUE["separation_m"]).max() < 1e-4
+    fit = estimate_wheels(episodes, SETTINGS)
+    errors = relative_errors(fit)
+    assert all(abs(e) < 1e-4 for e in errors.values()), errors
+    assert any(note.endswith("; 0 chunks left out as slip") for note in fit.notes)
+
+
+def test_a_robot_pushing_a_wall_with_spinning_wheels_is_left_out():
+    episodes = [kinematic_episode(seed, stuck=slice(200, 240)) for seed in range(4)]  # 1.6 s stuck each
+    fit = estimate_wheels(episodes, SETTINGS)
+    errors = relative_errors(fit)
+    assert all(abs(e) < 1e-4 for e in errors.values()), errors
+    left_out = [note for note in fit.notes if note.endswith("chunks left out as slip")]
+    assert left_out and not left_out[0].endswith("; 0 chunks left out as slip")
+
+
+def test_the_95_percent_intervals_cover_the_truth_in_at_least_90_of_100_noisy_fleets():
+    """Slip noise on every step and per episode: each key's interval holds the truth in >= 90 % of fleets."""
+    hits = {key: 0 for key in KEYS}
+    widths = []
+    for fleet in range(100):
+        episodes = [kinematic_episode(1000 * fleet + k, slip=0.05, seconds=20.0) for k in range(6)]
+        fit = estimate_wheels(episodes, SETTINGS)
+        for key, hit in covers(fit).items():
+            hits[key] += hit
+        widths.append([(getattr(fit, k).interval[1] - getattr(fit, k).interval[0]) / TRUE[k] for k in KEYS])
+    assert all(n >= 90 for n in hits.values()), hits
+    # and they say something: about 1 % wide, not the whole range of wheels
+    assert np.median(widths, axis=0).max() < 0.02
+
+
+# -- what the data cannot tell --------------------------------------------------------------------
+
+
+def test_driving_straight_only_leaves_everything_unidentifiable():
+    fit = estimate_wheels([kinematic_episode(seed, turning=False) for seed in range(4)], SETTINGS)
+    for key in KEYS:
+        est = getattr(fit, key)
+        assert est.status == "unidentifiable" and est.unit == "m"
+        assert "too little turning to separate the wheel separation from the ratio of the wheel radii" in est.reason
+
+
+def test_one_curvature_only_leaves_everything_unidentifiable():
+    episodes = []
+    for seed in range(4):
+        e = kinematic_episode(seed)
+        # an arc of 0.2 m/s at 0.5 rad/s all along
+        n = len(e.t_ns) - 1
+        truth = integrate(e.truth[0], np.full(n, 0.2 * 0.04), np.full(n, 0.5 * 0.04 * 0.281 / 0.287))
+        odom = integrate(np.zeros(3), np.full(n, 0.2 * 0.04 * 1.01), np.full(n, 0.5 * 0.04))
+        episodes.append(OdometryEpisode(e.robot, e.label, e.t_ns, odom, truth))
+    est = estimate_wheels(episodes, SETTINGS).radius_left_m
+    assert est.status == "unidentifiable" and "always came in the same proportion" in est.reason
+
+
+def test_too_few_robot_episodes_or_chunks_are_named():
+    fit = estimate_wheels([kinematic_episode(0, seconds=4.0), kinematic_episode(1, seconds=4.0)], SETTINGS)
+    reason = fit.separation_m.reason
+    assert fit.separation_m.status == "unidentifiable"
+    assert "only 2 robot-episodes with motion (need 3)" in reason and "only 16 chunks" in reason
+    empty = estimate_wheels([], SETTINGS)
+    assert not empty.radius_right_m.ok and "only 0 robot-episodes" in empty.radius_right_m.reason
+
+
+# -- the twin's MuJoCo base -----------------------------------------------------------------------
+
+
+def twin_episodes(n_episodes: int, seconds: float) -> list[OdometryEpisode]:
+    """Three lab robots (true wheels TRUE, friction 0.8, motor lag and acceleration limit) driven by random
+    commands through the nominal geometry, each staying within 0.5 m of its start; encoder odometry at 50 Hz,
+    ground truth seen with motion-capture noise."""
+    scenario = load_scenario("empty")
+    base = BaseParams(
+        wheel_radius_left_m=TRUE["radius_left_m"],
+        wheel_radius_right_m=TRUE["radius_right_m"],
+        wheel_separation_m=TRUE["separation_m"],
+        mass_kg=6.2,
+        motor_time_constant_s=0.06,
+        deadband_radps=0.6,
+        max_wheel_accel_radps2=25.0,
+        friction=0.8,
+    )
+    physics = FleetPhysics(scenario, base)
+    odometry = EncoderOdometry(physics.n, OdometryProfile(rate_hz=50.0, drift_per_m=0.0), np.random.default_rng(0))
+    dt = 0.02
+    r, b = NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
+    out = []
+    for episode in range(n_episodes):
+        rng = np.random.default_rng(episode)
+        physics.reset(scenario.starts)
+        start = physics.poses()
+        odometry.reset(start, physics.wheel_angles())
+        drives = [commands(rng, seconds, dt) for _ in range(physics.n)]
+        v, w = np.stack([d[0] for d in drives], axis=1), np.stack([d[1] for d in drives], axis=1)
+        sign = np.ones(physics.n)
+        truth, odom = [start], [odometry.pose.copy()]
+        for k in range(len(v)):
+            pose = truth[-1]
+            away = pose[:, :2] - start[:, :2]
+            outward = np.cos(pose[:, 2]) * away[:, 0] + np.sin(pose[:, 2]) * away[:, 1]
+            sign = np.where((np.hypot(*away.T) > 0.5) & (sign * v[k] * outward > 0), -sign, sign)
+            speed = sign * v[k]
+            physics.set_wheel_targets(np.stack([(speed - w[k] * b / 2) / r, (speed + w[k] * b / 2) / r], axis=1))
+            physics.step(round(dt / physics.timestep_s))
+            odometry.update(physics.wheel_angles(), dt)
+            truth.append(physics.poses())
+            odom.append(odometry.pose.copy())
+        t_ns = (np.arange(len(truth)) * dt * NS).astype(np.int64)
+        for i in range(physics.n):
+            seen = np.array([p[i] for p in truth])
+            seen += rng.normal(0.0, 1.0, seen.shape) * [MOCAP_SIGMA_M, MOCAP_SIGMA_M, MOCAP_SIGMA_RAD]
+            out.append(
+                OdometryEpisode(f"robot_{i + 1}", f"episode {episode}", t_ns, np.array([p[i] for p in odom]), seen)
+            )
+    return out
+
+
+def test_the_twins_mujoco_base_gives_its_true_wheels_within_the_intervals():
+    episodes = twin_episodes(3, 30.0)
+    for e in episodes:  # the robots stayed in the room, clear of each other
+        assert np.hypot(*(e.truth[:, :2] - e.truth[0, :2]).T).max() < 0.7
+    fit = estimate_wheels(episodes, SETTINGS)
+    errors = relative_errors(fit)
+    assert all(abs(e) < 0.15 for e in errors.values()), errors
+    assert all(abs(e) < 0.003 for e in errors.values()), errors  # closer than the nominal geometry (0.6-2.1 % off)
+    assert covers(fit) == {key: True for key in KEYS}, {k: getattr(fit, k).interval for k in KEYS}
