@@ -24,6 +24,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -65,17 +66,17 @@ EFFECTIVE = (
 )
 
 
-def truth_of(profile: dict, key: str) -> float | None:
+def truth_of(profile: dict[str, Any], key: str) -> float | None:
     """The profile's true value behind a calibrated key (None where the profile has none)."""
     group, _, rest = key.partition(".")
     if key == "actuation.linear_gain":
         base = profile["base"]
-        k = (base["wheel_radius_left_m"] + base["wheel_radius_right_m"]) / (2 * NOMINAL_WHEEL_RADIUS_M)
-        return profile["actuation"]["linear_gain"] * k
+        k = float(base["wheel_radius_left_m"] + base["wheel_radius_right_m"]) / (2 * NOMINAL_WHEEL_RADIUS_M)
+        return float(profile["actuation"]["linear_gain"]) * k
     if key == "actuation.angular_gain":
         base = profile["base"]
-        k = (base["wheel_radius_left_m"] + base["wheel_radius_right_m"]) / (2 * NOMINAL_WHEEL_RADIUS_M)
-        return profile["actuation"]["angular_gain"] * k * 0.281 / base["wheel_separation_m"]
+        k = float(base["wheel_radius_left_m"] + base["wheel_radius_right_m"]) / (2 * NOMINAL_WHEEL_RADIUS_M)
+        return float(profile["actuation"]["angular_gain"]) * k * 0.281 / float(base["wheel_separation_m"])
     if rest.startswith("mount_xy_m["):
         return float(profile["lidar"]["mount_xy_m"][int(rest[-2])])
     if rest.startswith("box_offsets_m["):

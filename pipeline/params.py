@@ -74,32 +74,28 @@ Range = tuple[float, ...]
 """A [low, high] range for per-episode draws; [] leaves the key at its world value."""
 
 
-def _range() -> Any:
-    return setting((), max_len=2, optional=True)
-
-
 @dataclass(frozen=True)
 class LidarRanges:
-    noise_sigma_m: Range = _range()
-    noise_per_m: Range = _range()
-    dropout_prob: Range = _range()
-    bias_m: Range = _range()
-    mount_yaw_rad: Range = _range()
+    noise_sigma_m: Range = setting((), max_len=2, optional=True)
+    noise_per_m: Range = setting((), max_len=2, optional=True)
+    dropout_prob: Range = setting((), max_len=2, optional=True)
+    bias_m: Range = setting((), max_len=2, optional=True)
+    mount_yaw_rad: Range = setting((), max_len=2, optional=True)
 
 
 @dataclass(frozen=True)
 class ActuationRanges:
-    delay_s: Range = _range()
-    time_constant_s: Range = _range()
-    linear_gain: Range = _range()
-    angular_gain: Range = _range()
-    yaw_rate_per_mps: Range = _range()
-    deadband_radps: Range = _range()
+    delay_s: Range = setting((), max_len=2, optional=True)
+    time_constant_s: Range = setting((), max_len=2, optional=True)
+    linear_gain: Range = setting((), max_len=2, optional=True)
+    angular_gain: Range = setting((), max_len=2, optional=True)
+    yaw_rate_per_mps: Range = setting((), max_len=2, optional=True)
+    deadband_radps: Range = setting((), max_len=2, optional=True)
 
 
 @dataclass(frozen=True)
 class OdometryRanges:
-    drift_per_m: Range = _range()
+    drift_per_m: Range = setting((), max_len=2, optional=True)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ is checked beyond its own fit.
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +24,8 @@ import numpy as np
 from pipeline.analysis.errors import ReplayError
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
-from pipeline.mappings import to_mapping
 from pipeline.messages import convert as C
-from pipeline.params import WorldConfig, world_config
+from pipeline.params import RandomizeConfig, WorldConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC, read_episode_windows
@@ -121,9 +120,10 @@ def open_loop_divergence(
         for kind in ("cmd_vel", "ground_truth"):
             if f"/{ns}/{kind}" not in topics:
                 raise ReplayError(f"{path}: no /{ns}/{kind} topic; open-loop replay needs commands and ground truth")
+    # the world's own values, not a randomized draw: replay asks how far the point estimates carry
     replay_world = world_config(
         {"control_period_s": REPLAY_TICK_S, "max_steps": 100_000, "lidar": {"noise_sigma_m": 0.0}},
-        base=world_config(to_mapping(world)),
+        base=replace(world, randomize=RandomizeConfig()),
     )
     sim = SimWorld(scenario, replay_world)
     tick_ns = round(REPLAY_TICK_S * NS_PER_S)
@@ -177,3 +177,24 @@ def open_loop_divergence(
         p90_error_m=np.nanpercentile(flat[valid], 90, axis=1),
         episodes=len(errors),
     )
+
+
+RESIDUAL_TIMES_S = (1.0, 2.0, 5.0, 10.0)
+
+
+def _cell(d: Divergence, t: float) -> str:
+    return f"{d.at(t):.3f} m ({float(np.interp(t, d.times_s, d.p90_error_m)):.3f} m)"
+
+
+def residual_lines(nominal: Divergence, calibrated: Divergence) -> list[str]:
+    """Markdown lines: the open-loop replay error the nominal and the calibrated simulator leave over time."""
+    lines = [
+        "| replay horizon | nominal simulator, mean (p90) | calibrated simulator, mean (p90) |",
+        "|---|---|---|",
+    ]
+    for t in RESIDUAL_TIMES_S:
+        if t > float(calibrated.times_s[-1]) + 1e-9:
+            break
+
+        lines.append(f"| {t:g} s | {_cell(nominal, t)} | {_cell(calibrated, t)} |")
+    return lines

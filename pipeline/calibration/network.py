@@ -112,6 +112,14 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
     resid = y - slope * x
     dof = max(len(x) - len(xs) - 1, 1)
     se = math.sqrt(float(resid @ resid) / dof / sxx)
+    # stamps on a grid (a sender that stamps at its physics steps) fix each run's ends only to a grid step:
+    # a period no more certain than one step over a typical run, whatever the message count
+    levels = np.unique(np.round(gaps[regular] * 1e6))
+    steps_between = np.diff(levels)
+    grid_s = float(steps_between[steps_between > 0].min()) * 1e-6 if len(steps_between) else 0.0
+    spans = [float(np.ptp(i)) * slope for i in xs]
+    if grid_s > 0 and spans and np.median(spans) > 0:
+        se = max(se, grid_s / float(np.median(spans)) * slope)
     return slope, se, len(x)
 
 

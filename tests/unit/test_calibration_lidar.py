@@ -54,7 +54,7 @@ def spans(
         ranges[rng.random((scans, BEAMS)) < dropout] = np.inf
         ranges[:, true > range_max] = np.inf
         if blocked is not None:
-            ranges[:, (ANGLES >= blocked[0]) & (ANGLES <= blocked[1])] = 0.04
+            ranges[:, (blocked[0] <= ANGLES) & (blocked[1] >= ANGLES)] = 0.04
         others = np.tile(OTHER, (scans, 1, 1))
         out.append(
             ScanSpan(

@@ -1,0 +1,147 @@
+"""The loop on a reality the simulator does not contain: nominal vs calibrated, sim vs twin, per reality.
+
+For each --profiles entry (a bundled profile such as ``lab``, or ``drawn:SEED`` for a profile drawn
+from `pipeline.twin.draw.PROFILE_RANGES`) it runs the dvc stages with a params file of its own
+(params.yaml with the outputs under --out/<profile>/ and the deployment's profile, episodes and time
+scale set): the nominal policy (--nominal, an exported policy trained by the nominal round; it is
+not retrained) is evaluated in sim and deployed on the twin, the recording is calibrated, the
+calibrated round is trained (with its domain randomization), exported, evaluated and deployed.
+Printed per profile and round: robot-level success in sim and on the twin with 95 % intervals,
+the gap (sim - twin) with its 95 % interval (Newcombe), and every calibrated key against the
+profile's truth with its relative error.
+
+Targets (issue figures): twin robot success >= 0.90 after calibration, gap <= 3 points, calibrated
+never worse than nominal, nominal zero-shot on ``lab`` >= 0.80. Last line per profile:
+``profile=<name> nominal_real=<p> calibrated_real=<p> gap_calibrated=<points>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from pipeline.core.stats import newcombe_interval
+from pipeline.twin.draw import draw_profile_mapping
+
+ROBOTS = 3
+"""Robots of the fleet (the obstacles room's three SPARKs): robot-level trials are episodes x robots."""
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from calibration_coverage import truth_of  # noqa: E402
+
+
+def stage(name: str, params: Path, round_name: str | None = None) -> None:
+    cmd = [sys.executable, str(ROOT / "stages" / f"{name}.py"), "--params", str(params)]
+    if round_name is not None:
+        cmd += ["--round", round_name]
+    print(f"sim2real: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
+    subprocess.run(cmd, check=True, cwd=ROOT)
+
+
+def metrics(path: Path) -> dict[str, Any]:
+    return dict(json.loads(path.read_text()))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profiles", nargs="+", default=["lab"])
+    parser.add_argument("--nominal", type=Path, default=Path("models/nominal"), help="the nominal round's folder")
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--time-scale", type=float, default=3.0)
+    parser.add_argument("--out", type=Path, default=Path("logs/benchmarks/sim2real"))
+    parser.add_argument("--skip-done", action="store_true", help="keep rounds whose metrics exist")
+    args = parser.parse_args()
+    base = yaml.safe_load((ROOT / "params.yaml").read_text())
+    for spec in args.profiles:
+        out = (args.out / spec.replace(":", "_")).resolve()
+        out.mkdir(parents=True, exist_ok=True)
+        if spec.startswith("drawn:"):
+            truth = draw_profile_mapping(int(spec.split(":")[1]), 2)
+            profile_path = out / "profile.yaml"
+            profile_path.write_text(yaml.safe_dump(truth), encoding="utf-8")
+            profile = str(profile_path)
+        else:
+            profile = spec
+            truth = yaml.safe_load(profile_path(spec).read_text())
+        params = dict(base)
+        params["train"] = {**base["train"], "out_dir": str(out / "models")}
+        params["export"] = {**base["export"], "out_dir": str(out / "models")}
+        params["eval_sim"] = {**base["eval_sim"], "out_dir": str(out / "sim")}
+        params["deploy"] = {
+            **base["deploy"],
+            "out_dir": str(out / "real"),
+            "profile": profile,
+            "episodes": args.episodes,
+            "time_scale": args.time_scale,
+        }
+        params["calibrate"] = {**base["calibrate"], "out_dir": str(out / "calibration"), "round": "nominal"}
+        params["replay"] = {**base["replay"], "out_dir": str(out / "replay")}
+        params_path = out / "params.yaml"
+        params_path.write_text(yaml.safe_dump(params, sort_keys=False), encoding="utf-8")
+        nominal_dir = out / "models" / "nominal"
+        if not nominal_dir.exists():
+            shutil.copytree(args.nominal, nominal_dir)
+        for round_name in ("nominal", "calibrated"):
+            if round_name == "calibrated":
+                if not (args.skip_done and (out / "calibration" / "calibration.yaml").exists()):
+                    stage("calibrate", params_path)
+                if not (args.skip_done and (out / "models" / "calibrated" / "policy" / "policy.json").exists()):
+                    stage("train", params_path, round_name)
+                    stage("export", params_path, round_name)
+            if not (args.skip_done and (out / "sim" / round_name / "metrics.json").exists()):
+                stage("eval_sim", params_path, round_name)
+            if not (args.skip_done and (out / "real" / round_name / "metrics.json").exists()):
+                stage("deploy", params_path, round_name)
+        report(spec, out, truth)
+    return 0
+
+
+def report(spec: str, out: Path, truth: dict[str, Any]) -> None:
+    print(f"\n== {spec} ==")
+    figures = {}
+    for round_name in ("nominal", "calibrated"):
+        sim = metrics(out / "sim" / round_name / "metrics.json")
+        real = metrics(out / "real" / round_name / "metrics.json")
+        ps, pr = sim["eval/robot_success"], real["real/robot_success"]
+        n_sim = int(sim["eval/episodes"]) * ROBOTS
+        n_real = int(real["real/episodes"]) * ROBOTS
+        lo, hi = newcombe_interval(round(ps * n_sim), n_sim, round(pr * n_real), n_real)
+        gap = ps - pr
+        figures[round_name] = (pr, gap)
+        sim_ci = f"[{sim['eval/robot_success_ci_low']:.3f}, {sim['eval/robot_success_ci_high']:.3f}]"
+        print(
+            f"{round_name:10s} sim {ps:.3f} {sim_ci}"
+            f"  twin {pr:.3f} [{real['real/robot_success_ci_low']:.3f}, {real['real/robot_success_ci_high']:.3f}]"
+            f"  gap {100 * gap:+.1f} points [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+            f"  aborted {int(real['real/aborted_episodes'])}/{int(real['real/episodes'])}"
+        )
+    cal = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
+    print(f"{'key':30s} {'estimate':>10s} {'truth':>10s} {'rel err':>8s} covered")
+    for group, keys in cal["uncertainty"].items():
+        for key, est in keys.items():
+            t = truth_of(truth, f"{group}.{key}")
+            if t is None:
+                continue
+            if est["status"] != "ok":
+                print(f"{group + '.' + key:30s} {'-':>10s} {t:10.4g}  unidentifiable: {est['reason']}")
+                continue
+            v, (lo, hi) = est["value"], est["interval_95"] or (float("nan"), float("nan"))
+            rel = abs(v - t) / abs(t) if t else float("nan")
+            print(f"{group + '.' + key:30s} {v:10.4g} {t:10.4g} {rel:8.3f} {'yes' if lo <= t <= hi else 'no'}")
+    nominal, calibrated = figures["nominal"], figures["calibrated"]
+    print(
+        f"profile={spec} nominal_real={nominal[0]:.3f} calibrated_real={calibrated[0]:.3f} "
+        f"gap_calibrated={100 * calibrated[1]:+.1f}"
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())
