@@ -42,7 +42,7 @@ PROFILE_KEYS: dict[str, tuple[str, ...]] = {
     "lidar": ("beams", "rate_hz", "noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"),
     "actuation": ("delay_s", "time_constant_s", "linear_gain", "angular_gain"),
     "odometry": ("rate_hz", "drift_per_m"),
-    "network": ("loss_prob", "jitter_s"),
+    "network": ("loss_prob", "jitter_s", "burst_len"),
     "base": ("wheel_radius_left_m", "wheel_radius_right_m", "wheel_separation_m"),
     "clock": ("offset_s", "drift_ppm"),
     "map": ("wall_offset_m",),
@@ -470,13 +470,40 @@ def calibrate(
         network = estimate_network(streams, settings, rng)
         values["network.loss_prob"] = network.loss_prob
         values["network.jitter_s"] = network.jitter_s
+        values["network.burst_len"] = network.burst_len
         clock = estimate_clock(_own_clock_streams(streams), settings)
         values["clock.offset_s"] = clock.offset_s
         values["clock.drift_ppm"] = clock.drift_ppm
+    for key in ("lidar.rate_hz", "odometry.rate_hz"):
+        if key in values:
+            values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
     sources = tuple(Source(str(d.path), dict(d.session), len(d.episodes)) for d in sessions)
     return Calibration(
         scenario.name, sources, values, lidar, actuation, odometry, network, settings, wheels=wheels, clock=clock
     )
+
+
+UNMEASURED_DRIFT_PPM = 200.0
+"""A robot clock's rate error assumed at most this when the recording cannot tell it."""
+
+
+def _host_rate(rate: Estimate, drift: Estimate | None) -> Estimate:
+    """A sending rate measured on the robot's stamps, on the host's clock: a robot clock running `drift` fast
+    stretches every stamped period by (1 + drift). The interval takes the drift's own interval (or
+    +-`UNMEASURED_DRIFT_PPM` when the drift is unknown) on top of the rate's."""
+    if not rate.ok or rate.value is None:
+        return rate
+    if drift is not None and drift.ok and drift.value is not None and drift.interval is not None:
+        d, (d_lo, d_hi) = drift.value * 1e-6, (drift.interval[0] * 1e-6, drift.interval[1] * 1e-6)
+        how = "robot clock's drift taken out"
+    else:
+        d, d_lo, d_hi = 0.0, -UNMEASURED_DRIFT_PPM * 1e-6, UNMEASURED_DRIFT_PPM * 1e-6
+        how = f"robot clock's drift unknown: +-{UNMEASURED_DRIFT_PPM:g} ppm"
+    lo, hi = rate.interval if rate.interval is not None else (rate.value, rate.value)
+    value = rate.value * (1 + d)
+    interval = (lo * (1 + d_lo), hi * (1 + d_hi))
+    se = max(rate.std_error or 0.0, (interval[1] - interval[0]) / (2 * 1.959963984540054))
+    return Estimate.of(value, se, interval, rate.unit, f"{rate.method}; {how}", rate.n)
 
 
 def _own_clock_streams(streams: Sequence[StampStream]) -> dict[str, list[StampStream]]:

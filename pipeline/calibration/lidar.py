@@ -566,6 +566,7 @@ def _within_span_noise(
 
     full = line(sums.sum(axis=0))
     total = sums.sum(axis=0)
+    lack_of_fit = _line_misfit(total, full, correction)
     curve = (
         total[:, 3] / np.maximum(total[:, 0], 1),
         np.sqrt(np.maximum(total[:, 2] / np.maximum(total[:, 0], 1), 0)) * correction,
@@ -588,6 +589,11 @@ def _within_span_noise(
         if not math.isfinite(se):
             ests.append(Estimate.unidentifiable("too few stationary spans to tell its uncertainty", unit, n_dev))
             continue
+        # a line that does not go through the bins' spreads (what the model leaves) widens the interval
+        misfit = float(lack_of_fit[k])
+        if misfit > se:
+            se = misfit
+            ci = (min(ci[0], value - Z_95 * se), max(ci[1], value + Z_95 * se))
         ests.append(Estimate.of(value, se, ci, unit, method, n_dev))
     return ests[0], ests[1], curve
 
@@ -619,6 +625,24 @@ def truncation_correction(sigmas: float) -> float:
     mass = 2 * stats.norm.cdf(sigmas) - 1
     var = 1 - 2 * sigmas * stats.norm.pdf(sigmas) / mass
     return 1.0 / math.sqrt(var)
+
+
+def _line_misfit(total: np.ndarray, line: np.ndarray, correction: float) -> np.ndarray:
+    """Standard errors (intercept, slope) of the weighted line through the range bins' spreads from its own
+    residuals: zero where the line explains the bins, large where it does not (the twin's noise not linear
+    in range, robots not quite still)."""
+    n = total[:, 0]
+    ok = n >= 2
+    if ok.sum() < 3 or not np.all(np.isfinite(line)):
+        return np.zeros(2)
+    sigma = np.sqrt(np.maximum(total[ok, 2] / n[ok] - (total[ok, 1] / n[ok]) ** 2, 0.0)) * correction
+    centre = total[ok, 3] / n[ok]
+    w = n[ok] / n[ok].mean()
+    x = np.stack([np.ones_like(centre), centre], axis=1)
+    resid = sigma - x @ line
+    s2 = float(np.sum(w * resid**2)) / (ok.sum() - 2)
+    cov = s2 * np.linalg.inv(x.T @ (w[:, None] * x))
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
 def estimate_lidar(

@@ -26,11 +26,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.calibration.estimates import Estimate, bootstrap, spread
+from pipeline.calibration.estimates import Z_95, Estimate, bootstrap, spread
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.stats import wilson_interval
 from pipeline.core.timebase import NS_PER_S
@@ -40,6 +40,10 @@ SHARED_TICKS = 0.5
 """Topics of one period whose stamps appear on another topic at least this often share their sender's ticks."""
 TRIANGULAR_IQR = 2.0 - math.sqrt(2.0)
 """Interquartile range of the difference of two independent uniform [0, 1] variables."""
+BURST_PERIODS = 20
+"""A gap of up to this many sending periods is lost messages (longer: the sender paused)."""
+MIN_LOSS_CLUSTERS = 5
+"""Topic-episodes needed to resample the loss over them."""
 MAX_ISOLATED_SHARE = 4.0 / 27.0
 """The largest value of p (1 - p)^2 (at p = 1/3)."""
 
@@ -69,11 +73,12 @@ class StampStream:
 
 @dataclass(frozen=True)
 class NetworkFit:
-    """Loss probability and jitter (s)."""
+    """Loss probability, jitter (s) and the mean length of a run of lost messages."""
 
     loss_prob: Estimate
     jitter_s: Estimate
     notes: tuple[str, ...] = ()
+    burst_len: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "messages"))
 
 
 def period_s(stamp_ns: np.ndarray) -> float | None:
@@ -162,9 +167,21 @@ def _gap_runs(stamp_ns: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, int]:
     if p is None:
         return np.zeros(0, dtype=np.int64), len(s)
     gaps = np.diff(s) / NS_PER_S
-    inside = gaps <= max_gap_s
+    # a slow sender's bursts span long gaps: up to `BURST_PERIODS` of its own periods count as losses
+    inside = gaps <= max(max_gap_s, BURST_PERIODS * p)
     runs = np.maximum(np.round(gaps[inside] / p).astype(np.int64) - 1, 0)
     return runs[runs > 0], len(s) + int(runs.sum())
+
+
+def _gap_missing(stamp_ns: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Per gap between consecutive stamps (sorted, distinct): the messages missing in it (0 for a pause)."""
+    s = np.asarray(stamp_ns, dtype=np.int64)
+    p = period_s(s)
+    if p is None:
+        return np.zeros(max(len(s) - 1, 0), dtype=np.int64)
+    gaps = np.diff(s) / NS_PER_S
+    inside = gaps <= max(max_gap_s, BURST_PERIODS * p)
+    return np.where(inside, np.maximum(np.round(gaps / p).astype(np.int64) - 1, 0), 0)
 
 
 def _tick_runs(own: np.ndarray, ticks: np.ndarray) -> np.ndarray:
@@ -242,6 +259,7 @@ def estimate_network(
         reason = f"fewer than {MIN_MESSAGES} sensor messages per topic inside episodes"
         return NetworkFit(Estimate.unidentifiable(reason, "probability"), Estimate.unidentifiable(reason, "s"))
     runs: list[np.ndarray] = []
+    expected_per_run: list[int] = []
     expected = 0
     pair_jitter: list[float] = []
     own_jitter: list[float] = []
@@ -250,6 +268,7 @@ def estimate_network(
             ticks = np.unique(np.concatenate([kept[i].stamp_ns for i in group]))
             for i in group:
                 runs.append(_tick_runs(kept[i].stamp_ns, ticks))
+                expected_per_run.append(len(ticks))
                 expected += len(ticks)
             for a_i, a in enumerate(group):
                 for b in group[a_i + 1 :]:
@@ -262,19 +281,28 @@ def estimate_network(
                     pair_jitter.append(float(q75 - q25) / TRIANGULAR_IQR)
             continue
         stream = kept[group[0]]
+        # gaps over the whole stream (a burst across an episode's start is still counted), each told to the
+        # episode its first message after the gap falls in
+        missing = _gap_missing(stream.stamp_ns, settings.network_max_gap_s)
         for a, b in stream.windows or [(int(stream.log_ns.min()), int(stream.log_ns.max()))]:
             sel = (stream.log_ns >= a) & (stream.log_ns <= b)
             if sel.sum() >= 3:
-                r, n = _gap_runs(stream.stamp_ns[sel], settings.network_max_gap_s)
+                r = missing[sel[1:]]
+                r = r[r > 0]
                 runs.append(r)
-                expected += n
+                expected_per_run.append(int(sel.sum() + r.sum()))
+                expected += int(sel.sum() + r.sum())
         delay = (stream.log_ns - stream.stamp_ns) / NS_PER_S
         q25, q75 = np.percentile(delay, [25, 75])
         own_jitter.append(2.0 * float(q75 - q25))
     all_runs = np.concatenate(runs) if runs else np.zeros(0, dtype=np.int64)
     isolated = int(np.sum(all_runs == 1))
     lost = int(all_runs.sum())
-    loss = isolated_loss(isolated, max(expected, 1))
+    # topics sharing their sender's ticks tell the sender's drops from the receiver's: isolated losses are the
+    # network's. Topics on rates of their own (a robot's own clocks) cannot: every missing message counts
+    loss, burst = _burst_loss(runs, expected_per_run, settings, rng)
+    if loss is None or pair_jitter:
+        loss = isolated_loss(isolated, max(expected, 1))
     if pair_jitter:
         values = np.asarray(pair_jitter)
         method = f"interquartile range of delay differences between {len(values)} topic pairs sharing ticks, median"
@@ -293,4 +321,42 @@ def estimate_network(
         f"{len(kept)} sensor topics, {expected} messages expected, {lost} missing "
         f"({lost / max(expected, 1):.3f}; {isolated} isolated, {bursts} bursts of 2 or more)",
     )
-    return NetworkFit(loss, jitter_est, notes)
+    return NetworkFit(loss, jitter_est, notes, burst)
+
+
+def _burst_loss(
+    runs: Sequence[np.ndarray], expected: Sequence[int], settings: CalibrationSettings, rng: np.random.Generator
+) -> tuple[Estimate | None, Estimate]:
+    """Loss probability (missing / expected) and mean burst length (missing / runs of missing messages), with
+    a bootstrap over topic-episodes, so losses that come in bursts widen the interval as they should.
+
+    (None, ...) with fewer than `MIN_LOSS_CLUSTERS` topic-episodes: the isolated-loss estimate is used then.
+    """
+    n = len(runs)
+    table = np.array([[float(r.sum()), float(len(r)), float(e)] for r, e in zip(runs, expected, strict=True)])
+    if n < MIN_LOSS_CLUSTERS or table[:, 2].sum() <= 0:
+        return None, Estimate.unidentifiable(f"fewer than {MIN_LOSS_CLUSTERS} topic-episodes", "messages")
+
+    def stat(counts: np.ndarray) -> np.ndarray:
+        lost, bursts, total = counts @ table
+        return np.array([lost / total if total > 0 else np.nan, lost / bursts if bursts > 0 else np.nan])
+
+    lost, bursts, total = table.sum(axis=0)
+    samples = bootstrap(stat, n, settings.bootstrap, rng)
+    se, interval = spread(samples[:, 0])
+    p = lost / total
+    if math.isfinite(se) and se > 0 and 0 < p < 1:
+        # a share of rare, clustered events is skewed: a Wilson interval on the effective sample size the
+        # bootstrap's spread implies (the design effect of the bursts) is long on the upper side, as it must be
+        n_eff = p * (1 - p) / (se * se)
+        z2 = Z_95 * Z_95
+        centre = (p + z2 / (2 * n_eff)) / (1 + z2 / n_eff)
+        half = Z_95 * math.sqrt(p * (1 - p) / n_eff + z2 / (4 * n_eff * n_eff)) / (1 + z2 / n_eff)
+        interval = (max(0.0, min(interval[0], centre - half)), min(1.0, max(interval[1], centre + half)))
+    method = f"missing / expected messages, bootstrap over {n} topic-episodes (Wilson on the effective size)"
+    loss = Estimate.of(p, se, interval, "probability", method, int(total))
+    if bursts < 2:
+        return loss, Estimate.unidentifiable(f"{int(bursts)} run(s) of lost messages", "messages", int(bursts))
+    b_se, b_interval = spread(samples[:, 1])
+    burst = Estimate.of(lost / bursts, b_se, b_interval, "messages", "missing / runs of missing messages", int(bursts))
+    return loss, burst

@@ -74,6 +74,18 @@ TOLERANCES: dict[str, Tolerance] = {
         "isolated losses among ~20 000 messages: SE 3 % of p at 0.1; a busy host also drops single messages at "
         "the receiver (+0.3 % absolute measured)",
     ),
+    "lidar.noise_per_m": Tolerance(0.0015, 0.2, "a line through the within-span spread in 0.5 m range bins"),
+    "base.wheel_radius_left_m": Tolerance(0, 0.01, "chunks of odometry against truth; slip on turns biases by < 0.5 %"),
+    "base.wheel_radius_right_m": Tolerance(0, 0.01, "as the left wheel"),
+    "base.wheel_separation_m": Tolerance(0, 0.02, "from the turns only: about twice the radii's spread"),
+    "clock.offset_s": Tolerance(
+        0.05,
+        0,
+        "one-way stamps bound the offset from one side only: the estimate carries the quickest delivery, a few ms "
+        "of wall-clock time, which is up to 50 ms of twin time at scale 5",
+    ),
+    "clock.drift_ppm": Tolerance(60.0, 0, "slope of the delay envelope over a session of about 100 s of twin time"),
+    "map.wall_offset_m": Tolerance(0.004, 0, "beams on the walls from every stationary span: SE about 1 mm"),
     "network.jitter_s": Tolerance(
         0.003,
         0.3,
@@ -92,7 +104,18 @@ def twin_calibration(request: pytest.FixtureRequest, tmp_path_factory: pytest.Te
         tmp_path_factory.mktemp(f"twin_{name}"), name, EPISODES, time_scale=TIME_SCALE, max_steps=STEPS
     )
     truth = yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text())
-    return name, truth, calibrate(recording, CalibrationSettings(bootstrap=100))
+    return name, with_ideal_defaults(truth), calibrate(recording, CalibrationSettings(bootstrap=100))
+
+
+def with_ideal_defaults(truth: dict) -> dict:
+    """The profile with its optional keys at the ideal values the twin takes when they are absent."""
+    ideal = {
+        "lidar": {"noise_per_m": 0.0},
+        "base": {"wheel_radius_left_m": 0.034, "wheel_radius_right_m": 0.034, "wheel_separation_m": 0.281},
+        "clock": {"offset_s": 0.0, "drift_ppm": 0.0},
+        "map": {"wall_offset_m": 0.0},
+    }
+    return {g: {**ideal.get(g, {}), **truth.get(g, {})} for g in {*ideal, *truth}}
 
 
 def test_the_tolerance_table_covers_every_profile_key():
@@ -123,8 +146,9 @@ def test_the_calibration_file_trains_the_simulator_toward_the_profile(twin_calib
     assert isinstance(result, Calibration) and result.sources[0].session["profile"] == name
     path = write_calibration(result, tmp_path)
     data = yaml.safe_load(path.read_text())
-    assert data["unidentified"] == {}
-    assert set(data["profile"]) == {"lidar", "actuation", "odometry", "network"}
+    # boxes that few beams see from the stationary spans of short episodes may stay unidentified; nothing else
+    assert all(key.startswith("map.box_offsets_m[") for key in data["unidentified"]), data["unidentified"]
+    assert {"lidar", "actuation", "odometry", "network", "base", "clock", "map"} == set(data["profile"])
     world = calibrated_world(WorldConfig(), path)
     assert world.lidar.sim_beams == truth["lidar"]["beams"] and world.lidar.robot_radius_seen_m == 0.0
     assert world.lidar.noise_sigma_m == pytest.approx(truth["lidar"]["noise_sigma_m"], rel=0.1)
@@ -132,3 +156,55 @@ def test_the_calibration_file_trains_the_simulator_toward_the_profile(twin_calib
     for plot in ("lidar_residuals.png", "lidar_mount_yaw.png", "actuation_fit.png", "odometry_drift.png"):
         assert (tmp_path / plot).stat().st_size > 10_000
         assert f"]({plot})" in (tmp_path / "calibration.md").read_text()
+
+
+LAB_TOLERANCES: dict[str, Tolerance] = {
+    "lidar.noise_sigma_m": Tolerance(0, 0.15, "within-span spread; the issue's 15 %"),
+    "lidar.noise_per_m": Tolerance(0, 0.15, "slope of the spread over range bins"),
+    "lidar.dropout_prob": Tolerance(0, 0.15, "the mast's sector left out, the rest binomial"),
+    "lidar.bias_m": Tolerance(0.002, 0, "fitted with the walls' and boxes' true places"),
+    "lidar.mount_yaw_rad": Tolerance(0.003, 0, "Gauss-Newton over thousands of oblique beams"),
+    "lidar.mount_xy_m[0]": Tolerance(0, 0.15, "the beams' origin 5 cm ahead of the axle"),
+    "lidar.mount_xy_m[1]": Tolerance(0.005, 0, "no sideways offset: within 5 mm of 0"),
+    "base.wheel_radius_left_m": Tolerance(0, 0.01, "odometry against truth"),
+    "base.wheel_radius_right_m": Tolerance(0, 0.01, "odometry against truth"),
+    "base.wheel_separation_m": Tolerance(0, 0.02, "odometry against truth, from the turns"),
+    "clock.offset_s": Tolerance(0.05, 0, "bounded from one side by one-way stamps (see the mild/harsh table)"),
+    "clock.drift_ppm": Tolerance(60.0, 0, "slope of the delay envelope"),
+    "map.wall_offset_m": Tolerance(0.004, 0, "beams on the walls"),
+}
+
+
+@pytest.fixture(scope="session")
+def lab_calibration(tmp_path_factory: pytest.TempPathFactory):
+    recording = record_twin_session(tmp_path_factory.mktemp("twin_lab"), "lab", 6, time_scale=3.0, max_steps=STEPS)
+    truth = yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / "lab.yaml").read_text())
+    return truth, calibrate(recording, CalibrationSettings(bootstrap=100))
+
+
+def test_the_lab_reality_is_calibrated_where_it_is_identifiable(lab_calibration):
+    """The lab SPARK is not the simulator (wheel contacts, two lags, deadband, acceleration limit, moved room):
+    every key the recording can tell lies within the issue's 15 % (or an absolute margin where the truth is
+    small), the mast's sector is found, and the boxes' true places are recovered where enough beams see them."""
+    truth, result = lab_calibration
+    misses = []
+    for key, tol in LAB_TOLERANCES.items():
+        group, _, rest = key.partition(".")
+        expected = (
+            float(truth[group]["mount_xy_m"][int(rest[-2])])
+            if rest.startswith("mount_xy_m")
+            else float(truth[group][rest])
+        )
+        est = result.values[key]
+        if not est.ok or est.value is None:
+            misses.append(f"{key}: unidentifiable ({est.reason})")
+        elif abs(est.value - expected) > tol.abs + tol.rel * abs(expected) + 1e-12:
+            misses.append(f"{key}: {est.value:.5g}, profile {expected:.5g} ({tol.reason})")
+    assert not misses, "\n".join(misses)
+    (sector,) = result.lidar.blocked_sectors_rad
+    assert sector[0] == pytest.approx(2.9, abs=0.03) and sector[1] == pytest.approx(3.38, abs=0.03)
+    boxes = [(b, i) for b in range(2) for i in range(2) if result.values[f"map.box_offsets_m[{b}][{i}]"].ok]
+    for b, i in boxes:
+        assert result.values[f"map.box_offsets_m[{b}][{i}]"].value == pytest.approx(
+            truth["map"]["box_offsets_m"][b][i], abs=0.006
+        )
