@@ -11,7 +11,8 @@ Some calibrated keys are the simulator's own parameters of an effect the twin pr
 simulator's model does not contain the twin's (for example one first-order lag where the twin has
 the driver's lag and the motor's in series): it is reported, not hidden.
 
-Rows go to --out (CSV); progress on stderr. Last line: ``coverage_min=<lowest coverage over the
+``clock.offset_s`` is reported unidentifiable on a time-scaled twin (the recorder follows ``/clock``) and is
+not counted. Rows go to --out (CSV); progress on stderr. Last line: ``coverage_min=<lowest coverage over the
 identifiable keys> keys_at_target=<k>/<n>``.
 """
 
@@ -51,10 +52,10 @@ IDENTIFIABLE = (
     "base.wheel_radius_left_m",
     "base.wheel_radius_right_m",
     "base.wheel_separation_m",
-    "clock.offset_s",
     "clock.drift_ppm",
     "map.wall_offset_m",
     "network.loss_prob",
+    "network.burst_len",
 )
 EFFECTIVE = (
     "actuation.delay_s",

@@ -472,7 +472,7 @@ def calibrate(
         values["network.jitter_s"] = network.jitter_s
         values["network.burst_len"] = network.burst_len
         clock = estimate_clock(_own_clock_streams(streams), settings)
-        values["clock.offset_s"] = clock.offset_s
+        values["clock.offset_s"] = _offset_on_followed_clock(clock.offset_s, sessions)
         values["clock.drift_ppm"] = clock.drift_ppm
     for key in ("lidar.rate_hz", "odometry.rate_hz"):
         if key in values:
@@ -481,6 +481,21 @@ def calibrate(
     return Calibration(
         scenario.name, sources, values, lidar, actuation, odometry, network, settings, wheels=wheels, clock=clock
     )
+
+
+def _offset_on_followed_clock(offset: Estimate, sessions: Sequence[SessionData]) -> Estimate:
+    """The clock offset, unless the recorder kept time by a published clock (``/clock``, a time-scaled twin):
+    that copy of the robots' time lags by part of its period, so receipt may even precede the sample and the
+    one-way bound no longer bounds."""
+    followed = [d for d in sessions if d.session.get("clock") == "ros_clock"]
+    if not followed or not offset.ok or offset.value is None:
+        return offset
+    reason = (
+        f"the recorder followed a published /clock (rate {followed[0].session.get('clock_rate', '?')}), which lags "
+        f"the robots' time by part of its period: one-way stamps put the offset near {offset.value:.3f} s but "
+        "cannot bound it (drift is unaffected)"
+    )
+    return Estimate.unidentifiable(reason, offset.unit, offset.n)
 
 
 UNMEASURED_DRIFT_PPM = 200.0
