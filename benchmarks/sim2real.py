@@ -29,6 +29,7 @@ import yaml
 
 from pipeline.core.stats import newcombe_interval
 from pipeline.twin.draw import draw_profile_mapping
+from pipeline.twin.profile import profile_path
 
 ROBOTS = 3
 """Robots of the fleet (the obstacles room's three SPARKs): robot-level trials are episodes x robots."""
@@ -65,9 +66,9 @@ def main() -> int:
         out.mkdir(parents=True, exist_ok=True)
         if spec.startswith("drawn:"):
             truth = draw_profile_mapping(int(spec.split(":")[1]), 2)
-            profile_path = out / "profile.yaml"
-            profile_path.write_text(yaml.safe_dump(truth), encoding="utf-8")
-            profile = str(profile_path)
+            drawn = out / "profile.yaml"
+            drawn.write_text(yaml.safe_dump(truth), encoding="utf-8")
+            profile = str(drawn)
         else:
             profile = spec
             truth = yaml.safe_load(profile_path(spec).read_text())

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.analysis.errors import ReplayError
 from pipeline.analysis.replay import open_loop_divergence, residual_lines
 from pipeline.calibration import Calibration, calibrate, calibration_settings, write_calibration
 from pipeline.cli import run_stage, stage_arguments
@@ -45,9 +46,16 @@ def write_residuals(params: Params, calibration: Calibration, recording: Path, p
     error of the recording's commands (nominal vs calibrated point estimates) and the scan residual."""
     scenario = load_scenario(params.world.scenario)
     horizon, episodes = params.replay.horizon_s, params.replay.max_episodes
-    nominal = open_loop_divergence(recording, scenario, params.world, horizon, episodes)
-    calibrated = open_loop_divergence(recording, scenario, calibrated_world(params.world, path), horizon, episodes)
     lines = ["", "## What the calibrated simulator still leaves", ""]
+    report = path.parent / "calibration.md"
+    try:
+        nominal = open_loop_divergence(recording, scenario, params.world, horizon, episodes)
+        calibrated = open_loop_divergence(recording, scenario, calibrated_world(params.world, path), horizon, episodes)
+    except ReplayError as exc:
+        with report.open("a", encoding="utf-8") as f:
+            f.write("\n".join([*lines, f"No open-loop replay: {exc}"]) + "\n")
+        print(f"calibrate: no open-loop replay: {exc}")
+        return
     lines += [
         f"Open-loop replay of the recording's commands from the recorded start poses ({calibrated.episodes} "
         "episode(s); position error against the recorded ground truth):",
@@ -73,7 +81,6 @@ def write_residuals(params: Params, calibration: Calibration, recording: Path, p
             f"Scans while standing still: residual to the map {spread:.4f} m (robust spread) against a sensor noise of "
             f"{fit.noise_sigma_m.value:.4f} m (+{(fit.noise_per_m.value or 0.0):.4f} per m of range)."
         )
-    report = path.parent / "calibration.md"
     with report.open("a", encoding="utf-8") as f:
         f.write("\n".join(lines) + "\n")
     errors = f"nominal {nominal.at(t):.3f} m, calibrated {calibrated.at(t):.3f} m"

@@ -298,10 +298,11 @@ def estimate_network(
     all_runs = np.concatenate(runs) if runs else np.zeros(0, dtype=np.int64)
     isolated = int(np.sum(all_runs == 1))
     lost = int(all_runs.sum())
-    # topics sharing their sender's ticks tell the sender's drops from the receiver's: isolated losses are the
-    # network's. Topics on rates of their own (a robot's own clocks) cannot: every missing message counts
+    # every message the receiver never got counts (dropped on the wire, in a burst, or by a stalled receiver's
+    # full queue: the policy misses it all the same); with too few topic-episodes to resample, the
+    # isolated-loss estimate of independent losses
     loss, burst = _burst_loss(runs, expected_per_run, settings, rng)
-    if loss is None or pair_jitter:
+    if loss is None:
         loss = isolated_loss(isolated, max(expected, 1))
     if pair_jitter:
         values = np.asarray(pair_jitter)

@@ -29,7 +29,7 @@ TINY = {
     },
     "export": {"golden_observations": 8},
     "eval_sim": {"episodes": 3},
-    "deploy": {"episodes": 3, "time_scale": 4.0},
+    "deploy": {"episodes": 3, "time_scale": 3.0},
     "calibrate": {"bootstrap": 20},
     "replay": {"max_episodes": 3, "horizon_s": 3.0},
 }
@@ -84,6 +84,11 @@ def test_repro_runs_the_closed_loop_and_reports_the_gap(repo):
         assert f"gap/{label}/robot_success" in metrics
     calibration = yaml.safe_load((dest / "logs" / "calibration" / "calibration.yaml").read_text())
     assert calibration["profile"]["lidar"]["beams"] == 360
+    # the default reality is the lab's; the fit report ends with what the calibrated simulator leaves
+    assert (
+        "## What the calibrated simulator still leaves"
+        in (dest / "logs" / "calibration" / "calibration.md").read_text()
+    )
     report = (dest / "logs" / "report" / "report.md").read_text()
     assert "success_rates.png" in report and "Calibration" in report
     for png in ("success_rates", "trajectories", "learning_curves"):
