@@ -577,7 +577,8 @@ def _within_span_noise(
         samples = bootstrap(lambda c: line(np.tensordot(c, sums, axes=1)), n_spans, settings.bootstrap, rng)
     else:
         samples = np.full((2, 2), np.nan)
-        method = "within-span spread (too few spans to resample)"
+        method = "within-span spread, normal theory (independent returns; too few spans to resample)"
+        theory = _line_sampling_error(total, full, correction)
     ests = []
     for k, unit in ((0, "m"), (1, "m/m")):
         value = float(full[k])
@@ -585,7 +586,11 @@ def _within_span_noise(
             reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
             ests.append(Estimate.unidentifiable(reason, unit, n_dev))
             continue
-        se, ci = spread(samples[:, k])
+        if n_spans >= MIN_SPANS_FOR_BOOTSTRAP:
+            se, ci = spread(samples[:, k])
+        else:
+            se = float(theory[k])
+            ci = (value - Z_95 * se, value + Z_95 * se)
         if not math.isfinite(se):
             ests.append(Estimate.unidentifiable("too few stationary spans to tell its uncertainty", unit, n_dev))
             continue
@@ -625,6 +630,21 @@ def truncation_correction(sigmas: float) -> float:
     mass = 2 * stats.norm.cdf(sigmas) - 1
     var = 1 - 2 * sigmas * stats.norm.pdf(sigmas) / mass
     return 1.0 / math.sqrt(var)
+
+
+def _line_sampling_error(total: np.ndarray, line: np.ndarray, correction: float) -> np.ndarray:
+    """Standard errors (intercept, slope) of the line through the bins' spreads from each spread's own sampling
+    error (sigma / sqrt(2 (n - 1)) for n returns); the slope's is NaN with one bin."""
+    n = total[:, 0]
+    ok = n >= 2
+    sigma = np.sqrt(np.maximum(total[ok, 2] / n[ok] - (total[ok, 1] / n[ok]) ** 2, 0.0)) * correction
+    var = np.maximum(sigma**2 / (2 * (n[ok] - 1)), 1e-18)
+    if ok.sum() < 2 or not math.isfinite(float(line[1])):
+        return np.array([math.sqrt(1.0 / float(np.sum(1.0 / var))), math.nan])
+    centre = total[ok, 3] / n[ok]
+    x = np.stack([np.ones_like(centre), centre], axis=1)
+    cov = np.linalg.inv(x.T @ (x / var[:, None]))
+    return np.asarray(np.sqrt(np.maximum(np.diag(cov), 0.0)))
 
 
 def _line_misfit(total: np.ndarray, line: np.ndarray, correction: float) -> np.ndarray:

@@ -56,9 +56,9 @@ DRIVER_TIMEOUT_NS = 500_000_000
 MAX_WAKE_NS = 20_000_000
 """The loop wakes at least this often (twin time) to take resets and commands."""
 BEAM_BATCH_NS = 10_000_000
-"""Lidar beams due are cast in batches this far apart (twin time), each from the pose at its batch: at the
-SPARK's top speed (0.4 m/s, 0.2 rad/s... up to 1 rad/s in place) that is within 4 mm and 10 mrad of each
-beam's own time, well inside a 125 ms sweep's distortion, at a fifth of the ray casts' cost."""
+"""Lidar beams due are cast in batches this far apart (twin time), each from the pose at its batch: at 0.4 m/s
+and up to 1 rad/s that is within 4 mm and 10 mrad of each beam's own pose, small against a 125 ms sweep's
+distortion, at a fifth of the ray casts' cost."""
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Each bundled profile (mild, harsh) drives one deployment session of the excitation controller
 against the hardware twin over DDS on loopback, as in test_calibration_twin.py (8 episodes of
-12 s of twin time at time scale 5). Its rosbag2 copy keeps the robots' topics only: no
+12 s of twin time at time scale 3). Its rosbag2 copy keeps the robots' topics only: no
 /mrl/episode, no metadata. The twin redraws every robot's odometry errors at each reset, so the
 bag's episodes must be found from the resets in its poses; calibrating it as one episode averages
 the draws of all episodes and shrinks drift_per_m by about 1/sqrt(8).
@@ -20,7 +20,7 @@ from pipeline.calibration import CalibrationSettings, calibrate
 from pipeline.calibration.recording import read_session
 from tests.calibration_helpers import record_twin_session
 from tests.integration.test_calibration_inputs import rosbag2_copy
-from tests.integration.test_calibration_twin import EPISODES, STEPS, TIME_SCALE, TOLERANCES
+from tests.integration.test_calibration_twin import EPISODES, STEPS, TIME_SCALE, TOLERANCES, with_ideal_defaults
 
 pytestmark = pytest.mark.integration
 
@@ -42,7 +42,9 @@ def plain_bag(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathF
     name = request.param
     folder = tmp_path_factory.mktemp(f"plain_{name}")
     recording = record_twin_session(folder / "session", name, EPISODES, time_scale=TIME_SCALE, max_steps=STEPS)
-    profile = yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text())
+    profile = with_ideal_defaults(
+        yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text())
+    )
     return PlainBag(name, profile, recording, rosbag2_copy(recording, folder / "bag"))
 
 

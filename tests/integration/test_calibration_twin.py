@@ -1,7 +1,7 @@
 """Calibration against the hardware twin: every estimate lands near the reality profile the twin played.
 
 Each bundled profile (mild, harsh) drives one deployment session of the excitation controller over
-DDS on loopback at time scale 5 (8 episodes of 12 s of twin time). The profile file is read here
+DDS on loopback at time scale 3 (8 episodes of 12 s of twin time). The profile file is read here
 only, as ground truth; the calibration sees the recording alone.
 """
 
@@ -22,7 +22,8 @@ pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
 EPISODES = 8
 STEPS = 120
-TIME_SCALE = 5.0
+TIME_SCALE = 3.0
+"""The wheel-level twin with its lidar keeps real time at 3x on a 2-core host with the runner beside it."""
 
 
 class Tolerance(NamedTuple):
@@ -49,7 +50,7 @@ TOLERANCES: dict[str, Tolerance] = {
         0,
         "commands leave on the emitter's 20 ms grid and act from the twin's next 20 ms tick (arbitrary phase), "
         "and the twin stamps a tick's state at the tick's start although it shows the physics 20 ms later: "
-        "the apparent delay is delay - 20 ms + phase (0-20 ms) + DDS latency (a few ms of twin time at scale 5)",
+        "the apparent delay is delay - 20 ms + phase (0-20 ms) + DDS latency (a few ms of twin time at scale 3)",
     ),
     "actuation.time_constant_s": Tolerance(
         0,
@@ -84,8 +85,8 @@ TOLERANCES: dict[str, Tolerance] = {
     "network.jitter_s": Tolerance(
         0.003,
         0.3,
-        "pairwise delay differences cancel the receiver's stalls, but at time scale 5 the profile's 5-20 ms are "
-        "1-4 ms of wall-clock time, the order of the scheduling granularity of the twin's sender thread: measured "
+        "pairwise delay differences cancel the receiver's stalls, but at time scale 3 the profile's 5-20 ms are "
+        "2-7 ms of wall-clock time, the order of the scheduling granularity of the twin's sender thread: measured "
         "errors 0.8 ms (mild) and 2.7 ms (harsh) of twin time; an estimate of 0 fails both profiles",
     ),
 }
