@@ -76,9 +76,17 @@ TOLERANCES: dict[str, Tolerance] = {
         "the receiver (+0.3 % absolute measured)",
     ),
     "lidar.noise_per_m": Tolerance(0.0015, 0.2, "a line through the within-span spread in 0.5 m range bins"),
-    "base.wheel_radius_left_m": Tolerance(0, 0.01, "chunks of odometry against truth; slip on turns biases by < 0.5 %"),
-    "base.wheel_radius_right_m": Tolerance(0, 0.01, "as the left wheel"),
-    "base.wheel_separation_m": Tolerance(0, 0.02, "from the turns only: about twice the radii's spread"),
+    "base.wheel_radius_left_m": Tolerance(
+        0,
+        0.03,
+        "odometry against truth; these profiles' odometry errors (0.04-0.08 per m, drawn per robot-episode as "
+        "scale and yaw-scale errors) move each episode's apparent wheels by that much: 24 robot-episodes leave "
+        "the mean within about 3 SE of 1.6 %",
+    ),
+    "base.wheel_radius_right_m": Tolerance(0, 0.03, "as the left wheel"),
+    "base.wheel_separation_m": Tolerance(
+        0, 0.06, "from the turns only, where the yaw-scale errors act: twice the radii's"
+    ),
     "clock.drift_ppm": Tolerance(60.0, 0, "slope of the delay envelope over a session of about 100 s of twin time"),
     "map.wall_offset_m": Tolerance(0.004, 0, "beams on the walls from every stationary span: SE about 1 mm"),
     "network.burst_len": Tolerance(0, 0.3, "missing / runs of missing messages: independent losses give about 1"),
