@@ -219,7 +219,8 @@ class Calibration:
             lo, hi = min(lo, est.value - half), max(hi, est.value + half)
             group, name = world_key.split(".")
             low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key, (-math.inf, math.inf))
-            out.setdefault(group, {})[name] = [_short(max(lo, low_bound)), _short(min(hi, high_bound))]
+            lo, hi = max(lo, low_bound), min(hi, high_bound)
+            out.setdefault(group, {})[name] = [_short(lo), _short(max(hi, lo))]  # an interval below the bound: [b, b]
         arc = self.arc_per_m()
         if arc is not None:
             half = max(abs(arc) * MIN_RANDOMIZE_HALF_WIDTH, _arc_half_width(self.values))

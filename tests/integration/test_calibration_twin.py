@@ -41,16 +41,19 @@ TOLERANCES: dict[str, Tolerance] = {
         0, 0.10, ">= 20 000 residuals: bootstrap SE about 0.5 %; room for the clip correction and truth-pose errors"
     ),
     "lidar.dropout_prob": Tolerance(0.002, 0.2, "binomial over >= 20 000 beams: SE 3 % of p at 0.05, 8 % at 0.01"),
-    "lidar.bias_m": Tolerance(0.003, 0, "bootstrap SE about 0.0003 m: 10 SE"),
+    "lidar.bias_m": Tolerance(
+        0.006,
+        0,
+        "fitted jointly with the walls' offset (a range bias on wall beams looks like walls further out): SE 2 mm",
+    ),
     "lidar.mount_yaw_rad": Tolerance(
         0.003, 0, "SE about 0.0002 rad over thousands of oblique beams; a sixth of the 1 degree beam spacing"
     ),
     "actuation.delay_s": Tolerance(
-        0.025,
+        0.035,
         0,
-        "commands leave on the emitter's 20 ms grid and act from the twin's next 20 ms tick (arbitrary phase), "
-        "and the twin stamps a tick's state at the tick's start although it shows the physics 20 ms later: "
-        "the apparent delay is delay - 20 ms + phase (0-20 ms) + DDS latency (a few ms of twin time at scale 3)",
+        "commands act when the twin receives them: the apparent delay is the profile's plus the DDS latency and the "
+        "wheel servos' own response (a few ms to 20 ms of twin time at scale 3), less the emitter grid's phase",
     ),
     "actuation.time_constant_s": Tolerance(
         0,
@@ -87,7 +90,9 @@ TOLERANCES: dict[str, Tolerance] = {
     "base.wheel_separation_m": Tolerance(
         0, 0.06, "from the turns only, where the yaw-scale errors act: twice the radii's"
     ),
-    "clock.drift_ppm": Tolerance(60.0, 0, "slope of the delay envelope over a session of about 100 s of twin time"),
+    "clock.drift_ppm": Tolerance(
+        120.0, 0, "slope of the delay envelope over about 100 s of twin time: 120 ppm is 12 ms over it"
+    ),
     "map.wall_offset_m": Tolerance(0.004, 0, "beams on the walls from every stationary span: SE about 1 mm"),
     "network.burst_len": Tolerance(0, 0.3, "missing / runs of missing messages: independent losses give about 1"),
     "network.jitter_s": Tolerance(
@@ -183,7 +188,9 @@ LAB_TOLERANCES: dict[str, Tolerance] = {
     "base.wheel_radius_left_m": Tolerance(0, 0.01, "odometry against truth"),
     "base.wheel_radius_right_m": Tolerance(0, 0.01, "odometry against truth"),
     "base.wheel_separation_m": Tolerance(0, 0.02, "odometry against truth, from the turns"),
-    "clock.drift_ppm": Tolerance(60.0, 0, "slope of the delay envelope"),
+    "clock.drift_ppm": Tolerance(
+        120.0, 0, "slope of the delay envelope over about 70 s: 40 ppm is 3 ms against ms of delivery jitter"
+    ),
     "map.wall_offset_m": Tolerance(0.004, 0, "beams on the walls"),
 }
 

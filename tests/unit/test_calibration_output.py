@@ -144,3 +144,12 @@ def test_pairs_are_written_in_the_profile_layout(tmp_path):
     assert data["profile"]["map"] == {"box_offsets_m": [[0.03, -0.02], [0.0, 0.04]]}
     assert data["uncertainty"]["map"]["box_offsets_m[1][0]"]["status"] == "unidentifiable"
     assert data["world"]["lidar"]["mount_xy_m"] == [0.05, -0.002]
+
+
+def test_a_range_below_a_keys_bound_is_kept_inside_it(tmp_path):
+    """Noise that does not grow with range can read slightly negative; its interval then lies below the simulator's
+    bound of 0, and training draws it at 0 rather than being refused."""
+    flat = calibration(**{"lidar.noise_per_m": ok(-0.0001, 0.00002, "m/m")})
+    data = yaml.safe_load(write_calibration(flat, tmp_path, report=False).read_text())
+    assert data["world"]["randomize"]["lidar"]["noise_per_m"] == [0.0, 0.0]
+    assert data["world"]["lidar"]["noise_per_m"] == 0.0
