@@ -73,7 +73,18 @@ def _describe(tp: Any) -> str:
     return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(tp, str(tp))
 
 
-def _bounds_text(meta: Mapping[str, Any]) -> str:
+def in_bounds(value: float, meta: Mapping[str, Any]) -> bool:
+    """Whether `value` lies inside the bounds of a setting's metadata (`ge`, `gt`, `le`, `lt`)."""
+    return not (
+        (meta.get("ge") is not None and not value >= meta["ge"])
+        or (meta.get("gt") is not None and not value > meta["gt"])
+        or (meta.get("le") is not None and not value <= meta["le"])
+        or (meta.get("lt") is not None and not value < meta["lt"])
+    )
+
+
+def bounds_text(meta: Mapping[str, Any]) -> str:
+    """The bounds of a setting's metadata in words (">= 0.0 and <= 1.0")."""
     parts = []
     if meta.get("ge") is not None:
         parts.append(f">= {meta['ge']}")
@@ -147,21 +158,12 @@ class _Converter:
 
     @staticmethod
     def _suffix(meta: Mapping[str, Any]) -> str:
-        text = _bounds_text(meta)
+        text = bounds_text(meta)
         return f" {text}" if text else ""
 
     def bounded(self, value: float, key: str, meta: Mapping[str, Any]) -> Any:
-        ok = True
-        if meta.get("ge") is not None and not value >= meta["ge"]:
-            ok = False
-        if meta.get("gt") is not None and not value > meta["gt"]:
-            ok = False
-        if meta.get("le") is not None and not value <= meta["le"]:
-            ok = False
-        if meta.get("lt") is not None and not value < meta["lt"]:
-            ok = False
-        if not ok:
-            self.fail(key, value, "a value " + _bounds_text(meta))
+        if not in_bounds(value, meta):
+            self.fail(key, value, "a value " + bounds_text(meta))
         return value
 
     def dataclass(self, cls: type, value: Any, key: str) -> Any:

@@ -17,7 +17,7 @@ from pipeline.core.judge import ProgressDistance, RewardWeights
 from pipeline.core.observation import LayoutName, ObservationLayout
 from pipeline.core.scan import Reduction
 from pipeline.errors import ConfigError, ConfigProblem
-from pipeline.mappings import from_mapping, merge, read_yaml, setting, to_mapping
+from pipeline.mappings import bounds_text, from_mapping, in_bounds, merge, read_yaml, setting, to_mapping
 
 
 @dataclass(frozen=True)
@@ -110,28 +110,25 @@ class RandomizeConfig:
     actuation: ActuationRanges = setting(ActuationRanges(), optional=True)
     odometry: OdometryRanges = setting(OdometryRanges(), optional=True)
 
+    def entries(self) -> list[tuple[str, Range]]:
+        """(dotted world key, range as given) of every key, in a fixed order."""
+        return [
+            (f"{group.name}.{f.name}", getattr(getattr(self, group.name), f.name))
+            for group in fields(self)
+            for f in fields(getattr(self, group.name))
+        ]
+
     def ranges(self) -> dict[str, tuple[float, float]]:
         """Dotted world key -> (low, high) of every range that is on, in a fixed order."""
-        out: dict[str, tuple[float, float]] = {}
-        for group in fields(self):
-            section = getattr(self, group.name)
-            for f in fields(section):
-                value = getattr(section, f.name)
-                if len(value) == 2:
-                    out[f"{group.name}.{f.name}"] = (float(value[0]), float(value[1]))
-        return out
+        return {key: (float(v[0]), float(v[1])) for key, v in self.entries() if len(v) == 2}
 
     def check(self) -> list[tuple[str, object, str]]:
         bad: list[tuple[str, object, str]] = []
-        for group in fields(self):
-            section = getattr(self, group.name)
-            for f in fields(section):
-                value = getattr(section, f.name)
-                key = f"{group.name}.{f.name}"
-                if len(value) == 1:
-                    bad.append((key, list(value), "[low, high] or [] (off)"))
-                elif len(value) == 2 and not value[0] <= value[1]:
-                    bad.append((key, list(value), "[low, high] with low <= high"))
+        for key, value in self.entries():
+            if len(value) == 1:
+                bad.append((key, list(value), "[low, high] or [] (off)"))
+            elif len(value) == 2 and not value[0] <= value[1]:
+                bad.append((key, list(value), "[low, high] with low <= high"))
         return bad
 
 
@@ -189,13 +186,8 @@ class WorldConfig:
         for key, (low, high) in self.randomize.ranges().items():
             group, name = key.split(".")
             meta = next(f for f in fields(getattr(self, group)) if f.name == name).metadata
-            lo_ok = (meta["ge"] is None or low >= meta["ge"]) and (meta["gt"] is None or low > meta["gt"])
-            hi_ok = meta["le"] is None or high <= meta["le"]
-            if not (lo_ok and hi_ok):
-                allowed = " and ".join(
-                    f"{op} {meta[k]}" for k, op in (("ge", ">="), ("gt", ">"), ("le", "<=")) if meta[k] is not None
-                )
-                bad.append((f"randomize.{key}", [low, high], f"a range inside the key's bounds ({allowed})"))
+            if not (in_bounds(low, meta) and in_bounds(high, meta)):
+                bad.append((f"randomize.{key}", [low, high], f"a range inside the key's bounds ({bounds_text(meta)})"))
         return bad
 
     def with_values(self, values: dict[str, float]) -> WorldConfig:

@@ -553,15 +553,12 @@ def _within_span_noise(
         np.add.at(sums[:, i, 3], owner[sel], R[sel])
 
     def line(total: np.ndarray) -> np.ndarray:
-        n = total[:, 0]
-        ok = n >= 2
-        if not ok.any():
+        n, sigma, centre = _bin_spreads(total, correction)
+        if not len(n):
             return np.array([np.nan, np.nan])
-        sigma = np.sqrt(np.maximum(total[ok, 2] / n[ok] - (total[ok, 1] / n[ok]) ** 2, 0.0)) * correction
-        centre = total[ok, 3] / n[ok]
-        if ok.sum() < 2 or np.ptp(centre) < RANGE_BIN_M:
-            return np.array([float(np.average(sigma, weights=n[ok])), np.nan])
-        slope, intercept = np.polyfit(centre, sigma, 1, w=np.sqrt(n[ok]))
+        if len(n) < 2 or np.ptp(centre) < RANGE_BIN_M:
+            return np.array([float(np.average(sigma, weights=n)), np.nan])
+        slope, intercept = np.polyfit(centre, sigma, 1, w=np.sqrt(n))
         return np.array([intercept, slope])
 
     full = line(sums.sum(axis=0))
@@ -632,16 +629,22 @@ def truncation_correction(sigmas: float) -> float:
     return 1.0 / math.sqrt(var)
 
 
+def _bin_spreads(total: np.ndarray, correction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of the range bins with >= 2 returns in `total` (bins, [count, sum, sum of squares, sum of ranges]): the
+    count, the clipped spread (corrected for the clipping) and the mean range."""
+    ok = total[:, 0] >= 2
+    n = total[ok, 0]
+    sigma = np.sqrt(np.maximum(total[ok, 2] / n - (total[ok, 1] / n) ** 2, 0.0)) * correction
+    return n, sigma, total[ok, 3] / n
+
+
 def _line_sampling_error(total: np.ndarray, line: np.ndarray, correction: float) -> np.ndarray:
     """Standard errors (intercept, slope) of the line through the bins' spreads from each spread's own sampling
     error (sigma / sqrt(2 (n - 1)) for n returns); the slope's is NaN with one bin."""
-    n = total[:, 0]
-    ok = n >= 2
-    sigma = np.sqrt(np.maximum(total[ok, 2] / n[ok] - (total[ok, 1] / n[ok]) ** 2, 0.0)) * correction
-    var = np.maximum(sigma**2 / (2 * (n[ok] - 1)), 1e-18)
-    if ok.sum() < 2 or not math.isfinite(float(line[1])):
+    n, sigma, centre = _bin_spreads(total, correction)
+    var = np.maximum(sigma**2 / (2 * (n - 1)), 1e-18)
+    if len(n) < 2 or not math.isfinite(float(line[1])):
         return np.array([math.sqrt(1.0 / float(np.sum(1.0 / var))), math.nan])
-    centre = total[ok, 3] / n[ok]
     x = np.stack([np.ones_like(centre), centre], axis=1)
     cov = np.linalg.inv(x.T @ (x / var[:, None]))
     return np.asarray(np.sqrt(np.maximum(np.diag(cov), 0.0)))
@@ -651,16 +654,13 @@ def _line_misfit(total: np.ndarray, line: np.ndarray, correction: float) -> np.n
     """Standard errors (intercept, slope) of the weighted line through the range bins' spreads from its own
     residuals: zero where the line explains the bins, large where it does not (the twin's noise not linear
     in range, robots not quite still)."""
-    n = total[:, 0]
-    ok = n >= 2
-    if ok.sum() < 3 or not np.all(np.isfinite(line)):
+    n, sigma, centre = _bin_spreads(total, correction)
+    if len(n) < 3 or not np.all(np.isfinite(line)):
         return np.zeros(2)
-    sigma = np.sqrt(np.maximum(total[ok, 2] / n[ok] - (total[ok, 1] / n[ok]) ** 2, 0.0)) * correction
-    centre = total[ok, 3] / n[ok]
-    w = n[ok] / n[ok].mean()
+    w = n / n.mean()
     x = np.stack([np.ones_like(centre), centre], axis=1)
     resid = sigma - x @ line
-    s2 = float(np.sum(w * resid**2)) / (ok.sum() - 2)
+    s2 = float(np.sum(w * resid**2)) / (len(n) - 2)
     cov = s2 * np.linalg.inv(x.T @ (w[:, None] * x))
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
 

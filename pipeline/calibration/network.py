@@ -160,19 +160,6 @@ def rate_estimate(streams: Sequence[np.ndarray], unit: str = "Hz") -> Estimate:
     return Estimate.of(rate, se, interval, unit, "stamp on message index over runs of regular sending", count)
 
 
-def _gap_runs(stamp_ns: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, int]:
-    """Lengths of the runs of lost messages of one stream (read from stamp gaps) and the messages expected."""
-    s = np.unique(np.asarray(stamp_ns, dtype=np.int64))
-    p = period_s(s)
-    if p is None:
-        return np.zeros(0, dtype=np.int64), len(s)
-    gaps = np.diff(s) / NS_PER_S
-    # a slow sender's bursts span long gaps: up to `BURST_PERIODS` of its own periods count as losses
-    inside = gaps <= max(max_gap_s, BURST_PERIODS * p)
-    runs = np.maximum(np.round(gaps[inside] / p).astype(np.int64) - 1, 0)
-    return runs[runs > 0], len(s) + int(runs.sum())
-
-
 def _gap_missing(stamp_ns: np.ndarray, max_gap_s: float) -> np.ndarray:
     """Per gap between consecutive stamps (sorted, distinct): the messages missing in it (0 for a pause)."""
     s = np.asarray(stamp_ns, dtype=np.int64)

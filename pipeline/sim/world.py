@@ -26,7 +26,7 @@ class SimWorld:
     Commands are (n_robots, 2) (v m/s, w rad/s). All randomness (lidar noise, odometry errors, the
     draws of domain randomization) comes from one generator seeded at reset, so a seed fixes a
     rollout to the bit. With ``world.randomize`` ranges, each episode runs in its own world: the
-    ranged keys are drawn at reset (`episode_world`, `draws`), in the ranges' fixed order.
+    ranged keys are drawn at reset (`world`, `draws`), in the ranges' fixed order.
     """
 
     def __init__(self, scenario: Scenario, world: WorldConfig) -> None:
