@@ -18,7 +18,7 @@ the recordings.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -417,8 +417,8 @@ def calibrate(
     scan_stamps: list[np.ndarray] = []
     odom_stamps: list[np.ndarray] = []
     beams: list[int] = []
-    for k, data in enumerate(sessions):
-        tag = f"recording {k}" if len(sessions) > 1 else "recording"
+    tagged = [(f"recording {k}" if len(sessions) > 1 else "recording", data) for k, data in enumerate(sessions)]
+    for tag, data in tagged:
         trajectories = _trajectories(data, settings)
         if "lidar" in parts:
             spans += _scan_spans(tag, data, trajectories, settings)
@@ -472,7 +472,8 @@ def calibrate(
         values["network.loss_prob"] = network.loss_prob
         values["network.jitter_s"] = network.jitter_s
         values["network.burst_len"] = network.burst_len
-        clock = estimate_clock(_own_clock_streams(streams), settings)
+        own = _own_clock_streams(streams)
+        clock = estimate_clock(own, settings, _followed_clocks(tagged, own))
         values["clock.offset_s"] = _offset_on_followed_clock(clock.offset_s, sessions)
         values["clock.drift_ppm"] = clock.drift_ppm
     for key in ("lidar.rate_hz", "odometry.rate_hz"):
@@ -482,6 +483,21 @@ def calibrate(
     return Calibration(
         scenario.name, sources, values, lidar, actuation, odometry, network, settings, wheels=wheels, clock=clock
     )
+
+
+def _followed_clocks(tagged: Sequence[tuple[str, SessionData]], robots: Mapping[str, object]) -> dict[str, StampStream]:
+    """For each robot (keyed as `_own_clock_streams` keys it) recorded on a time-scaled fleet's clock, that
+    recording's ``/clock`` messages as a stream (stamp = value, log = the recorder's reading)."""
+    out: dict[str, StampStream] = {}
+    for tag, data in tagged:
+        if data.followed_clock is None or len(data.followed_clock[0]) == 0:
+            continue
+        values, logs = data.followed_clock
+        stream = StampStream(f"{tag} /clock", values, logs, tuple(data.windows))
+        for robot in robots:
+            if robot.startswith(f"{tag} /"):
+                out[robot] = stream
+    return out
 
 
 def _offset_on_followed_clock(offset: Estimate, sessions: Sequence[SessionData]) -> Estimate:
@@ -494,7 +510,7 @@ def _offset_on_followed_clock(offset: Estimate, sessions: Sequence[SessionData])
     reason = (
         f"the recorder followed a published /clock (rate {followed[0].session.get('clock_rate', '?')}), which lags "
         f"the robots' time by part of its period: one-way stamps put the offset near {offset.value:.3f} s but "
-        "cannot bound it (drift is unaffected)"
+        "cannot bound it (the drift is measured with the copy's own wander taken out)"
     )
     return Estimate.unidentifiable(reason, offset.unit, offset.n)
 

@@ -30,6 +30,13 @@ twin's network, which adds no latency floor, it is the offset that reproduces th
 The interval takes the bound over every slope inside the drift interval and adds the scatter of the
 block minima about the line (what a straight line does not explain) on both sides.
 
+A time-scaled fleet: the recorder's clock is its own copy of the fleet's published ``/clock``,
+re-anchored on each message, which runs ahead or behind when the fleet does not keep its nominal
+rate (a loaded host). That error changes slowly over a recording and shifts every delay with it,
+so it reads as drift. The recorded ``/clock`` messages (logged at the recorder's reading, stamped
+with their value) measure it: the same envelope fit on them gives the copy's apparent drift, which
+is subtracted from each robot's, and its uncertainty is added in quadrature.
+
 Only topics stamped by the robot's clock belong here (scan, odom). Ground truth from a motion
 capture system is stamped by the host (or the capture system's own clock) and must be left out;
 topics that disagree on the drift are named in the notes.
@@ -117,7 +124,11 @@ class _Minima:
         return _Minima(self.x_s[keep], self.y_s[keep], self.topic[keep], self.block[keep])
 
 
-def estimate_clock(streams_by_robot: Mapping[str, Sequence[StampStream]], settings: CalibrationSettings) -> ClockFit:
+def estimate_clock(
+    streams_by_robot: Mapping[str, Sequence[StampStream]],
+    settings: CalibrationSettings,
+    followed: Mapping[str, StampStream] | None = None,
+) -> ClockFit:
     """Offset (s) and drift (ppm) of each robot's clock against the host's, and of the fleet.
 
     Args:
@@ -126,6 +137,8 @@ def estimate_clock(streams_by_robot: Mapping[str, Sequence[StampStream]], settin
             the windows count). Topics stamped by the host, such as motion-capture ground truth,
             must not be among them.
         settings: `bootstrap` resamples and `seed` of the drift's uncertainty.
+        followed: robot name -> the ``/clock`` its recorder followed (stamp = value, log = the recorder's
+            reading on receipt), for robots recorded on a time-scaled fleet's clock.
 
     The offset is known only up to the quickest delivery: its interval assumes that took at most
     `MAX_QUICKEST_DELIVERY_S`, and its value assumes it took none.
@@ -138,6 +151,10 @@ def estimate_clock(streams_by_robot: Mapping[str, Sequence[StampStream]], settin
     ]
     for robot in sorted(streams_by_robot):
         offset, drift, robot_notes = _robot_clock(robot, streams_by_robot[robot], settings, rng)
+        reference = (followed or {}).get(robot)
+        if reference is not None:
+            drift, reference_note = _take_out_follower(robot, drift, reference, settings, rng)
+            robot_notes.append(reference_note)
         per_robot[robot] = (offset, drift)
         notes += robot_notes
     offset = _pool([o for o, _ in per_robot.values()], "s")
@@ -205,6 +222,34 @@ def _robot_clock(
     if not measurable:
         notes.append(f"{robot}: offset bounded for any drift within +-{UNMEASURED_DRIFT_PPM:.0f} ppm")
     return offset, drift, notes
+
+
+def _take_out_follower(
+    robot: str, drift: Estimate, reference: StampStream, settings: CalibrationSettings, rng: np.random.Generator
+) -> tuple[Estimate, str]:
+    """A robot's drift measured against a recorder that followed a published clock, less the apparent drift of
+    that clock against the recorder (zero when the copy kept pace); the two errors add in quadrature."""
+    _, apparent, _ = _robot_clock(f"{robot} /clock", [reference], settings, rng)
+    if not drift.ok or drift.value is None:
+        return drift, f"{robot}: drift not measured, so the followed /clock's apparent drift is not taken out"
+    if not apparent.ok or apparent.value is None or apparent.std_error is None or drift.std_error is None:
+        reason = (
+            f"measured against a recorder that followed a published /clock whose own wander could not be measured "
+            f"({apparent.reason or 'no standard error'}), so the slope may be the copy's, not the robot's"
+        )
+        return Estimate.unidentifiable(reason, drift.unit, drift.n), f"{robot}: {reason}"
+    value = drift.value - apparent.value
+    se = math.hypot(drift.std_error, apparent.std_error)
+    d_lo, d_hi = drift.interval or normal_interval(drift.value, drift.std_error)
+    a_lo, a_hi = apparent.interval or normal_interval(apparent.value, apparent.std_error)
+    half = math.hypot(d_hi - drift.value, a_hi - apparent.value)
+    half_low = math.hypot(drift.value - d_lo, apparent.value - a_lo)
+    method = f"{drift.method}; less the followed /clock's apparent drift {apparent.value:+.1f} ppm (in quadrature)"
+    note = (
+        f"{robot}: the published /clock runs {apparent.value:+.1f} ppm [{a_lo:+.1f}, {a_hi:+.1f}] against the "
+        f"recorder's copy of it (the copy's wander); taken out of the robot's {drift.value:+.1f} ppm"
+    )
+    return Estimate.of(value, se, (value - half_low, value + half), drift.unit, method, drift.n), note
 
 
 def _blocks_by_topic(minima: _Minima, n_topics: int) -> list[set[int]]:

@@ -152,6 +152,8 @@ class SessionData:
     episodes: tuple[EpisodeWindow, ...]
     has_episode_topic: bool
     notes: tuple[str, ...] = ()
+    followed_clock: tuple[np.ndarray, np.ndarray] | None = None
+    """(values, log times) int ns of the ``/clock`` messages the recorder followed (a time-scaled fleet), else None."""
 
     @property
     def windows(self) -> list[tuple[int, int]]:
@@ -403,7 +405,22 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
                 commands=_commands(raw.get(f"/{ns}/cmd_vel")),
             )
         )
-    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes)
+    followed = _followed_clock(log) if session.get("clock") == "ros_clock" and CLOCK_TOPIC in topics else None
+    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes, followed)
+
+
+CLOCK_TOPIC = "/clock"
+
+
+def _followed_clock(log: McapLog) -> tuple[np.ndarray, np.ndarray]:
+    """Values and log times (int ns) of the recorded ``/clock`` messages, by log time."""
+    values, logs = [], []
+    for m in log.messages([CLOCK_TOPIC], skip_undecodable=True):
+        values.append(int(m.msg.clock.sec) * NS_PER_S + int(m.msg.clock.nanosec))
+        logs.append(m.log_time_ns)
+    v, t = np.asarray(values, dtype=np.int64), np.asarray(logs, dtype=np.int64)
+    order = np.argsort(t, kind="stable")
+    return v[order], t[order]
 
 
 def _poses(bucket: dict[str, list[Any]] | None, windows: Sequence[tuple[int, int]]) -> PoseSeries | None:

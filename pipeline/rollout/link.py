@@ -166,8 +166,11 @@ class FleetLink:
         t = C.time_ns(msg.clock)
         clock = self.clock
         if isinstance(clock, ScaledClock):
+            # logged at our reading when it arrived, stamped with its value: their difference is how far our copy
+            # of the fleet's time had wandered, which calibration takes out of the robots' clock drift
+            reading = clock.now_ns() if clock.anchored else t
             clock.follow(t, receive_ns)
-            self.log.message(spec.name, msg, t)
+            self.log.message(spec.name, msg, reading, t)
 
     def _on_reset_done(self, spec: Any, msg: Any, receive_ns: int) -> None:
         if not self._on_timeline():

@@ -227,7 +227,7 @@ class DeployRunner:
             problem = self.fleet_alive()
             if problem:
                 self.emitter.clear()
-                self.log.event(t, episode, step, "abort", detail=problem)
+                self.log.event(self.clock.now_ns(), episode, step, "abort", detail=problem)
                 raise DeployAborted(problem, [])
             if self.emitter.error is not None:
                 raise DeployAborted(f"the emitter failed: {self.emitter.error!r}", [])
@@ -237,9 +237,10 @@ class DeployRunner:
                     self.link.timing(TimingEvent("stale", name, state.stale[name], t, tick=step))
             silent = self.staleness.update(t, state.stale)
             if silent:
-                self.emitter.clear()
+                self.emitter.clear()  # waits for a tick in flight: every command recorded after the event is zero
+                t_abort = self.clock.now_ns()
                 for name, why in silent.items():
-                    self.log.event(t, episode, step, "abort", name, why)
+                    self.log.event(t_abort, episode, step, "abort", name, why)
                 aborted, reason = True, "; ".join(f"{r}: {why}" for r, why in silent.items())
                 break
             scans, geoms, odom_raw, truth = self.samples.arrays(state)

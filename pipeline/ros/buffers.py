@@ -115,6 +115,8 @@ class EmitterBuffer:
         self.topics = dict(topics or {r: f"/{r}/cmd_vel" for r in self.robots})
         self._queues: dict[str, deque[Command]] = {r: deque(maxlen=64) for r in self.robots}
         self._lock = threading.Lock()
+        self._sending = threading.RLock()
+        """Held for a whole tick (choice, sends, their records): clear() waits for a tick in flight."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.ticks = 0
@@ -137,8 +139,12 @@ class EmitterBuffer:
                 self._queues[robot].append(Command(int(stamp_ns), float(v), float(w)))
 
     def clear(self) -> None:
-        """Forget every queued command: the next tick sends zero velocity to every robot."""
-        with self._lock:
+        """Forget every queued command: the next tick sends zero velocity to every robot.
+
+        Returns after any tick in flight has sent and recorded its commands, so whatever is recorded
+        after clear() returns was chosen after it.
+        """
+        with self._sending, self._lock:
             for q in self._queues.values():
                 q.clear()
 
@@ -165,6 +171,10 @@ class EmitterBuffer:
 
         All sends of a tick go out back to back; their timing and recording follow afterwards.
         """
+        with self._sending:
+            return self._tick(now_ns)
+
+    def _tick(self, now_ns: int | None) -> dict[str, tuple[float, float]]:
         t = self.clock.now_ns() if now_ns is None else now_ns
         self.ticks += 1
         tick = self.ticks

@@ -102,6 +102,36 @@ def test_stop_sends_zero_to_everyone(emitter):
     assert [(r, v, w) for _, r, v, w in sent[-2:]] == [("robot_1", 0.0, 0.0), ("robot_2", 0.0, 0.0)]
 
 
+def test_clear_waits_for_a_tick_in_flight():
+    """A tick that chose its commands before clear() sends and records them before clear() returns, so
+    nothing recorded after clear() carries an old command (an abort's zero commands come after it)."""
+    clock = ManualClock()
+    sending, release = threading.Event(), threading.Event()
+    recorded: list[tuple[str, float]] = []
+
+    def publish(robot: str, command: tuple[float, float]) -> None:
+        sending.set()
+        release.wait(5.0)
+
+    em = EmitterBuffer(
+        {"robot_1": VelocityLimits(0.4, 0.2)}, publish, clock, on_sent=lambda r, v, w, t: recorded.append(("sent", v))
+    )
+    em.command_all(0, np.array([[0.3, 0.1]]))
+    ticking = threading.Thread(target=em.tick, args=(0,))
+    ticking.start()
+    assert sending.wait(5.0)
+    cleared = threading.Thread(target=lambda: (em.clear(), recorded.append(("cleared", 0.0))))
+    cleared.start()
+    cleared.join(0.2)
+    assert cleared.is_alive()  # still waiting for the tick that is sending
+    release.set()
+    ticking.join(5.0)
+    cleared.join(5.0)
+    assert recorded == [("sent", 0.3), ("cleared", 0.0)]
+    em.tick(10 * MS)
+    assert recorded[-1] == ("sent", 0.0)
+
+
 def test_background_ticks_follow_the_grid():
     clock = ManualClock(1_000 * MS)
     sent: list[int] = []

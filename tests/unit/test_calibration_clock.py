@@ -206,3 +206,25 @@ def test_a_topic_stamped_by_the_host_is_named():
 def test_same_seed_same_fit():
     streams = {"robot_1": robot(np.random.default_rng(9), "robot_1", (0.035, 40.0))}
     assert estimate_clock(streams, SETTINGS) == estimate_clock(streams, SETTINGS)
+
+
+def wandering_copy(stream: StampStream, ppm: float) -> StampStream:
+    """`stream` logged by a recorder whose copy of a published clock runs `ppm` fast over the recording."""
+    t = (stream.log_ns - EPOCH_NS) / NS
+    return StampStream(stream.topic, stream.stamp_ns, stream.log_ns + np.round(ppm * 1e-6 * t * NS).astype(np.int64))
+
+
+def test_a_followed_clocks_wander_is_taken_out_of_the_drift():
+    """A time-scaled recording: the recorder's copy of /clock gains 300 ppm on the fleet's time (a loaded host),
+    which moves every delay with it. Alone, the robot's drift reads 40 - 300 ppm; with the recorded /clock
+    (logged at the copy's reading, stamped with its value) the copy's wander is measured and taken out."""
+    rng = np.random.default_rng(3)
+    clock = (0.0, 40.0)
+    streams = {"robot_1": [wandering_copy(s, 300.0) for s in robot(rng, "robot_1", clock)]}
+    published = wandering_copy(topic(rng, "/clock", 50.0, 300.0, (0.0, 0.0), 0.001, 0.002), 300.0)
+    fooled = estimate_clock(streams, SETTINGS).per_robot["robot_1"][1]
+    assert not covers(fooled, 40.0) and fooled.value == pytest.approx(-260.0, abs=30.0)
+    fit = estimate_clock(streams, SETTINGS, {"robot_1": published})
+    _, drift = fit.per_robot["robot_1"]
+    assert covers(drift, 40.0) and drift.value == pytest.approx(40.0, abs=15.0)
+    assert "followed /clock" in drift.method and any("/clock runs -30" in n for n in fit.notes)
