@@ -52,6 +52,8 @@ IDENTIFIABLE = (
     "base.wheel_radius_left_m",
     "base.wheel_radius_right_m",
     "base.wheel_separation_m",
+    "base.deadband_radps",
+    "base.max_wheel_accel_radps2",
     "clock.drift_ppm",
     "map.wall_offset_m",
     "network.loss_prob",
@@ -93,7 +95,7 @@ def main() -> int:
     parser.add_argument("--fleet", default="twin")
     parser.add_argument("--profiles", type=int, default=20)
     parser.add_argument("--episodes", type=int, default=10)
-    parser.add_argument("--time-scale", type=float, default=5.0)
+    parser.add_argument("--time-scale", type=float, default=3.0)
     parser.add_argument("--seed", type=int, default=100)
     parser.add_argument("--out", type=Path, default=Path("logs/benchmarks/calibration_coverage.csv"))
     args = parser.parse_args()

@@ -29,21 +29,29 @@ from pipeline.calibration.clock import ClockFit, estimate_clock
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
+from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors, wheel_speeds
 from pipeline.calibration.network import NetworkFit, StampStream, estimate_network, rate_estimate
 from pipeline.calibration.odometry import OdometryEpisode, OdometryFit, estimate_odometry
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry
 from pipeline.calibration.recording import SessionData, read_session
 from pipeline.calibration.smoothing import SmootherNoise, Trajectory, smooth_trajectory
-from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, WheelFit, estimate_wheels
+from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M, WheelFit, estimate_wheels
 from pipeline.core.scenario import Scenario
+from pipeline.core.timebase import NS_PER_S
 
 PROFILE_KEYS: dict[str, tuple[str, ...]] = {
     "lidar": ("beams", "rate_hz", "noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"),
     "actuation": ("delay_s", "time_constant_s", "linear_gain", "angular_gain"),
     "odometry": ("rate_hz", "drift_per_m"),
     "network": ("loss_prob", "jitter_s", "burst_len"),
-    "base": ("wheel_radius_left_m", "wheel_radius_right_m", "wheel_separation_m"),
+    "base": (
+        "wheel_radius_left_m",
+        "wheel_radius_right_m",
+        "wheel_separation_m",
+        "deadband_radps",
+        "max_wheel_accel_radps2",
+    ),
     "clock": ("offset_s", "drift_ppm"),
     "map": ("wall_offset_m",),
 }
@@ -62,6 +70,7 @@ RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
     "actuation.linear_gain": (0.01, 5.0),
     "actuation.angular_gain": (0.01, 5.0),
     "odometry.drift_per_m": (0.0, 1.0),
+    "actuation.deadband_radps": (0.0, 50.0),
 }
 """The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
 
@@ -120,6 +129,7 @@ class Calibration:
     settings: CalibrationSettings = field(default_factory=CalibrationSettings)
     wheels: WheelFit | None = None
     clock: ClockFit | None = None
+    motors: MotorFit | None = None
 
     def estimate(self, key: str) -> Estimate:
         """The estimate of a dotted profile key, e.g. ``actuation.delay_s``; KeyError if it was not asked for."""
@@ -161,6 +171,27 @@ class Calibration:
         left, right, sep = (float(e.value) for e in est if e is not None and e.value is not None)
         return (right - left) / (NOMINAL_WHEEL_RADIUS_M * sep)
 
+    def body_gains(self) -> tuple[float, float] | None:
+        """(linear, angular) gains for a simulator that applies the deadband: the wheel chain's gains (free of the
+        deadband, which the body-velocity fit folds into smaller gains) at body level, through the calibrated
+        mean wheel radius and separation (nominal where unidentified). None unless the deadband is identified."""
+        deadband = self.values.get("base.deadband_radps")
+        if self.motors is None or self.motors.gains is None or deadband is None or not deadband.ok:
+            return None
+
+        def known(key: str, nominal: float) -> float:
+            est = self.values.get(key)
+            return float(est.value) if est is not None and est.ok and est.value is not None else nominal
+
+        radius = (
+            known("base.wheel_radius_left_m", NOMINAL_WHEEL_RADIUS_M)
+            + known("base.wheel_radius_right_m", NOMINAL_WHEEL_RADIUS_M)
+        ) / 2
+        separation = known("base.wheel_separation_m", NOMINAL_WHEEL_SEPARATION_M)
+        linear, angular = self.motors.gains
+        scale = radius / NOMINAL_WHEEL_RADIUS_M
+        return linear * scale, angular * scale * NOMINAL_WHEEL_SEPARATION_M / separation
+
     def unidentified(self) -> dict[str, str]:
         """Dotted keys that the data cannot determine, with the reason."""
         return {k: e.reason for k, e in self.values.items() if not e.ok}
@@ -191,9 +222,13 @@ class Calibration:
             out["lidar"]["robot_radius_seen_m"] = 0.0
         for key in PROFILE_KEYS["actuation"]:
             put("actuation", key, f"actuation.{key}")
+        gains = self.body_gains()
+        if gains is not None:
+            out.setdefault("actuation", {}).update(linear_gain=_short(gains[0]), angular_gain=_short(gains[1]))
         arc = self.arc_per_m()
         if arc is not None:
             out.setdefault("actuation", {})["yaw_rate_per_mps"] = _short(arc)
+        put("actuation", "deadband_radps", "base.deadband_radps")
         put("odometry", "drift_per_m", "odometry.drift_per_m")
         ranges = self.randomize_ranges()
         if ranges:
@@ -210,13 +245,20 @@ class Calibration:
         sources["lidar.mount_yaw_rad"] = "lidar.mount_yaw_rad"
         sources.update({f"actuation.{k}": f"actuation.{k}" for k in PROFILE_KEYS["actuation"]})
         sources["odometry.drift_per_m"] = "odometry.drift_per_m"
+        sources["actuation.deadband_radps"] = "base.deadband_radps"
         for world_key, source in sources.items():
             est = self.values.get(source)
             if est is None or not est.ok or est.value is None or est.interval is None:
                 continue
             lo, hi = est.interval
-            half = MIN_RANDOMIZE_HALF_WIDTH * abs(est.value)
-            lo, hi = min(lo, est.value - half), max(hi, est.value + half)
+            value = est.value
+            gains = self.body_gains()
+            if gains is not None and world_key in ("actuation.linear_gain", "actuation.angular_gain"):
+                # centred on the wheel chain's gain, as wide as the body-velocity fit's interval
+                value = gains[0] if world_key.endswith("linear_gain") else gains[1]
+                lo, hi = value - (est.value - lo), value + (hi - est.value)
+            half = MIN_RANDOMIZE_HALF_WIDTH * abs(value)
+            lo, hi = min(lo, value - half), max(hi, value + half)
             group, name = world_key.split(".")
             low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key, (-math.inf, math.inf))
             lo, hi = max(lo, low_bound), min(hi, high_bound)
@@ -344,6 +386,38 @@ def _velocity_tracks(
     return out
 
 
+def _wheel_episodes(tag: str, data: SessionData, tracks: Sequence[VelocityTrack]) -> list[WheelEpisode]:
+    """Each robot-episode's odometry as wheel speeds, free where a contact-free track of it covers the sample."""
+    out: list[WheelEpisode] = []
+    for robot in data.robots:
+        odom, cmd = robot.odom, robot.commands
+        if odom is None or odom.velocity is None or cmd is None or len(cmd.t_ns) == 0:
+            continue
+        timeline = CommandTimeline(cmd.t_ns, np.stack([cmd.v, cmd.w], axis=1))
+        for episode in data.episodes:
+            sel = (odom.time.t_ns >= episode.start_ns) & (odom.time.t_ns <= episode.end_ns)
+            if sel.sum() < 3:
+                continue
+            cluster = f"{tag}/{robot.name}/episode {episode.episode}"
+            t = odom.time.t_ns[sel]
+            free = np.zeros(len(t), dtype=bool)
+            for track in tracks:
+                if track.cluster == cluster:
+                    free |= (t >= track.t_ns[0]) & (t <= track.t_ns[-1])
+            velocity = odom.velocity[sel]
+            wheels = wheel_speeds(velocity[:, 0], velocity[:, 1])
+            out.append(WheelEpisode(robot.name, cluster, int(episode.start_ns), t, wheels, free, timeline))
+    return out
+
+
+def _odometry_period_s(stamps: Sequence[np.ndarray]) -> float:
+    """The odometry's period (s): the median step of its stamps."""
+    diffs = [np.diff(np.asarray(s, dtype=np.int64)) for s in stamps if len(s) > 1]
+    steps = np.concatenate(diffs) if diffs else np.zeros(0, dtype=np.int64)
+    steps = steps[steps > 0]
+    return float(np.median(steps)) / NS_PER_S if len(steps) else 0.025
+
+
 def _odometry_episodes(tag: str, data: SessionData, trajectories: dict[str, Trajectory]) -> list[OdometryEpisode]:
     out: list[OdometryEpisode] = []
     for robot in data.robots:
@@ -434,7 +508,7 @@ def calibrate(
         if "network" in parts:
             streams += _network_streams(tag, data)
     values: dict[str, Estimate] = {}
-    lidar = actuation = odometry = network = wheels = clock = None
+    lidar = actuation = odometry = network = wheels = clock = motors = None
     if "lidar" in parts:
         lidar = estimate_lidar(geometry, spans, settings, rng)
         if beams:
@@ -467,6 +541,11 @@ def calibrate(
         values["base.wheel_radius_left_m"] = wheels.radius_left_m
         values["base.wheel_radius_right_m"] = wheels.radius_right_m
         values["base.wheel_separation_m"] = wheels.separation_m
+    if "odometry" in parts and "actuation" in parts:
+        wheel_episodes = [e for tag, data in tagged for e in _wheel_episodes(tag, data, tracks)]
+        motors = estimate_motors(wheel_episodes, _odometry_period_s(odom_stamps), settings, rng)
+        values["base.deadband_radps"] = motors.deadband_radps
+        values["base.max_wheel_accel_radps2"] = motors.max_wheel_accel_radps2
     if "network" in parts:
         network = estimate_network(streams, settings, rng)
         values["network.loss_prob"] = network.loss_prob
@@ -481,7 +560,17 @@ def calibrate(
             values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
     sources = tuple(Source(str(d.path), dict(d.session), len(d.episodes)) for d in sessions)
     return Calibration(
-        scenario.name, sources, values, lidar, actuation, odometry, network, settings, wheels=wheels, clock=clock
+        scenario.name,
+        sources,
+        values,
+        lidar,
+        actuation,
+        odometry,
+        network,
+        settings,
+        wheels=wheels,
+        clock=clock,
+        motors=motors,
     )
 
 

@@ -172,12 +172,19 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
         lines += [f"- `{g}.{k}`: [{lo:g}, {hi:g}]" for g, kv in ranges.items() for k, (lo, hi) in kv.items()]
     notes: list[str] = []
     fits = (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network)
-    for part in (*fits, calibration.wheels, calibration.clock):
+    for part in (*fits, calibration.wheels, calibration.clock, calibration.motors):
         if part is not None:
             notes += list(part.notes)
     if calibration.actuation is not None and calibration.actuation.residual_rms is not None:
         v, w = calibration.actuation.residual_rms
         notes.append(f"actuation fit residual rms: {v:.4f} m/s, {w:.4f} rad/s")
+    gains = calibration.body_gains()
+    if gains is not None:
+        notes.append(
+            f"the simulator gets the deadband with the wheel chain's gains at body level ({gains[0]:.3f} linear, "
+            f"{gains[1]:.3f} angular) in place of the body-velocity fit's, which hold the deadband; it has no "
+            "acceleration limit, which its lag and delay absorb"
+        )
     if calibration.odometry is not None and calibration.odometry.component_rms:
         parts = ", ".join(f"{k} {v:.4f}" for k, v in calibration.odometry.component_rms.items())
         notes.append(f"odometry draws, rms per component: {parts}")

@@ -1,0 +1,340 @@
+"""The wheel motors' deadband (rad/s) and acceleration limit (rad/s^2), from commanded vs achieved wheel speeds.
+
+Commanded wheel speeds: the commands as sent, turned into left and right wheel speeds by the nominal
+geometry, as the robot's driver does. Achieved: the odometry's twist turned back into wheel speeds by
+the same geometry; it is the encoders' change over one odometry period, so the model is averaged over
+that period too. Only contact-free samples count (a robot pushing a wall does not turn its wheels as
+commanded).
+
+Model per wheel: the command passes a delay and the driver's lag, is scaled by the linear and angular
+gains, zeroed where smaller than the deadband, followed by a setpoint that changes at most `accel`
+rad/s^2 (a slew-rate limit), which the wheel follows through the motor's lag.
+
+Two stages, because the body-velocity fit of the actuation module (one lag, no deadband) absorbs a
+deadband into smaller gains and a slew limit into a longer lag:
+1. Held commands: samples at least `SETTLE_S` after the command last changed show the steady state,
+   where the achieved speed is the gained target, or zero under the deadband. For each deadband on a
+   grid the gains are least squares over the moving samples (classified by the current gains,
+   iterated); the deadband with the least total squared error wins.
+2. Transients: with those gains and deadband, a grid over delay x total lag x the motor's share of it
+   x acceleration limit (with "no limit"), simulated from rest at each episode's start.
+Both stages keep per-episode sums, so a bootstrap over robot-episodes gives the intervals (percentiles
+widened by half a grid step). A deadband is identifiable only where commands asked for wheel speeds
+near it, an acceleration limit only where they asked for more than it: otherwise the key is reported
+unidentifiable with the bound the data do give.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from pipeline.calibration.actuation import CommandTimeline
+from pipeline.calibration.estimates import Estimate, bootstrap
+from pipeline.calibration.options import CalibrationSettings
+from pipeline.core.timebase import NS_PER_S
+
+NOMINAL_WHEEL_RADIUS_M = 0.034
+NOMINAL_WHEEL_SEPARATION_M = 0.281
+STEP_S = 0.01
+"""Time step of the simulated wheel chain."""
+SETTLE_S = 0.8
+"""A sample counts as steady when the command has not changed for this long before its odometry period."""
+DEADBANDS_RADPS = np.round(np.arange(0.0, 2.501, 0.05), 3)
+"""Deadbands tried (rad/s of wheel speed)."""
+ACCELS_RADPS2 = np.r_[np.geomspace(5.0, 300.0, 41), np.inf]
+"""Acceleration limits tried (rad/s^2); the last is no limit."""
+DELAYS_S = np.round(np.arange(0.0, 0.241, 0.02), 3)
+LAGS_S = np.geomspace(0.03, 0.4, 24)
+"""Total lags tried (driver + motor, s)."""
+MOTOR_SHARES = np.array([0.0, 1 / 6, 1 / 3, 1 / 2, 2 / 3])
+COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
+"""Limits of the first pass, which picks the delay; the second tries every limit at the delays next to it."""
+"""Fractions of the total lag taken by the motor (after the limit) rather than the driver (before it)."""
+MIN_BELOW_SAMPLES = 20
+"""Steady samples with a commanded wheel speed inside the deadband grid needed to tell the deadband."""
+MIN_EPISODES = 2
+MOVING_RADPS = 0.05
+"""A commanded wheel speed above this is a command to move."""
+
+
+@dataclass(frozen=True)
+class WheelEpisode:
+    """One robot in one episode: odometry times `t_ns` (n,) on the recorder's clock, the achieved wheel speeds
+    (n, 2) (left, right, rad/s) over the odometry period ending at each, which samples are contact-free, the
+    command timeline, and the episode's start (the robot at rest)."""
+
+    robot: str
+    cluster: str
+    start_ns: int
+    t_ns: np.ndarray
+    wheels: np.ndarray
+    free: np.ndarray
+    commands: CommandTimeline
+
+
+@dataclass(frozen=True)
+class MotorFit:
+    deadband_radps: Estimate
+    max_wheel_accel_radps2: Estimate
+    gains: tuple[float, float] | None = None
+    """(linear, angular) gains of the wheel chain (stage 1), free of the deadband."""
+    notes: tuple[str, ...] = ()
+
+
+def wheel_speeds(v_mps: np.ndarray, w_radps: np.ndarray) -> np.ndarray:
+    """(n, 2) left and right wheel speeds (rad/s) of body velocities by the nominal geometry."""
+    half = NOMINAL_WHEEL_SEPARATION_M / 2
+    return np.stack([(v_mps - w_radps * half), (v_mps + w_radps * half)], axis=1) / NOMINAL_WHEEL_RADIUS_M
+
+
+def _parts(commands: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The linear and angular parts (n, 2) of the wheel speeds of commands (n, 2): wheels = a * g_lin + b * g_ang."""
+    zero = np.zeros(len(commands))
+    return wheel_speeds(commands[:, 0], zero), wheel_speeds(zero, commands[:, 1])
+
+
+@dataclass(frozen=True)
+class _Steady:
+    """Steady samples of one episode: the wheel speed parts (m, 2) each and the achieved speeds (m, 2)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    y: np.ndarray
+
+
+def _steady(episode: WheelEpisode, period_s: float, timeout_s: float) -> _Steady:
+    cmd = episode.commands
+    t = episode.t_ns[episode.free]
+    y = episode.wheels[episode.free]
+    begin = t - round(period_s * NS_PER_S)
+    k = np.searchsorted(cmd.t_ns, begin, side="right") - 1
+    ok = k >= 0
+    values = cmd.values[np.maximum(k, 0)]
+    # when did the command acting at the period's start take that value?
+    changed = np.r_[True, np.any(np.diff(cmd.values, axis=0) != 0, axis=1)]
+    since = np.maximum.accumulate(np.where(changed, np.arange(len(changed)), 0))
+    set_ns = cmd.t_ns[since[np.maximum(k, 0)]]
+    held = ok & (begin - set_ns >= SETTLE_S * NS_PER_S)
+    # the same command still acting at the sample (no change within the period) and not timed out
+    k_end = np.searchsorted(cmd.t_ns, t, side="right") - 1
+    same = since[np.maximum(k_end, 0)] == since[np.maximum(k, 0)]
+    fresh = t - cmd.t_ns[np.maximum(k_end, 0)] <= timeout_s * NS_PER_S
+    keep = held & same & fresh
+    a, b = _parts(values[keep])
+    return _Steady(a, b, y[keep])
+
+
+def _steady_fit(samples: Sequence[_Steady], weights: np.ndarray) -> tuple[float, float, float, float]:
+    """(deadband low, deadband high, linear gain, angular gain) minimizing the weighted squared error of the steady
+    samples: every deadband on the grid between the same data points fits equally, so the least cost holds a
+    range of them."""
+    a = np.concatenate([s.a for s in samples]).ravel()
+    b = np.concatenate([s.b for s in samples]).ravel()
+    y = np.concatenate([s.y for s in samples]).ravel()
+    w = np.concatenate([np.full(2 * len(s.y), wt, dtype=float) for s, wt in zip(samples, weights, strict=True)])
+    costs, fitted = [], []
+    for db in DEADBANDS_RADPS:
+        g = np.array([1.0, 1.0])
+        for _ in range(3):
+            target = a * g[0] + b * g[1]
+            moving = (np.abs(target) >= db) & (w > 0)
+            x = np.stack([a[moving], b[moving]], axis=1) * np.sqrt(w[moving])[:, None]
+            if len(x) < 3 or np.linalg.matrix_rank(x) < 2:
+                break
+            g = np.linalg.lstsq(x, y[moving] * np.sqrt(w[moving]), rcond=None)[0]
+        target = a * g[0] + b * g[1]
+        model = np.where(np.abs(target) < db, 0.0, target)
+        costs.append(float(np.sum(w * (y - model) ** 2)))
+        fitted.append(g)
+    cost = np.asarray(costs)
+    best = np.flatnonzero(cost <= cost.min() * (1 + 1e-9) + 1e-12)
+    first, last = int(best[0]), int(best[-1])
+    # the tie may break where classification changes within the run; keep its contiguous part
+    run = last
+    while run > first and run - 1 not in best:
+        run -= 1
+    g = fitted[first]
+    return float(DEADBANDS_RADPS[first]), float(DEADBANDS_RADPS[run]), float(g[0]), float(g[1])
+
+
+def _lag(x: np.ndarray, tau_s: float) -> np.ndarray:
+    """First-order lag along axis 0 (exact for inputs held over each step), from rest."""
+    if tau_s <= 0:
+        return x
+    a = math.exp(-STEP_S / tau_s)
+    return np.asarray(lfilter([1.0 - a], [1.0, -a], x, axis=0))
+
+
+def _transient_costs(
+    episode: WheelEpisode,
+    deadband: float,
+    gains: tuple[float, float],
+    period_s: float,
+    timeout_s: float,
+    delays: np.ndarray,
+    accels: np.ndarray,
+) -> np.ndarray:
+    """(delays, lags, shares, accels) sums of squared residuals over the episode's free samples."""
+    n = int((int(episode.t_ns[-1]) - episode.start_ns) / (STEP_S * NS_PER_S)) + 2
+    grid_ns = episode.start_ns + np.round(np.arange(n) * STEP_S * NS_PER_S).astype(np.int64)
+    free_t = episode.t_ns[episode.free]
+    achieved = episode.wheels[episode.free]
+    k_end = np.clip(np.searchsorted(grid_ns, free_t, side="right") - 1, 0, n - 1)
+    span = max(round(period_s / STEP_S), 1)
+    n_d, n_l, n_s, n_a = len(delays), len(LAGS_S), len(MOTOR_SHARES), len(accels)
+    # the driver's output for every (delay, lag, share), deadbanded: (n, d, l, s, 2)
+    targets = np.empty((n, n_d, n_l, n_s, 2))
+    for i, delay in enumerate(delays):
+        u = episode.commands.at(grid_ns - round(float(delay) * NS_PER_S), timeout_s)
+        a, b = _parts(u)
+        wheels = a * gains[0] + b * gains[1]
+        for j, lag in enumerate(LAGS_S):
+            for m, share in enumerate(MOTOR_SHARES):
+                targets[:, i, j, m] = _lag(wheels, float(lag) * (1.0 - float(share)))
+    targets[np.abs(targets) < deadband] = 0.0
+    step = np.broadcast_to((accels * STEP_S)[None, None, None, :, None], (n_d, n_l, n_s, n_a, 2))
+    motor_tau = LAGS_S[:, None] * MOTOR_SHARES[None, :]
+    follow = np.where(motor_tau > 0, 1.0 - np.exp(-STEP_S / np.maximum(motor_tau, 1e-12)), 1.0)[None, :, :, None, None]
+    setpoint = np.zeros((n_d, n_l, n_s, n_a, 2))
+    wheel = np.zeros_like(setpoint)
+    running = np.zeros_like(setpoint)
+    change = np.empty_like(setpoint)
+    history = np.zeros((span + 1, *setpoint.shape))  # running sums of the last span + 1 steps
+    costs = np.zeros((n_d, n_l, n_s, n_a))
+    order = np.argsort(k_end, kind="stable")
+    neg_step = -step
+    j = 0
+    for k in range(n):
+        np.subtract(targets[k][:, :, :, None, :], setpoint, out=change)
+        np.clip(change, neg_step, step, out=change)
+        setpoint += change
+        np.subtract(setpoint, wheel, out=change)
+        change *= follow
+        wheel += change
+        running += wheel
+        history[k % (span + 1)] = running
+        while j < len(order) and k_end[order[j]] == k:
+            sample = order[j]
+            steps = min(span, k + 1)
+            if k >= steps:
+                np.subtract(running, history[(k - steps) % (span + 1)], out=change)
+            else:
+                change[...] = running
+            change /= steps
+            change -= achieved[sample]
+            change *= change
+            costs += change[..., 0]
+            costs += change[..., 1]
+            j += 1
+    return costs
+
+
+def estimate_motors(
+    episodes: Sequence[WheelEpisode], odometry_period_s: float, settings: CalibrationSettings, rng: np.random.Generator
+) -> MotorFit:
+    """Deadband and acceleration limit of the wheel motors from the contact-free odometry of `episodes`."""
+    used = [e for e in episodes if int(e.free.sum()) >= 3]
+    if len(used) < MIN_EPISODES:
+        reason = f"{len(used)} robot-episodes with contact-free odometry; the fit needs {MIN_EPISODES}"
+        return MotorFit(Estimate.unidentifiable(reason, "rad/s"), Estimate.unidentifiable(reason, "rad/s^2"))
+    moving = [e for e in used if np.any(np.abs(np.concatenate(_parts(e.commands.values), axis=1)) > MOVING_RADPS)]
+    if len(moving) < MIN_EPISODES:
+        reason = f"{len(moving)} robot-episodes commanded the wheels to turn; the robots must drive ({MIN_EPISODES})"
+        return MotorFit(Estimate.unidentifiable(reason, "rad/s"), Estimate.unidentifiable(reason, "rad/s^2"))
+    timeout = settings.command_timeout_s
+    steady = [_steady(e, odometry_period_s, timeout) for e in used]
+    n_steady = sum(len(s.y) for s in steady)
+    flat_lo, flat_hi, g_lin, g_ang = _steady_fit(steady, np.ones(len(used)))
+    deadband_value = (flat_lo + flat_hi) / 2
+    draws = bootstrap(lambda w: np.array(_steady_fit(steady, w)[:2]), len(used), settings.bootstrap, rng)
+    commanded = np.abs(np.concatenate([s.a * g_lin + s.b * g_ang for s in steady]).ravel())
+    deadband = _deadband(deadband_value, draws, commanded, n_steady, len(used))
+
+    args = (deadband_value, (g_lin, g_ang), odometry_period_s, timeout)
+    coarse = np.sum([_transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2) for e in used], axis=0)
+    i = int(np.unravel_index(int(np.argmin(coarse[..., ::-1])), coarse.shape)[0])
+    delays = DELAYS_S[max(i - 1, 0) : i + 2]
+    costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in used])
+    shape = costs.shape[1:]
+
+    def solve(weights: np.ndarray) -> np.ndarray:
+        """Grid indices of the least cost; among equal costs the largest limit (one that never binds ties with
+        none), so "no limit" wins unless a limit explains the data better."""
+        total = np.tensordot(weights, costs, axes=([0], [0]))[..., ::-1]
+        d, lag, share, a = np.unravel_index(int(np.argmin(total)), shape)
+        return np.array([d, lag, share, shape[3] - 1 - a], dtype=float)
+
+    best = solve(np.ones(len(used)))
+    accel_draws = bootstrap(solve, len(used), settings.bootstrap, rng)
+    n_free = sum(int(e.free.sum()) for e in used)
+    full = costs.sum(axis=0)[int(best[0]), int(best[1]), int(best[2])]
+    followed = float(ACCELS_RADPS2[int(np.argmax(full <= full[-1]))])  # the least limit that never binds
+    accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(used), followed)
+    d, lag, share = delays[int(best[0])], LAGS_S[int(best[1])], MOTOR_SHARES[int(best[2])]
+    notes = (
+        f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
+        f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples give delay {d:.2f} s, total lag "
+        f"{lag:.3f} s ({share:.0%} after the limit)",
+    )
+    return MotorFit(deadband, accel, (g_lin, g_ang), notes)
+
+
+def _interval(indices: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
+    """Percentile interval of bootstrap grid indices, widened by half a grid step on each side."""
+    lo_f, hi_f = np.percentile(indices, [2.5, 97.5])
+    lo_i, hi_i = math.floor(lo_f), math.ceil(hi_f)
+    step_lo = (grid[lo_i] - grid[lo_i - 1]) / 2 if lo_i > 0 else 0.0
+    step_hi = (grid[hi_i + 1] - grid[hi_i]) / 2 if hi_i + 1 < len(grid) else 0.0
+    return float(max(grid[lo_i] - step_lo, 0.0)), float(grid[hi_i] + step_hi)
+
+
+def _deadband(value: float, draws: np.ndarray, commanded: np.ndarray, n: int, episodes: int) -> Estimate:
+    top = float(DEADBANDS_RADPS[-1])
+    below = int(np.sum((commanded > MOVING_RADPS) & (commanded < top)))
+    if below < MIN_BELOW_SAMPLES:
+        return Estimate.unidentifiable(
+            f"{below} steady samples commanded a wheel between {MOVING_RADPS:g} and {top:g} rad/s; a deadband "
+            f"shows only there (needs {MIN_BELOW_SAMPLES})",
+            "rad/s",
+        )
+    good = draws[np.all(np.isfinite(draws), axis=1)]
+    step = float(DEADBANDS_RADPS[1] - DEADBANDS_RADPS[0])
+    # a deadband between two grid values fits as well as either: one grid step more on each side
+    lo = max(float(np.percentile(good[:, 0], 2.5)) - step, 0.0) if len(good) else 0.0
+    hi = float(np.percentile(good[:, 1], 97.5)) + step if len(good) else top
+    if value >= top or hi > top:
+        return Estimate.unidentifiable(
+            f"the fit reaches the largest deadband tried ({top:g} rad/s): the wheels hardly follow small commands",
+            "rad/s",
+        )
+    se = float(np.std(good.mean(axis=1), ddof=1)) if len(good) > 1 else None
+    method = (
+        "steady wheel speeds under held commands: grid over the deadband, gains by least squares; bootstrap over "
+        f"{episodes} robot-episodes"
+    )
+    return Estimate.of(value, se, (lo, hi), "rad/s", method, n)
+
+
+def _accel(best: int, draws: np.ndarray, n: int, episodes: int, followed: float) -> Estimate:
+    idx = draws[np.isfinite(draws)].astype(int)
+    unlimited = len(ACCELS_RADPS2) - 1
+    if best == unlimited or len(idx) == 0 or np.mean(idx == unlimited) > 0.025:
+        bound = f"above {followed:.0f} rad/s^2" if math.isfinite(followed) else "above the largest tried"
+        return Estimate.unidentifiable(
+            f"no limit binds in the recording: the wheels followed every commanded change (a limit, if any, lies "
+            f"{bound})",
+            "rad/s^2",
+        )
+    lo, hi = _interval(idx.astype(float), ACCELS_RADPS2[:-1])
+    value = float(ACCELS_RADPS2[best])
+    se = float(value * np.std(np.log(ACCELS_RADPS2[idx]), ddof=1)) if len(idx) > 1 else None
+    method = (
+        f"transients of the wheel speeds: grid over delay, lag, the motor's share and the limit; bootstrap over "
+        f"{episodes} robot-episodes"
+    )
+    return Estimate.of(value, se, (lo, hi), "rad/s^2", method, n)

@@ -1,0 +1,125 @@
+"""Deadband and acceleration limit of the wheel motors from synthetic robot-episodes with a known wheel chain."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.calibration.actuation import CommandTimeline
+from pipeline.calibration.motors import WheelEpisode, estimate_motors, wheel_speeds
+from pipeline.calibration.options import CalibrationSettings
+
+NS = 1_000_000_000
+PHYSICS_S = 0.0025
+ODOM_S = 0.025
+TICKS_PER_REV = 1560
+SETTINGS = CalibrationSettings(bootstrap=100)
+
+
+def episode(
+    rng: np.random.Generator,
+    cluster: str,
+    deadband: float,
+    accel: float | None,
+    gains: tuple[float, float] = (0.95, 0.9),
+    delay_s: float = 0.08,
+    driver_lag_s: float = 0.12,
+    motor_lag_s: float = 0.06,
+    seconds: float = 12.0,
+    w_max: float = 0.2,
+) -> WheelEpisode:
+    """A robot-episode of excitation phases (stand, turn, arc, straight, each held 0.6-2 s, commands at 10 Hz)
+    through the wheel chain (delay, driver lag, gains, deadband, slew limit, motor lag) integrated at 2.5 ms;
+    odometry from encoder ticks every 25 ms."""
+    t_cmd, values = [], []
+    t = 0.0
+    while t < seconds:
+        phase = rng.choice(["stand", "turn", "arc", "straight"])
+        hold = rng.uniform(0.6, 2.0)
+        if phase == "turn":
+            cmd = (0.0, rng.choice([-1, 1]) * rng.uniform(0.08, 1.0) * w_max)
+        elif phase == "arc":
+            cmd = (rng.uniform(0.1, 0.4), rng.uniform(-1, 1) * w_max)
+        elif phase == "straight":
+            cmd = (rng.uniform(0.1, 0.4), 0.0)
+        else:
+            cmd = (0.0, 0.0)
+        for k in range(int(hold / 0.1)):
+            t_cmd.append(t + k * 0.1)
+            values.append(cmd)
+        t += int(hold / 0.1) * 0.1
+    t_cmd_ns = np.round(np.asarray(t_cmd) * NS).astype(np.int64)
+    timeline = CommandTimeline(t_cmd_ns, np.asarray(values, dtype=float))
+    n = int(seconds / PHYSICS_S)
+    times_ns = np.round(np.arange(n) * PHYSICS_S * NS).astype(np.int64)
+    u = timeline.at(times_ns - round(delay_s * NS), 0.5)
+    driver, setpoint, wheel, angle = np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2)
+    a_driver = 1 - math.exp(-PHYSICS_S / driver_lag_s)
+    a_motor = 1 - math.exp(-PHYSICS_S / motor_lag_s)
+    every = round(ODOM_S / PHYSICS_S)
+    per_tick = 2 * math.pi / TICKS_PER_REV
+    odom_t, odom_w = [], []
+    last = np.zeros(2)
+    for k in range(n):
+        driver += a_driver * (u[k] - driver)
+        target = wheel_speeds(np.array([driver[0] * gains[0]]), np.array([driver[1] * gains[1]]))[0]
+        target[np.abs(target) < deadband] = 0.0
+        if accel is None:
+            setpoint = target
+        else:
+            setpoint = setpoint + np.clip(target - setpoint, -accel * PHYSICS_S, accel * PHYSICS_S)
+        wheel += a_motor * (setpoint - wheel)
+        angle += wheel * PHYSICS_S
+        if (k + 1) % every == 0:
+            ticks = np.floor(angle / per_tick) * per_tick
+            odom_t.append(times_ns[k] + round(PHYSICS_S * NS))
+            odom_w.append((ticks - last) / ODOM_S)
+            last = ticks
+    t_ns = np.asarray(odom_t, dtype=np.int64)
+    return WheelEpisode("robot", cluster, 0, t_ns, np.asarray(odom_w), np.ones(len(t_ns), dtype=bool), timeline)
+
+
+def covers(est, truth: float) -> bool:
+    return est.ok and est.interval[0] <= truth <= est.interval[1]
+
+
+def test_a_lab_motor_deadband_and_acceleration_limit_are_recovered():
+    rng = np.random.default_rng(0)
+    episodes = [episode(rng, f"episode {k}", deadband=0.6, accel=25.0) for k in range(8)]
+    fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(1))
+    assert fit.deadband_radps.value == pytest.approx(0.6, abs=0.1) and covers(fit.deadband_radps, 0.6)
+    accel = fit.max_wheel_accel_radps2
+    assert accel.value == pytest.approx(25.0, rel=0.15) and covers(accel, 25.0)
+    assert fit.gains == pytest.approx((0.95, 0.9), rel=0.03)
+
+
+def test_motors_without_deadband_or_limit():
+    """No deadband reads as one near 0; no limit is unidentifiable with the bound the data give."""
+    rng = np.random.default_rng(2)
+    episodes = [episode(rng, f"episode {k}", deadband=0.0, accel=None) for k in range(8)]
+    fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(3))
+    assert fit.deadband_radps.ok and fit.deadband_radps.value <= 0.1 and fit.deadband_radps.interval[0] == 0.0
+    assert not fit.max_wheel_accel_radps2.ok and "no limit binds" in fit.max_wheel_accel_radps2.reason
+
+
+def test_a_deadband_is_unidentifiable_without_small_commands():
+    """Commands that never ask a wheel for less than the deadband grid's top cannot tell a deadband."""
+    rng = np.random.default_rng(4)
+    episodes = []
+    for k in range(4):
+        e = episode(rng, f"episode {k}", deadband=0.6, accel=25.0)
+        big = np.where(np.abs(e.commands.values) > 0, e.commands.values, 0.0)
+        big[:, 0] = np.where(big[:, 0] != 0, 0.4, 0.0)
+        big[:, 1] = 0.0  # straight runs at 0.4 m/s only: every wheel command is 11.8 rad/s or 0
+        straight = CommandTimeline(e.commands.t_ns, big)
+        episodes.append(WheelEpisode(e.robot, e.cluster, e.start_ns, e.t_ns, e.wheels, e.free, straight))
+    fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(5))
+    assert not fit.deadband_radps.ok and "shows only there" in fit.deadband_radps.reason
+
+
+def test_too_few_episodes_are_unidentifiable():
+    rng = np.random.default_rng(6)
+    fit = estimate_motors([episode(rng, "only", 0.6, 25.0)], ODOM_S, SETTINGS, np.random.default_rng(7))
+    assert not fit.deadband_radps.ok and not fit.max_wheel_accel_radps2.ok and "needs 2" in fit.deadband_radps.reason
