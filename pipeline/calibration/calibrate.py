@@ -33,6 +33,7 @@ from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors,
 from pipeline.calibration.network import NetworkFit, StampStream, estimate_network, rate_estimate
 from pipeline.calibration.odometry import OdometryEpisode, OdometryFit, estimate_odometry
 from pipeline.calibration.options import CalibrationSettings
+from pipeline.calibration.randomization import RandomizationFit, fit_randomization
 from pipeline.calibration.raycast import MapGeometry
 from pipeline.calibration.recording import SessionData, read_session
 from pipeline.calibration.smoothing import SmootherNoise, Trajectory, smooth_trajectory
@@ -73,6 +74,11 @@ RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
     "actuation.deadband_radps": (0.0, 50.0),
 }
 """The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
+
+
+def _arc_of(values: dict[str, Estimate]) -> float | None:
+    """The arc per metre of calibrated wheel radii and separation (see `Calibration.arc_per_m`)."""
+    return Calibration("", (), values).arc_per_m()
 
 
 def _arc_half_width(values: dict[str, Estimate]) -> float:
@@ -130,6 +136,7 @@ class Calibration:
     wheels: WheelFit | None = None
     clock: ClockFit | None = None
     motors: MotorFit | None = None
+    randomization: RandomizationFit | None = None
 
     def estimate(self, key: str) -> Estimate:
         """The estimate of a dotted profile key, e.g. ``actuation.delay_s``; KeyError if it was not asked for."""
@@ -261,6 +268,9 @@ class Calibration:
             lo, hi = min(lo, value - half), max(hi, value + half)
             group, name = world_key.split(".")
             low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key, (-math.inf, math.inf))
+            fitted = self.randomization.ranges().get(name) if self.randomization and group == "actuation" else None
+            if fitted is not None:  # widened to the spread that the recorded transitions ask for
+                lo, hi = min(lo, fitted[0]), max(hi, fitted[1])
             lo, hi = max(lo, low_bound), min(hi, high_bound)
             out.setdefault(group, {})[name] = [_short(lo), _short(max(hi, lo))]  # an interval below the bound: [b, b]
         arc = self.arc_per_m()
@@ -508,7 +518,7 @@ def calibrate(
         if "network" in parts:
             streams += _network_streams(tag, data)
     values: dict[str, Estimate] = {}
-    lidar = actuation = odometry = network = wheels = clock = motors = None
+    lidar = actuation = odometry = network = wheels = clock = motors = randomization = None
     if "lidar" in parts:
         lidar = estimate_lidar(geometry, spans, settings, rng)
         if beams:
@@ -546,6 +556,18 @@ def calibrate(
         motors = estimate_motors(wheel_episodes, _odometry_period_s(odom_stamps), settings, rng)
         values["base.deadband_radps"] = motors.deadband_radps
         values["base.max_wheel_accel_radps2"] = motors.max_wheel_accel_radps2
+    if "actuation" in parts:
+        long_tracks = [t for t in tracks if t.duration_s >= settings.actuation_min_track_s]
+        deadband = values.get("base.deadband_radps")
+        known = deadband is not None and deadband.ok and deadband.value is not None
+        randomization = fit_randomization(
+            long_tracks,
+            values,
+            settings.command_timeout_s,
+            settings.seed,
+            float(deadband.value) if known and deadband is not None and deadband.value is not None else 0.0,
+            _arc_of(values) or 0.0,
+        )
     if "network" in parts:
         network = estimate_network(streams, settings, rng)
         values["network.loss_prob"] = network.loss_prob
@@ -571,6 +593,7 @@ def calibrate(
         wheels=wheels,
         clock=clock,
         motors=motors,
+        randomization=randomization,
     )
 
 

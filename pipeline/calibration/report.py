@@ -172,7 +172,7 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
         lines += [f"- `{g}.{k}`: [{lo:g}, {hi:g}]" for g, kv in ranges.items() for k, (lo, hi) in kv.items()]
     notes: list[str] = []
     fits = (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network)
-    for part in (*fits, calibration.wheels, calibration.clock, calibration.motors):
+    for part in (*fits, calibration.wheels, calibration.clock, calibration.motors, calibration.randomization):
         if part is not None:
             notes += list(part.notes)
     if calibration.actuation is not None and calibration.actuation.residual_rms is not None:
