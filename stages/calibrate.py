@@ -12,6 +12,7 @@ import numpy as np
 from pipeline.analysis.errors import ReplayError
 from pipeline.analysis.replay import open_loop_divergence, residual_lines
 from pipeline.calibration import Calibration, calibrate, calibration_settings, write_calibration
+from pipeline.calibration.report import spectrum_lines
 from pipeline.cli import run_stage, stage_arguments
 from pipeline.core.scenario import load_scenario
 from pipeline.params import Params, calibrated_world, load_params
@@ -81,6 +82,23 @@ def write_residuals(params: Params, calibration: Calibration, recording: Path, p
             f"Scans while standing still: residual to the map {spread:.4f} m (robust spread) against a sensor noise of "
             f"{fit.noise_sigma_m.value:.4f} m (+{(fit.noise_per_m.value or 0.0):.4f} per m of range)."
         )
+    spectrum = calibration.lidar.residual_spectrum if calibration.lidar is not None else None
+    if spectrum is not None:
+        bands = spectrum.bands()
+        excess = [(lo, hi, p / n) for lo, hi, p, n in bands if n > 0]
+        worst = max(excess, key=lambda b: b[2]) if excess else None
+        lines += ["", *spectrum_lines(calibration), ""]
+        if worst is not None:
+            lines.append(
+                f"The residual carries {worst[2]:.1f} times the noise's power at {worst[0]}-{worst[1]} cycles per "
+                "revolution: "
+                + (
+                    "structure the calibrated map and lidar model do not explain, not noise."
+                    if worst[2] >= 2.0
+                    else "within a factor 2 of the noise at every frequency, so the calibrated map and lidar explain "
+                    "the stationary scans."
+                )
+            )
     with report.open("a", encoding="utf-8") as f:
         f.write("\n".join(lines) + "\n")
     errors = f"nominal {nominal.at(t):.3f} m, calibrated {calibrated.at(t):.3f} m"

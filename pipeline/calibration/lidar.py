@@ -117,6 +117,68 @@ class LidarFit:
     beams_used: int = 0
     yaw_cost: tuple[np.ndarray, np.ndarray] | None = None
     notes: tuple[str, ...] = ()
+    residual_spectrum: ResidualSpectrum | None = None
+
+
+SPECTRUM_OUTLIER_M = 0.05
+"""A beam's span-mean residual further than this from its span's median is something not on the map."""
+
+
+@dataclass(frozen=True)
+class ResidualSpectrum:
+    """Power of the span-mean scan residual (measured - cast at the fitted parameters) over the beam angle, per
+    angular frequency (cycles per revolution), averaged over spans; and what the fitted noise alone gives there
+    (each beam's span mean holds noise sigma(range)^2 / scans). Power above the noise at low frequencies is
+    structure the calibrated map and sensor model do not explain (a box not where it is cast, a wall that bends,
+    a mounting error); at high frequencies, beam-to-beam effects (motion distortion, edges)."""
+
+    cycles: np.ndarray
+    power_m2: np.ndarray
+    noise_m2: np.ndarray
+    spans: int
+    left_out: int = 0
+    """Beam means further than `SPECTRUM_OUTLIER_M` from their span's median (another robot, a person), left out."""
+
+    def bands(self) -> list[tuple[int, int, float, float]]:
+        """(first cycle, last cycle, residual power, noise power) summed over octave bands of angular frequency."""
+        out = []
+        lo = 1
+        top = int(self.cycles[-1]) if len(self.cycles) else 0
+        while lo <= top:
+            hi = min(2 * lo - 1, top)
+            sel = (self.cycles >= lo) & (self.cycles <= hi)
+            out.append((lo, hi, float(self.power_m2[sel].sum()), float(self.noise_m2[sel].sum())))
+            lo *= 2
+        return out
+
+
+def residual_spectrum(
+    span_means: list[tuple[np.ndarray, np.ndarray, np.ndarray]], noise_sigma_m: float, noise_per_m: float
+) -> ResidualSpectrum | None:
+    """The spectrum of span-mean residuals: per span (mean residual per beam (nan where none), scans per beam,
+    cast range per beam), each demeaned over its beams and zero where missing."""
+    powers, noises = [], []
+    n_beams = None
+    left_out = 0
+    for mean, count, cast in span_means:
+        have = np.isfinite(mean) & (count > 0)
+        if have.sum() < 8 or (n_beams is not None and len(mean) != n_beams):
+            continue
+        centre = float(np.median(mean[have]))
+        far = have & (np.abs(np.where(have, mean, centre) - centre) > SPECTRUM_OUTLIER_M)
+        left_out += int(far.sum())
+        have &= ~far
+        n_beams = len(mean)
+        x = np.where(have, mean - np.mean(mean[have]), 0.0)
+        powers.append(np.abs(np.fft.rfft(x)) ** 2 / n_beams)
+        var = np.where(have, (noise_sigma_m + noise_per_m * cast) ** 2 / np.maximum(count, 1), 0.0)
+        noises.append(np.full(n_beams // 2 + 1, var.sum() / n_beams))  # white: the same at every frequency
+    if not powers or n_beams is None:
+        return None
+    cycles = np.arange(n_beams // 2 + 1)
+    power = np.mean(powers, axis=0)
+    noise = np.mean(noises, axis=0)
+    return ResidualSpectrum(cycles[1:], power[1:], noise[1:], len(powers), left_out)
 
 
 def stationary_spans(
@@ -706,6 +768,8 @@ def estimate_lidar(
     )
     # per-scan residuals and dropouts at the fitted mounting over the clean, unblocked beams
     per_span_res: list[np.ndarray] = []
+    span_means: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    room = _Design.of(geometry).moved(geometry, np.where(np.isfinite(geo.params), geo.params, 0.0))
     masks: list[np.ndarray] = []
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
@@ -721,6 +785,12 @@ def estimate_lidar(
         trials[k] = mask.sum()
         drops[k] = (mask & ~valid).sum()
         per_span_res.append((r - cast[None, :])[mask & valid])
+        kept = mask & valid
+        count = kept.sum(axis=0)
+        fitted, _, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
+        with np.errstate(invalid="ignore", divide="ignore"):
+            span_mean = np.where(count > 0, np.where(kept, r - fitted[0][None, :], 0.0).sum(axis=0) / count, np.nan)
+        span_means.append((span_mean, count, fitted[0]))
     n_trials = int(trials.sum())
     notes = [f"{len(spans)} stationary spans, {stationary_s:.1f} s, {sum(s.ranges.shape[0] for s in spans)} scans"]
     if sectors:
@@ -747,7 +817,13 @@ def estimate_lidar(
         )
     else:
         drop_est = binomial_estimate(int(drops.sum()), n_trials)
+    spectrum = (
+        residual_spectrum(span_means, float(sigma_est.value or 0.0), float(per_m_est.value or 0.0))
+        if sigma_est.ok
+        else None
+    )
     return LidarFit(
+        residual_spectrum=spectrum,
         noise_sigma_m=sigma_est,
         dropout_prob=drop_est,
         bias_m=bias_geo,

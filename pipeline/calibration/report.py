@@ -14,11 +14,13 @@ import numpy as np
 
 from pipeline.calibration.calibrate import Calibration
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.lidar import SPECTRUM_OUTLIER_M
 
 LIDAR_PLOT = "lidar_residuals.png"
 MOUNT_PLOT = "lidar_mount_yaw.png"
 ACTUATION_PLOT = "actuation_fit.png"
 ODOMETRY_PLOT = "odometry_drift.png"
+SPECTRUM_PLOT = "lidar_residual_spectrum.png"
 EXAMPLE_WINDOW_S = 12.0
 """Length of the commanded-vs-achieved window shown."""
 
@@ -67,6 +69,45 @@ def plot_lidar(calibration: Calibration, path: Path) -> bool:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
+
+
+def plot_residual_spectrum(calibration: Calibration, path: Path) -> bool:
+    """Power of the span-mean scan residual over angular frequency against the fitted noise alone."""
+    fit = calibration.lidar
+    spectrum = fit.residual_spectrum if fit is not None else None
+    if spectrum is None or len(spectrum.cycles) == 0:
+        return False
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.loglog(spectrum.cycles, np.maximum(spectrum.power_m2, 1e-14), "C0", lw=0.8, label="scan residual")
+    ax.loglog(spectrum.cycles, spectrum.noise_m2, "k--", lw=1, label="fitted noise alone")
+    ax.set_xlabel("angular frequency (cycles per revolution)")
+    ax.set_ylabel("power (m^2 per frequency)")
+    ax.set_title(f"Scan residual at the calibrated map and mounting ({spectrum.spans} stationary spans)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def spectrum_lines(calibration: Calibration) -> list[str]:
+    """The residual spectrum by octave bands: residual power against the fitted noise alone."""
+    fit = calibration.lidar
+    spectrum = fit.residual_spectrum if fit is not None else None
+    if spectrum is None:
+        return []
+    lines = [
+        "Scan residual spectrum (span-mean residual at the calibrated map, mounting and bias, over the beam angle; "
+        f"power summed per octave of angular frequency; {spectrum.left_out} beam means more than "
+        f"{SPECTRUM_OUTLIER_M * 100:g} cm off, something not on the map, left out):",
+        "",
+        "| cycles per revolution | residual power (mm^2) | noise alone (mm^2) | ratio |",
+        "|---|---|---|---|",
+    ]
+    for lo, hi, power, noise in spectrum.bands():
+        ratio = power / noise if noise > 0 else float("inf")
+        lines.append(f"| {lo}-{hi} | {power * 1e6:.3f} | {noise * 1e6:.3f} | {ratio:.1f} |")
+    return lines
 
 
 def plot_mount_yaw(calibration: Calibration, path: Path) -> bool:
@@ -151,6 +192,7 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
     plots = [
         (LIDAR_PLOT, "Lidar residuals", plot_lidar),
         (MOUNT_PLOT, "Mounting yaw", plot_mount_yaw),
+        (SPECTRUM_PLOT, "Scan residual spectrum", plot_residual_spectrum),
         (ACTUATION_PLOT, "Commanded vs achieved velocity", plot_actuation),
         (ODOMETRY_PLOT, "Odometry drift", plot_odometry),
     ]

@@ -85,10 +85,10 @@ def test_repro_runs_the_closed_loop_and_reports_the_gap(repo):
     calibration = yaml.safe_load((dest / "logs" / "calibration" / "calibration.yaml").read_text())
     assert calibration["profile"]["lidar"]["beams"] == 360
     # the default reality is the lab's; the fit report ends with what the calibrated simulator leaves
-    assert (
-        "## What the calibrated simulator still leaves"
-        in (dest / "logs" / "calibration" / "calibration.md").read_text()
-    )
+    fit_report = (dest / "logs" / "calibration" / "calibration.md").read_text()
+    assert "## What the calibrated simulator still leaves" in fit_report
+    assert "Scan residual spectrum" in fit_report and "| 1-1 |" in fit_report
+    assert "randomization fitted to" in fit_report and "lidar_residual_spectrum.png" in fit_report
     report = (dest / "logs" / "report" / "report.md").read_text()
     assert "success_rates.png" in report and "Calibration" in report
     for png in ("success_rates", "trajectories", "learning_curves"):

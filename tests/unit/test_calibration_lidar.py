@@ -192,3 +192,31 @@ def test_static_errors_do_not_read_as_noise():
     assert fit.noise_sigma_m.value == pytest.approx(0.01, rel=0.1)
     assert fit.noise_per_m.interval[0] <= 0.0 <= fit.noise_per_m.interval[1]
     assert fit.mount_x_m.value == pytest.approx(0.05, abs=0.002)
+
+
+def test_the_residual_spectrum_is_noise_unless_the_map_has_structure_left():
+    """Span means that are the fitted noise alone read as noise in every band; a 2 cm wave of 3 cycles per
+    revolution (a wall the map has straight) stands out in its band only; a beam on another robot is left out."""
+    from pipeline.calibration.lidar import residual_spectrum
+
+    rng = np.random.default_rng(0)
+    beams, scans, sigma = 360, 40, 0.01
+    angle = 2 * np.pi * np.arange(beams) / beams
+    cast = np.full(beams, 2.0)
+    count = np.full(beams, scans)
+
+    def spans(structure: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        out = []
+        for _ in range(30):
+            mean = structure + rng.normal(0.0, sigma / np.sqrt(scans), beams)
+            mean[17] = 1.5  # a beam on another robot
+            out.append((mean, count, cast))
+        return out
+
+    plain = residual_spectrum(spans(np.zeros(beams)), sigma, 0.0)
+    assert plain is not None and plain.left_out == 30
+    assert all(0.7 < power / noise < 1.4 for _, _, power, noise in plain.bands())
+    wavy = residual_spectrum(spans(0.02 * np.sin(3 * angle)), sigma, 0.0)
+    assert wavy is not None
+    ratios = {(lo, hi): power / noise for lo, hi, power, noise in wavy.bands()}
+    assert ratios[(2, 3)] > 50 and all(r < 1.5 for band, r in ratios.items() if band != (2, 3))
