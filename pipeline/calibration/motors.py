@@ -58,6 +58,8 @@ COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
 MIN_BELOW_SAMPLES = 20
 """Steady samples with a commanded wheel speed inside the deadband grid needed to tell the deadband."""
 MIN_EPISODES = 2
+MAX_TRANSIENT_EPISODES = 10
+"""Most robot-episodes the transient grid is simulated on (evenly chosen; the grid's cost grows with each)."""
 MOVING_RADPS = 0.05
 """A commanded wheel speed above this is a command to move."""
 
@@ -256,10 +258,13 @@ def estimate_motors(
     deadband = _deadband(deadband_value, draws, commanded, n_steady, len(used))
 
     args = (deadband_value, (g_lin, g_ang), odometry_period_s, timeout)
-    coarse = np.sum([_transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2) for e in used], axis=0)
+    transient = used
+    if len(used) > MAX_TRANSIENT_EPISODES:
+        transient = [used[k] for k in np.linspace(0, len(used) - 1, MAX_TRANSIENT_EPISODES).round().astype(int)]
+    coarse = np.sum([_transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2) for e in transient], axis=0)
     i = int(np.unravel_index(int(np.argmin(coarse[..., ::-1])), coarse.shape)[0])
     delays = DELAYS_S[max(i - 1, 0) : i + 2]
-    costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in used])
+    costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in transient])
     shape = costs.shape[1:]
 
     def solve(weights: np.ndarray) -> np.ndarray:
@@ -269,17 +274,17 @@ def estimate_motors(
         d, lag, share, a = np.unravel_index(int(np.argmin(total)), shape)
         return np.array([d, lag, share, shape[3] - 1 - a], dtype=float)
 
-    best = solve(np.ones(len(used)))
-    accel_draws = bootstrap(solve, len(used), settings.bootstrap, rng)
-    n_free = sum(int(e.free.sum()) for e in used)
+    best = solve(np.ones(len(transient)))
+    accel_draws = bootstrap(solve, len(transient), settings.bootstrap, rng)
+    n_free = sum(int(e.free.sum()) for e in transient)
     full = costs.sum(axis=0)[int(best[0]), int(best[1]), int(best[2])]
     followed = float(ACCELS_RADPS2[int(np.argmax(full <= full[-1]))])  # the least limit that never binds
-    accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(used), followed)
+    accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(transient), followed)
     d, lag, share = delays[int(best[0])], LAGS_S[int(best[1])], MOTOR_SHARES[int(best[2])]
     notes = (
         f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
-        f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples give delay {d:.2f} s, total lag "
-        f"{lag:.3f} s ({share:.0%} after the limit)",
+        f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples of {len(transient)} of them give "
+        f"delay {d:.2f} s, total lag {lag:.3f} s ({share:.0%} after the limit)",
     )
     return MotorFit(deadband, accel, (g_lin, g_ang), notes)
 

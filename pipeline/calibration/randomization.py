@@ -42,9 +42,9 @@ WINDOW_S = 0.5
 """Length of one transition."""
 STEP_S = 0.01
 """Time step of the simulated actuation."""
-DRAWS = 32
+DRAWS = 16
 """Parameter draws per likelihood evaluation (the same standard normal draws throughout the fit)."""
-MAX_WINDOWS = 400
+MAX_WINDOWS = 200
 """Most transitions used (evenly spread over the tracks)."""
 MIN_WINDOWS = 20
 KEYS = ("delay_s", "time_constant_s", "linear_gain", "angular_gain")
@@ -256,7 +256,7 @@ def fit_randomization(
 
     x0 = np.r_[np.zeros(4), np.log(np.maximum(se0, 1e-4 * scale) / scale)]
     simplex = np.vstack([x0, x0 + np.diag(np.r_[np.full(4, 0.05), np.full(4, 1.5)])])
-    options = {"maxfev": 2000, "xatol": 1e-3, "fatol": 0.05, "initial_simplex": simplex}
+    options = {"maxfev": 800, "xatol": 1e-3, "fatol": 0.05, "initial_simplex": simplex}
     result = minimize(cost, x0, method="Nelder-Mead", options=options)
     x = result.x
     mu = np.clip(mu0 + x[:4] * scale, LOWER, UPPER)

@@ -1,7 +1,7 @@
 """Calibration against the hardware twin: every estimate lands near the reality profile the twin played.
 
 Each bundled profile (mild, harsh) drives one deployment session of the excitation controller over
-DDS on loopback at time scale 3 (8 episodes of 12 s of twin time). The profile file is read here
+DDS on loopback at time scale 2 (8 episodes of 12 s of twin time). The profile file is read here
 only, as ground truth; the calibration sees the recording alone. The lab profile plays at time scale
 1, on the host's own clock, as a real fleet does: the robots' clock offset is then bounded, and the
 drift is measured against a clock that does not wander with the host's load.
@@ -24,8 +24,10 @@ pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
 EPISODES = 8
 STEPS = 120
-TIME_SCALE = 3.0
-"""The wheel-level twin with its lidar keeps real time at 3x on a 2-core host with the runner beside it."""
+TIME_SCALE = 2.0
+"""The wheel-level twin with its lidar keeps real time at 3x on a 2-core host with the runner beside it; at 2x the
+host's scheduling jitter (which the receive times carry, scaled by the time scale) stays well under the
+profiles' network jitter."""
 
 
 class Tolerance(NamedTuple):
@@ -101,9 +103,10 @@ TOLERANCES: dict[str, Tolerance] = {
     "network.jitter_s": Tolerance(
         0.003,
         0.3,
-        "pairwise delay differences cancel the receiver's stalls, but at time scale 3 the profile's 5-20 ms are "
-        "2-7 ms of wall-clock time, the order of the scheduling granularity of the twin's sender thread: measured "
-        "errors 0.8 ms (mild) and 2.7 ms (harsh) of twin time; an estimate of 0 fails both profiles",
+        "pairwise delay differences cancel the receiver's stalls, but at time scale 2 the profile's 5-20 ms are "
+        "2.5-10 ms of wall-clock time, not far above the scheduling granularity of the twin's sender thread: measured "
+        "errors 1.1 ms (mild) and 1.9 ms (harsh) of twin time at 2x (4.6 ms on mild once at 3x under load); "
+        "an estimate of 0 fails both profiles",
     ),
 }
 
