@@ -58,6 +58,8 @@ COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
 MIN_BELOW_SAMPLES = 20
 """Steady samples with a commanded wheel speed inside the deadband grid needed to tell the deadband."""
 MIN_EPISODES = 2
+MIN_LIMIT_GAIN = 0.05
+"""A limit must lower the wheel-speed residual sum of squares by this share against no limit to be reported."""
 MAX_TRANSIENT_EPISODES = 10
 """Most robot-episodes the transient grid is simulated on (evenly chosen; the grid's cost grows with each)."""
 MOVING_RADPS = 0.05
@@ -279,7 +281,16 @@ def estimate_motors(
     n_free = sum(int(e.free.sum()) for e in transient)
     full = costs.sum(axis=0)[int(best[0]), int(best[1]), int(best[2])]
     followed = float(ACCELS_RADPS2[int(np.argmax(full <= full[-1]))])  # the least limit that never binds
-    accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(transient), followed)
+    totals = costs.sum(axis=0)
+    gain = 1.0 - float(totals.min()) / max(float(totals[..., -1].min()), 1e-300)
+    if gain < MIN_LIMIT_GAIN:  # a limit that barely helps stands for model mismatch, not a motor's limit
+        accel = Estimate.unidentifiable(
+            f"no limit binds clearly: the best limit lowers the wheel-speed residual by {gain:.1%} against none "
+            f"(needs {MIN_LIMIT_GAIN:.0%}), less than the simulator's single lag leaves unexplained",
+            "rad/s^2",
+        )
+    else:
+        accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(transient), followed)
     d, lag, share = delays[int(best[0])], LAGS_S[int(best[1])], MOTOR_SHARES[int(best[2])]
     notes = (
         f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
