@@ -76,9 +76,16 @@ RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
 """The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
 
 
-def _arc_of(values: dict[str, Estimate]) -> float | None:
-    """The arc per metre of calibrated wheel radii and separation (see `Calibration.arc_per_m`)."""
-    return Calibration("", (), values).arc_per_m()
+def arc_per_m(values: dict[str, Estimate]) -> float | None:
+    """Yaw rate (rad/s) per m/s that unequal wheels add to a straight command: (r_right - r_left) / (r_nominal b).
+
+    None unless both radii and the separation are identified."""
+    keys = ("base.wheel_radius_left_m", "base.wheel_radius_right_m", "base.wheel_separation_m")
+    est = [values.get(k) for k in keys]
+    if not all(e is not None and e.ok and e.value is not None for e in est):
+        return None
+    left, right, sep = (float(e.value) for e in est if e is not None and e.value is not None)
+    return (right - left) / (NOMINAL_WHEEL_RADIUS_M * sep)
 
 
 def _arc_half_width(values: dict[str, Estimate]) -> float:
@@ -168,15 +175,8 @@ class Calibration:
         return {g: out[g] for g in sorted(out, key=lambda g: order.index(g) if g in order else len(order))}
 
     def arc_per_m(self) -> float | None:
-        """Yaw rate (rad/s) per m/s that unequal wheels add to a straight command: (r_right - r_left) / (r_nominal b).
-
-        None unless both radii and the separation are identified."""
-        keys = ("base.wheel_radius_left_m", "base.wheel_radius_right_m", "base.wheel_separation_m")
-        est = [self.values.get(k) for k in keys]
-        if not all(e is not None and e.ok and e.value is not None for e in est):
-            return None
-        left, right, sep = (float(e.value) for e in est if e is not None and e.value is not None)
-        return (right - left) / (NOMINAL_WHEEL_RADIUS_M * sep)
+        """Yaw rate (rad/s) per m/s that unequal wheels add to a straight command (see `arc_per_m`)."""
+        return arc_per_m(self.values)
 
     def body_gains(self) -> tuple[float, float] | None:
         """(linear, angular) gains for a simulator that applies the deadband: the wheel chain's gains (free of the
@@ -566,7 +566,7 @@ def calibrate(
             settings.command_timeout_s,
             settings.seed,
             float(deadband.value) if known and deadband is not None and deadband.value is not None else 0.0,
-            _arc_of(values) or 0.0,
+            arc_per_m(values) or 0.0,
         )
     if "network" in parts:
         network = estimate_network(streams, settings, rng)

@@ -36,10 +36,9 @@ from scipy.signal import lfilter
 from pipeline.calibration.actuation import CommandTimeline
 from pipeline.calibration.estimates import Estimate, bootstrap
 from pipeline.calibration.options import CalibrationSettings
+from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
 from pipeline.core.timebase import NS_PER_S
 
-NOMINAL_WHEEL_RADIUS_M = 0.034
-NOMINAL_WHEEL_SEPARATION_M = 0.281
 STEP_S = 0.01
 """Time step of the simulated wheel chain."""
 SETTLE_S = 0.8

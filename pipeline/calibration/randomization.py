@@ -35,7 +35,7 @@ from scipy.optimize import minimize
 
 from pipeline.calibration.actuation import VelocityTrack
 from pipeline.calibration.estimates import Estimate
-from pipeline.calibration.motors import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
+from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
 from pipeline.core.timebase import NS_PER_S
 
 WINDOW_S = 0.5
