@@ -6,11 +6,15 @@ params.yaml:
 - ``mrl info BAG...``: topics, types, counts, times, robots, source format, what the other verbs can do;
 - ``mrl episodes BAG [--out FILE.csv|FILE.parquet]``: the episodes table (one row per episode and robot);
 - ``mrl compare SIM REAL [--out DIR]``: the sim-vs-real report of two recordings;
-- ``mrl calibrate BAG... [--scenario S] [--out DIR]``: the calibration file and its fit report;
+- ``mrl calibrate BAG... [--scenario S] [--map FLOOR.yaml] [--initial-pose X,Y,YAW] [--out DIR]``: the
+  calibration file and its fit report (poses from motion capture, or localized in the map without it);
 - ``mrl replay RECORDING --policy DIR [--out DIR]``: the policy on the recorded observations, and the
   recorded commands open loop in the policy's simulator;
 - ``mrl twin ...``: the hardware twin (the options of ``python -m pipeline.twin``);
-- ``mrl deploy --policy DIR --fleet FLEET [--out DIR]``: a recorded deployment on a fleet.
+- ``mrl deploy --policy DIR --fleet FLEET [--out DIR] [--live]``: a recorded deployment on a fleet;
+- ``mrl eval --policy DIR [--episodes N] [--out DIR] [--live]``: a recorded evaluation in the policy's simulator.
+
+``--live`` serves the session to the Foxglove app while it runs (:mod:`pipeline.record.live`).
 
 A BAG is an MCAP file, a rosbag2 folder (``metadata.yaml`` with mcap or sqlite3 storage) or a ROS 1
 ``.bag``; anything but a session recording of this project is imported into the session layout in
@@ -38,6 +42,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 from pipeline.cli import deploy_summary, operator_reset, run_stage
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
+from pipeline.record.live import live_view
 
 if TYPE_CHECKING:
     from pipeline.record import ImportedBag
@@ -360,6 +365,9 @@ def _calibrate(args: argparse.Namespace) -> int:
 
     options: dict[str, Any] = {"parts": list(args.parts or PARTS), "scenario": args.scenario}
     options.update({k: v for k, v in (("bootstrap", args.bootstrap), ("seed", args.seed)) if v is not None})
+    options.update(
+        {"pose_source": args.pose_source, "map_file": args.map or "", "initial_pose": args.initial_pose or []}
+    )
     settings = calibration_settings(options, source="command-line options")
     with _imported(args, args.bags) as bags:
         calibration = calibrate([bag.path for bag in bags], settings)
@@ -368,8 +376,22 @@ def _calibrate(args: argparse.Namespace) -> int:
         path = write_calibration(replace(calibration, sources=sources), args.out)
     for key, reason in calibration.unidentified().items():
         print(f"calibrate: {key} unidentifiable: {reason}")
+    poses = calibration.pose_source
+    if poses.kind == "localized":
+        print(f"calibrate: poses localized from scans and odometry in the {poses.map}, match score "
+              f"{poses.median_score:.2f} (fraction of scan endpoints on the map)")  # fmt: skip
     print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
     return 0
+
+
+def _pose(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected x,y,yaw (metres, metres, radians)")
+    return values
 
 
 # -- replay -------------------------------------------------------------------------------------
@@ -443,9 +465,41 @@ def _deploy(args: argparse.Namespace) -> int:
         profile=cfg.profile,
         chunk_size_bytes=cfg.chunk_size_bytes,
     )
-    outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset)
+    with live_view(args.live, args.live_port, "deploy") as live:
+        outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset, live=live)
     print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
     return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from pipeline.mappings import from_mapping, merge, to_mapping
+    from pipeline.params import EvalSimConfig
+    from pipeline.policy.runtime import PolicyRuntime
+    from pipeline.rollout.sim import evaluate_session
+    from pipeline.sim import make_world
+
+    options = {"episodes": args.episodes, "seed": args.seed, "out_dir": args.out}
+    cfg = from_mapping(EvalSimConfig, merge(to_mapping(EvalSimConfig()), options), "command-line options")
+    runtime = PolicyRuntime(args.policy)
+    scenario, world = make_world(world=runtime.spec.world)
+    out = Path(cfg.out_dir)
+    with live_view(args.live, args.live_port, "eval") as live:
+        results, metrics = evaluate_session(scenario, world, runtime, cfg, out, live=live)
+    print(
+        f"eval: robot success {metrics['eval/robot_success']:.3f} "
+        f"[{metrics['eval/robot_success_ci_low']:.3f}, {metrics['eval/robot_success_ci_high']:.3f}], "
+        f"team success {metrics['eval/team_success']:.3f} over {len(results)} episodes -> {out}"
+    )
+    return 0
+
+
+def _live_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--live", action="store_true", help="serve the session to the Foxglove app while it runs (foxglove-sdk)"
+    )
+    parser.add_argument(
+        "--live-port", type=int, default=8765, metavar="PORT", help="the live view's port (default: 8765)"
+    )
 
 
 # -- the command --------------------------------------------------------------------------------
@@ -514,7 +568,8 @@ def build_parser() -> argparse.ArgumentParser:
         "calibrate",
         "estimate lidar noise, actuation, odometry and network from recordings",
         "Estimates of the reality profile (lidar, actuation, odometry, network) with uncertainties from\n"
-        "recordings of one scenario with ground truth: calibration.yaml (read by training) and a fit\n"
+        "recordings of one scenario, with motion capture or localized in the map from scans and odometry:\n"
+        "calibration.yaml (read by training) and a fit\n"
         "report (calibration.md with plots) in --out.",
     )
     calibrate.add_argument("bags", nargs="+", metavar="BAG", help=BAG_HELP + "; several are pooled")
@@ -542,6 +597,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="bootstrap resamples of the uncertainties (default: 200)",
     )
     calibrate.add_argument("--seed", type=int, default=None, metavar="N", help="seed of the bootstrap (default: 0)")
+    calibrate.add_argument(
+        "--pose-source",
+        choices=("auto", "ground_truth", "scans"),
+        default="auto",
+        help="the robots' poses: motion capture (/<ns>/ground_truth), localization from scans and odometry "
+        "against the map, or auto (ground truth where every robot has it; default)",
+    )
+    calibrate.add_argument(
+        "--map",
+        default=None,
+        metavar="FLOOR.yaml",
+        help="a ROS map_server map (YAML + image) to localize in (default: the scenario's walls and boxes)",
+    )
+    calibrate.add_argument(
+        "--initial-pose",
+        type=_pose,
+        default=None,
+        metavar="X,Y,YAW",
+        help="where the (single) robot starts, for localization (default: global localization)",
+    )
     _bag_options(calibrate)
 
     replay = _verb(
@@ -609,6 +684,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     deploy.add_argument("--profile", default="", metavar="P", help="the twin's reality profile (default: the fleet's)")
     deploy.add_argument("--out", default="deployment", metavar="DIR", help="the output folder (default: deployment)")
+    _live_options(deploy)
+
+    evaluate = _verb(
+        subparsers,
+        "eval",
+        "episodes of a policy in the simulator it was trained in, recorded to MCAP",
+        "Episodes of an exported policy in its training world (policy.json's world and scenario), every message\n"
+        "recorded: session.mcap, episodes.csv, metrics.json and paths.png in --out.",
+    )
+    evaluate.add_argument("--policy", required=True, metavar="DIR", help="the exported policy folder (policy.json)")
+    evaluate.add_argument("--episodes", type=int, default=20, metavar="N", help="(default: 20)")
+    evaluate.add_argument("--seed", type=int, default=10_000, metavar="N", help="(default: 10000)")
+    evaluate.add_argument("--out", default="evaluation", metavar="DIR", help="the output folder (default: evaluation)")
+    _live_options(evaluate)
     return parser
 
 
@@ -619,6 +708,7 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "calibrate": _calibrate,
     "replay": _replay,
     "deploy": _deploy,
+    "eval": _eval,
 }
 
 

@@ -356,6 +356,10 @@ class EvalSimConfig:
     record: bool = setting(True)
     chunk_size_bytes: int = setting(1_048_576, ge=1024)
     out_dir: str = setting("logs/sim")
+    live: bool = setting(False)
+    """Serve the session to the Foxglove app while it runs (a WebSocket server on `live_port`)."""
+    live_port: int = setting(8765, ge=0, le=65535)
+    """Port of the live view's server (0: any free port; 8765 is the app's default)."""
 
 
 @dataclass(frozen=True)
@@ -381,6 +385,10 @@ class DeployConfig:
     """The twin's reality profile; empty keeps the fleet file's."""
     chunk_size_bytes: int = setting(1_048_576, ge=1024)
     out_dir: str = setting("logs/real")
+    live: bool = setting(False)
+    """Serve the session to the Foxglove app while it runs (a WebSocket server on `live_port`)."""
+    live_port: int = setting(8765, ge=0, le=65535)
+    """Port of the live view's server (0: any free port; 8765 is the app's default)."""
 
 
 @dataclass(frozen=True)

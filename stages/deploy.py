@@ -10,6 +10,7 @@ from pathlib import Path
 from pipeline.cli import deploy_summary, operator_reset, run_stage, stage_arguments
 from pipeline.params import load_params
 from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record.live import live_view
 from pipeline.rollout.deployment import DeployRequest, check_scenario_agrees, deploy_session
 from pipeline.ros.fleet import load_fleet
 
@@ -31,7 +32,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         chunk_size_bytes=cfg.chunk_size_bytes,
         params_text=Path(args.params).read_text(encoding="utf-8"),
     )
-    outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset)
+    with live_view(cfg.live, cfg.live_port, f"deploy ({args.round})") as live:
+        outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset, live=live)
     print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
     return 0
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from pipeline.cli import run_stage, stage_arguments
 from pipeline.params import load_params, round_world
 from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record.live import live_view
 from pipeline.rollout.sim import evaluate_session
 from pipeline.sim import make_world
 
@@ -20,9 +21,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     runtime = PolicyRuntime(Path(params.export.out_dir) / args.round / "policy")
     cfg = params.eval_sim
     out = Path(cfg.out_dir) / args.round
-    results, metrics = evaluate_session(
-        scenario, world, runtime, cfg, out, Path(args.params).read_text(encoding="utf-8")
-    )
+    with live_view(cfg.live, cfg.live_port, f"eval_sim ({args.round})") as live:
+        results, metrics = evaluate_session(
+            scenario, world, runtime, cfg, out, Path(args.params).read_text(encoding="utf-8"), live=live
+        )
     print(
         f"eval_sim: robot success {metrics['eval/robot_success']:.3f} "
         f"[{metrics['eval/robot_success_ci_low']:.3f}, {metrics['eval/robot_success_ci_high']:.3f}], "

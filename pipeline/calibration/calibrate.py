@@ -29,6 +29,7 @@ from pipeline.calibration.clock import ClockFit, estimate_clock
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
+from pipeline.calibration.localize import OccupancyMap, PoseSource, localize_robot
 from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors, wheel_speeds
 from pipeline.calibration.network import NetworkFit, StampStream, estimate_network, rate_estimate
 from pipeline.calibration.odometry import OdometryEpisode, OdometryFit, estimate_odometry
@@ -144,6 +145,7 @@ class Calibration:
     clock: ClockFit | None = None
     motors: MotorFit | None = None
     randomization: RandomizationFit | None = None
+    pose_source: PoseSource = field(default_factory=lambda: PoseSource("ground_truth"))
 
     def estimate(self, key: str) -> Estimate:
         """The estimate of a dotted profile key, e.g. ``actuation.delay_s``; KeyError if it was not asked for."""
@@ -284,13 +286,15 @@ def _short(x: float) -> float:
     return float(f"{x:.6g}")
 
 
-def _trajectories(data: SessionData, settings: CalibrationSettings) -> dict[str, Trajectory]:
-    noise = SmootherNoise(
-        settings.truth_position_sigma_m,
-        settings.truth_yaw_sigma_rad,
-        settings.truth_accel_sigma_mps2,
-        settings.truth_angular_accel_sigma_radps2,
-    )
+def _trajectories(
+    data: SessionData, settings: CalibrationSettings, source: PoseSource | None = None
+) -> dict[str, Trajectory]:
+    position, yaw = settings.truth_position_sigma_m, settings.truth_yaw_sigma_rad
+    if source is not None and source.robots:  # localized poses: the matches' own spread
+        stds = np.array([r.median_std for r in source.robots])
+        position = max(position, float(np.median(stds[:, :2])))
+        yaw = max(yaw, float(np.median(stds[:, 2])))
+    noise = SmootherNoise(position, yaw, settings.truth_accel_sigma_mps2, settings.truth_angular_accel_sigma_radps2)
     out = {}
     for robot in data.robots:
         truth = robot.truth
@@ -452,13 +456,32 @@ def _network_streams(tag: str, data: SessionData) -> list[StampStream]:
     out: list[StampStream] = []
     windows = tuple(data.windows)
     for robot in data.robots:
-        times = [
-            (f"/{robot.name}/{kind}", s.time) for kind, s in (("ground_truth", robot.truth), ("odom", robot.odom)) if s
-        ]
+        truth = robot.truth if data.pose_source == "ground_truth" else None  # localized poses ride on odom's stamps
+        times = [(f"/{robot.name}/{kind}", s.time) for kind, s in (("ground_truth", truth), ("odom", robot.odom)) if s]
         if robot.scans is not None:
             times.append((f"/{robot.name}/scan", robot.scans.time))
         out += [StampStream(f"{tag} {topic}", t.stamp_ns, t.log_ns, windows) for topic, t in times]
     return out
+
+
+def _localized(data: SessionData, settings: CalibrationSettings) -> tuple[SessionData, PoseSource]:
+    """`data` with each robot's poses localized from its scans and odometry in the map."""
+    where = str(data.path)
+    grid = (
+        OccupancyMap.from_map_server(settings.map_file)
+        if settings.map_file
+        else OccupancyMap.from_scenario(data.scenario)
+    )
+    initial = np.asarray(settings.initial_pose, dtype=np.float64) if settings.initial_pose else None
+    if initial is not None and len(data.robots) != 1:
+        raise CalibrationError(where, f"an initial pose is for one robot; the recording has {len(data.robots)}")
+    robots = []
+    infos = []
+    for robot in data.robots:
+        series, info = localize_robot(grid, robot, data.windows, np.zeros(3), initial, where)
+        robots.append(replace(robot, truth=series))
+        infos.append(info)
+    return replace(data, robots=tuple(robots)), PoseSource("localized", grid.source, tuple(infos))
 
 
 def calibrate(
@@ -486,12 +509,18 @@ def calibrate(
     expected = settings.scenario or None
     sessions: list[SessionData] = []
     scenario: Scenario | None = None
+    pose_sources: list[PoseSource] = []
     for path in paths:
-        data = read_session(path, parts, expected if scenario is None else scenario)
+        data = read_session(path, parts, expected if scenario is None else scenario, settings.pose_source)
         if scenario is not None and data.scenario.name != scenario.name:
             raise ScenarioMismatchError(str(path), data.scenario.name, scenario.name)
         scenario = data.scenario
+        if data.pose_source == "scans":
+            data, source = _localized(data, settings)
+        else:
+            source = PoseSource("ground_truth")
         sessions.append(data)
+        pose_sources.append(source)
     assert scenario is not None
     geometry = MapGeometry.from_scenario(scenario)
     spans: list[ScanSpan] = []
@@ -502,8 +531,8 @@ def calibrate(
     odom_stamps: list[np.ndarray] = []
     beams: list[int] = []
     tagged = [(f"recording {k}" if len(sessions) > 1 else "recording", data) for k, data in enumerate(sessions)]
-    for tag, data in tagged:
-        trajectories = _trajectories(data, settings)
+    for (tag, data), source in zip(tagged, pose_sources, strict=True):
+        trajectories = _trajectories(data, settings, source)
         if "lidar" in parts:
             spans += _scan_spans(tag, data, trajectories, settings)
             for robot in data.robots:
@@ -537,6 +566,22 @@ def calibrate(
         for b, (dx, dy) in enumerate(lidar.box_offsets_m):
             values[f"map.box_offsets_m[{b}][0]"] = dx
             values[f"map.box_offsets_m[{b}][1]"] = dy
+        if any(s.kind == "localized" for s in pose_sources):
+            reason = "the poses were localized from the same scans (a mounting offset moves the localized pose with it)"
+            for key in ("lidar.mount_yaw_rad", "lidar.mount_xy_m[0]", "lidar.mount_xy_m[1]"):
+                values[key] = Estimate.unidentifiable(reason, values[key].unit)
+            bias, wall = values["lidar.bias_m"], values["map.wall_offset_m"]
+            total = (
+                f" (together they read {bias.value + wall.value:+.4f} m)"
+                if bias.ok and wall.ok and bias.value is not None and wall.value is not None
+                else ""
+            )
+            reason = (
+                "from poses localized in the map, a range bias and walls standing farther out read the same "
+                f"(the localized pose cannot move away from every wall at once){total}"
+            )
+            for key in ("lidar.bias_m", "map.wall_offset_m"):
+                values[key] = Estimate.unidentifiable(reason, values[key].unit)
     if "actuation" in parts:
         actuation = estimate_actuation(tracks, settings, rng)
         for key in PROFILE_KEYS["actuation"]:
@@ -594,7 +639,17 @@ def calibrate(
         clock=clock,
         motors=motors,
         randomization=randomization,
+        pose_source=_merged(pose_sources),
     )
+
+
+def _merged(sources: Sequence[PoseSource]) -> PoseSource:
+    """One account of the recordings' pose sources: localized if any was, with every localized robot."""
+    localized = [s for s in sources if s.kind == "localized"]
+    if not localized:
+        return PoseSource("ground_truth")
+    maps = sorted({s.map for s in localized})
+    return PoseSource("localized", ", ".join(maps), tuple(r for s in localized for r in s.robots))
 
 
 def _followed_clocks(tagged: Sequence[tuple[str, SessionData]], robots: Mapping[str, object]) -> dict[str, StampStream]:

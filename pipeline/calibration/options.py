@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mappings import from_mapping, merge, setting, to_mapping
 
 Part = Literal["lidar", "actuation", "odometry", "network"]
@@ -21,6 +22,13 @@ class CalibrationSettings:
     """The groups of the reality profile to estimate; a recording must hold the topics they need."""
     scenario: str = setting("", allow_empty=True)
     """The scenario the recordings must come from (a bundled name or a YAML path); empty: the recordings' own."""
+    pose_source: Literal["auto", "ground_truth", "scans"] = setting("auto")
+    """Where the robots' poses come from: motion capture (``/<ns>/ground_truth``), localization from their scans
+    and odometry against the map (``scans``), or ``auto``: ground truth where every robot has it, else scans."""
+    map_file: str = setting("", allow_empty=True)
+    """A ROS map_server map (YAML) to localize in; empty: the scenario's walls and boxes."""
+    initial_pose: tuple[float, ...] = setting(())
+    """x, y (m), yaw (rad) of the (single) robot at the start of the recording, for localization; empty: global."""
     truth_position_sigma_m: float = setting(0.002, gt=0.0, le=1.0)
     """Measurement noise of ground-truth positions assumed by the smoother."""
     truth_yaw_sigma_rad: float = setting(0.004, gt=0.0, le=1.0)
@@ -79,4 +87,10 @@ def calibration_settings(
     data: Mapping[str, Any] | None = None, source: str = "<calibration settings>"
 ) -> CalibrationSettings:
     """The defaults with the keys of `data` replaced; bad keys or values raise ConfigError naming `source`."""
-    return from_mapping(CalibrationSettings, merge(to_mapping(CalibrationSettings()), dict(data or {})), source)
+    settings = from_mapping(CalibrationSettings, merge(to_mapping(CalibrationSettings()), dict(data or {})), source)
+    pose = settings.initial_pose
+    if len(pose) not in (0, 3) or not all(math.isfinite(v) for v in pose):
+        raise ConfigError(
+            source, [ConfigProblem("initial_pose", list(pose), "[x_m, y_m, yaw_rad] (three finite numbers) or empty")]
+        )
+    return settings

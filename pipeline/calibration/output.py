@@ -55,6 +55,7 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
                     {"path": s.path, "episodes": s.episodes, "session": s.session} for s in calibration.sources
                 ],
                 "settings": to_mapping(calibration.settings),
+                "poses": calibration.pose_source.to_mapping(),
             },
         }
     )
@@ -67,6 +68,12 @@ def _header(calibration: Calibration) -> str:
         "# profile: estimates in the reality-profile keys; uncertainty: standard errors and 95 % intervals;",
         "# world: overrides of params.yaml's world section for training (the calibrated round).",
     ]
+    poses = calibration.pose_source
+    if poses.kind == "localized":
+        lines.append(
+            f"# Poses: localized from scans and odometry in the {poses.map} (median match score "
+            f"{poses.median_score:.2f}: the fraction of scan endpoints on the map), not motion capture."
+        )
     missing = calibration.unidentified()
     if missing:
         lines.append("# Not identified (training keeps the nominal value):")

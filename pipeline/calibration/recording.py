@@ -29,7 +29,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -61,6 +61,8 @@ RESET_CLUSTER_S = 0.5
 """Jumps on different streams within this time of the first are one reset."""
 RESET_MIN_STREAMS = 2
 """A reset shows on at least this many streams (robot and topic: ground truth or odometry)."""
+
+PoseSourceKind = Literal["ground_truth", "scans"]
 
 TOPICS_FOR: dict[Part, tuple[str, ...]] = {
     "lidar": ("ground_truth", "scan"),
@@ -154,6 +156,8 @@ class SessionData:
     notes: tuple[str, ...] = ()
     followed_clock: tuple[np.ndarray, np.ndarray] | None = None
     """(values, log times) int ns of the ``/clock`` messages the recorder followed (a time-scaled fleet), else None."""
+    pose_source: PoseSourceKind = "ground_truth"
+    """Where the robots' poses (`truth`) come from: motion capture, or scans and odometry (localized by the caller)."""
 
     @property
     def windows(self) -> list[tuple[int, int]]:
@@ -164,7 +168,10 @@ def _robots(log: McapLog, session: dict[str, str]) -> tuple[str, ...]:
     robots = tuple(r for r in session.get("robots", "").split(",") if r)
     if robots:
         return robots
-    found = sorted({t.split("/")[1] for t in log.topics() if t.count("/") == 2 and t.endswith("/ground_truth")})
+    topics = log.topics()
+    found = sorted({t.split("/")[1] for t in topics if t.count("/") == 2 and t.endswith("/ground_truth")})
+    if not found:
+        found = sorted({t.split("/")[1] for t in topics if t.count("/") == 2 and t.endswith("/scan")})
     return tuple(found)
 
 
@@ -309,8 +316,27 @@ def infer_episodes(streams: dict[str, PoseSeries], first_ns: int, last_ns: int) 
     return [EpisodeWindow(k, a, b) for k, (a, b) in enumerate(zip(starts, ends, strict=True))]
 
 
-def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path | Scenario | None = None) -> SessionData:
-    """The streams of a recording needed for `parts`; MissingTopicError names every topic that is absent."""
+def topics_for(part: Part, pose_source: PoseSourceKind) -> tuple[str, ...]:
+    """The per-robot topic kinds `part` needs when the poses come from `pose_source`."""
+    kinds = TOPICS_FOR[part]
+    if pose_source == "scans":
+        swapped = [("scan", "odom") if kind == "ground_truth" else (kind,) for kind in kinds]
+        kinds = tuple(dict.fromkeys(k for group in swapped for k in group))
+    return kinds
+
+
+def read_session(
+    path: str | Path,
+    parts: Sequence[Part],
+    scenario: str | Path | Scenario | None = None,
+    pose_source: PoseSourceKind | Literal["auto"] = "auto",
+) -> SessionData:
+    """The streams of a recording needed for `parts`; MissingTopicError names every topic that is absent.
+
+    `pose_source` says where the robots' poses come from: ``ground_truth`` (``/<ns>/ground_truth``,
+    motion capture), ``scans`` (localization from ``/<ns>/scan`` and ``/<ns>/odom`` against a map,
+    done by the caller), or ``auto``: ground truth where every robot has it, else scans.
+    """
     p = Path(path)
     where = str(p)
     log = McapLog(p)
@@ -319,11 +345,16 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
     scen = recorded_scenario(log, scenario)
     robots = _robots(log, session)
     if not robots:
-        raise MissingTopicError(where, ["/<robot>/ground_truth"], "every estimate (the robots' true poses)")
+        raise MissingTopicError(
+            where, ["/<robot>/ground_truth", "/<robot>/scan"], "every estimate (the robots' poses, from motion capture "
+            "or from their scans)"
+        )  # fmt: skip
     topics = log.topics()
+    if pose_source == "auto":
+        pose_source = "ground_truth" if all(f"/{ns}/ground_truth" in topics for ns in robots) else "scans"
     needed: dict[str, list[str]] = {}
     for part in parts:
-        for kind in TOPICS_FOR[part]:
+        for kind in topics_for(part, pose_source):
             for ns in robots:
                 topic = f"/{ns}/{kind}"
                 if topic not in topics:
@@ -339,7 +370,7 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
     recorded = recorded_episodes.read_episode_windows(log) if has_episodes else []
     if has_episodes and not recorded:
         raise CalibrationError(where, "topic /mrl/episode holds no start event: the recording has no episode")
-    kinds = sorted({kind for part in parts for kind in TOPICS_FOR[part]})
+    kinds = sorted({kind for part in parts for kind in topics_for(part, pose_source)})
     wanted = [f"/{ns}/{kind}" for ns in robots for kind in kinds]
     if not has_episodes:  # poses that show the resets
         wanted += [f"/{ns}/{kind}" for ns in robots for kind in ("ground_truth", "odom")]
@@ -406,7 +437,7 @@ def read_session(path: str | Path, parts: Sequence[Part], scenario: str | Path |
             )
         )
     followed = _followed_clock(log) if session.get("clock") == "ros_clock" and CLOCK_TOPIC in topics else None
-    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes, followed)
+    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes, followed, pose_source)
 
 
 CLOCK_TOPIC = "/clock"

@@ -33,7 +33,7 @@ import struct
 import threading
 import weakref
 import zlib
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 from types import TracebackType
@@ -176,6 +176,8 @@ class McapRecorder:
         self._next_channel_id = itertools.count(1)
         self._next_schema_id = itertools.count(1)
         self._metadata_names: set[str] = set()
+        self.taps: list[Callable[[str, str, bytes, int], None]] = []
+        """Called with (topic, typename, CDR bytes, log time ns) after each message is recorded (e.g. a live view)."""
         for name, mapping in (metadata or {}).items():
             self._check_metadata(name, mapping)
         fd = self._create(overwrite)
@@ -283,6 +285,8 @@ class McapRecorder:
             state.size += _MESSAGE_HEAD_SIZE + len(data)
             if state.size >= self._chunk_size:
                 self._seal_or_fail(state)
+        for tap in self.taps:
+            tap(name, slot[1], data, log_time_ns)
 
     def _spec(self, topic: str | TopicSpec) -> TopicSpec:
         where = str(self.path)

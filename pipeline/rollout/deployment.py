@@ -26,6 +26,7 @@ from pipeline.messages.topics import TopicSpec
 from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
+from pipeline.record.live import LiveView
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
@@ -187,6 +188,7 @@ def deploy_policy(
     request: DeployRequest,
     confirm_reset: Callable[[int], None] | None = None,
     twin_extra_args: list[str] | None = None,
+    live: LiveView | None = None,
 ) -> tuple[list[EpisodeResult], str]:
     """Run a deployment session; returns the episodes and the reality profile name ('robots' on hardware).
 
@@ -238,6 +240,8 @@ def deploy_policy(
         log = SessionLog(
             request.recording, [r.namespace for r in fleet.robots], session, documents, request.chunk_size_bytes
         )
+        if live is not None:
+            live.attach(log.recorder)
         runner = DeployRunner(
             runtime,
             fleet,
@@ -306,6 +310,7 @@ def deploy_session(
     out_dir: Path,
     confirm_reset: Callable[[int], None] | None = None,
     twin_extra_args: list[str] | None = None,
+    live: LiveView | None = None,
 ) -> DeploymentOutcome:
     """A deployment into `out_dir`: session.mcap (+ rosbag2 metadata.yaml), episodes.csv and metrics.json.
 
@@ -320,7 +325,7 @@ def deploy_session(
     staged = replace(request, recording=folder.staged("session.mcap"))
     failure: DeployAborted | None = None
     try:
-        results, profile = deploy_policy(runtime, fleet, fleet_source, staged, confirm_reset, twin_extra_args)
+        results, profile = deploy_policy(runtime, fleet, fleet_source, staged, confirm_reset, twin_extra_args, live)
     except DeployAborted as exc:
         if not exc.results:
             _drop(folder)

@@ -16,6 +16,7 @@ from pipeline.mdp import MdpDefinition
 from pipeline.params import EvalSimConfig, WorldConfig
 from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record.live import LiveView
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
@@ -144,8 +145,10 @@ def evaluate_policy(
     recording: Path,
     params_text: str = "",
     progress: bool = True,
+    live: LiveView | None = None,
 ) -> tuple[list[EpisodeResult], dict[str, float]]:
-    """Evaluate an exported policy in the simulated world, recording the session to `recording`.
+    """Evaluate an exported policy in the simulated world, recording the session to `recording` (and
+    serving it to `live`, a Foxglove live view, as it runs).
 
     The policy is refused if it does not fit the world (robots, layout, beams, action kind). The
     recording is opened (and its path checked) before any episode runs and closed on every exit.
@@ -170,6 +173,8 @@ def evaluate_policy(
             "policy": dumps(runtime.document),
         }
         log = SessionLog(recording, scenario.robot_names, session, documents, chunk_size=cfg.chunk_size_bytes)
+        if live is not None:
+            live.attach(log.recorder)
     try:
         results = evaluate(sim, runtime.actions, cfg.episodes, cfg.seed, progress, log, runtime.layout.name)
     finally:
@@ -190,6 +195,7 @@ def evaluate_session(
     out_dir: Path,
     params_text: str = "",
     progress: bool = True,
+    live: LiveView | None = None,
 ) -> tuple[list[EpisodeResult], dict[str, float]]:
     """`evaluate_policy` into `out_dir` (session.mcap with its rosbag2 metadata.yaml, episodes.csv,
     metrics.json, paths.png), staged and moved into place together (see pipeline.record.results)."""
@@ -197,7 +203,7 @@ def evaluate_session(
     recording = folder.staged("session.mcap")
     failure: EvaluationInterrupted | None = None
     try:
-        results, metrics = evaluate_policy(scenario, world, runtime, cfg, recording, params_text, progress)
+        results, metrics = evaluate_policy(scenario, world, runtime, cfg, recording, params_text, progress, live)
     except EvaluationInterrupted as exc:
         if not exc.results:
             if recording.exists():

@@ -1,0 +1,109 @@
+"""Interoperability with a peer we did not write: the deploy runner (Cyclone DDS) and three Fast DDS drivers.
+
+Builds the C++ robot-driver stand-in (``tests/peers/fastdds_robot``, from the pipeline's IDL with
+Debian's fastddsgen and libfastrtps-dev), trains and exports a tiny shared policy for the obstacles
+room, and deploys it for `--episodes` episodes on three drivers over DDS discovery on loopback
+(1x, target ``robots``, the benchmark playing the operator who puts the robots back).
+
+Printed: episodes completed (and aborted); per robot and over all, commands sent during episodes,
+commands the driver never received (lost), one-way delay p50/p99 (driver receive time minus the
+recorded send time, one host clock); command round trip p50/p99: from sending a new command value
+to receiving the first odometry whose twist reports it (the driver applies the command and
+publishes it back at 50 Hz); scans recorded vs published.
+Last line: ``episodes=<done>/<asked> lost=<n> delay_p50_ms=<..> delay_p99_ms=<..> rtt_p50_ms=<..> rtt_p99_ms=<..>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT))
+from deploy_timing import tiny_policy  # noqa: E402
+
+from pipeline.record import McapLog  # noqa: E402
+from tests.peers import fastdds  # noqa: E402
+
+
+def round_trips_s(sent: list[tuple[int, float, float]], odom: list[tuple[int, float, float]]) -> list[float]:
+    """For each change of the sent command, the time until an odometry message reports the new value."""
+    out = []
+    j = 0
+    previous = None
+    for t, v, w in sent:
+        if (v, w) == previous:
+            continue
+        previous = (v, w)
+        while j < len(odom) and odom[j][0] < t:
+            j += 1
+        k = j
+        while k < len(odom) and (odom[k][1], odom[k][2]) != (v, w):
+            k += 1
+        if k < len(odom) and odom[k][0] - t < 1e9:
+            out.append((odom[k][0] - t) / 1e9)
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=20)
+    args = parser.parse_args()
+    reason = fastdds.missing()
+    if reason:
+        print(f"fastdds_interop: skipped: {reason}")
+        return 1
+    binary = fastdds.build()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        policy = tiny_policy(folder / "p", Path("obstacles"), 100)
+        recording, logs, results = fastdds.deploy_on_drivers(binary, policy, folder, args.episodes, domain=173)
+        log = McapLog(recording)
+        episode_times = [m.log_time_ns for m in log.messages(["/mrl/episode"])]
+        first, last = min(episode_times), max(episode_times)
+        delays: list[float] = []
+        rtts: list[float] = []
+        lost = sent_total = 0
+        for ns in fastdds.NAMESPACES:
+            driver = fastdds.read_log(logs[ns])
+            sent = [(m.log_time_ns, m.msg.linear.x, m.msg.angular.z) for m in log.messages([f"/{ns}/cmd_vel"])]
+            got = fastdds.delivery(sent, driver)
+            during = [i for i, s in enumerate(sent) if first <= s[0] <= last]
+            missing = sum(1 for i in during if i < got.first_matched)
+            if not got.matched:
+                print(f"{ns}: the received commands differ from the sent ones")
+                missing = len(during)
+            odom = [
+                (m.log_time_ns, m.msg.twist.twist.linear.x, m.msg.twist.twist.angular.z)
+                for m in log.messages([f"/{ns}/odom"])
+            ]
+            d = np.array(got.delays_s()) * 1e3
+            r = np.array(round_trips_s([s for s in sent if first <= s[0] <= last], odom)) * 1e3
+            published = sum(1 for k in driver.scans if first <= k[0] * 10**9 + k[1] <= last)
+            recorded = sum(1 for m in log.messages([f"/{ns}/scan"]) if first <= m.log_time_ns <= last)
+            print(
+                f"{ns}: {len(during)} commands during episodes, {missing} lost; delay p50 {np.median(d):.2f} ms "
+                f"p99 {np.percentile(d, 99):.2f} ms; round trip p50 {np.median(r):.1f} ms p99 "
+                f"{np.percentile(r, 99):.1f} ms ({len(r)} changes); scans recorded {recorded} of {published} published"
+            )
+            delays += list(d)
+            rtts += list(r)
+            lost += missing
+            sent_total += len(during)
+    done = sum(1 for r in results if not r.aborted)
+    print(f"episodes completed {done} of {args.episodes} ({len(results) - done} aborted); {sent_total} commands")
+    print(
+        f"episodes={done}/{args.episodes} lost={lost} delay_p50_ms={np.median(delays):.2f} "
+        f"delay_p99_ms={np.percentile(delays, 99):.2f} rtt_p50_ms={np.median(rtts):.1f} "
+        f"rtt_p99_ms={np.percentile(rtts, 99):.1f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""The live view: a deployment served to a Foxglove WebSocket client while it runs (foxglove-sdk's server)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.messages.store import message_store
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record import McapLog
+from pipeline.record.live import LiveView
+from pipeline.rollout.deployment import DeployRequest, deploy_policy
+from pipeline.ros.fleet import load_fleet
+from tests.integration.conftest import write_fleet
+from tests.peers.foxglove_client import Client
+
+pytestmark = pytest.mark.integration
+
+WANTED = ("/robot_1/scan", "/robot_1/cmd_vel")
+
+
+def test_a_client_receives_the_scan_and_cmd_vel_of_a_running_deployment(tiny_policy, tmp_path: Path):
+    fleet_file = write_fleet(tmp_path / "fleet.yaml")
+    request = DeployRequest(episodes=3, seed=5, recording=tmp_path / "session.mcap", progress=False)
+    store = message_store()
+    with LiveView(port=0) as live:
+        client = Client(live.url, WANTED)
+        results, _ = deploy_policy(
+            PolicyRuntime(tiny_policy), load_fleet(fleet_file), str(fleet_file), request, live=live
+        )
+        client.thread.join(timeout=30)
+    assert client.error is None, client.error
+    assert len(results) == 3 and live.failures == 0
+    scan_ch, cmd_ch = (client.channels[t] for t in WANTED)
+    assert scan_ch["schemaName"] == "sensor_msgs/msg/LaserScan" and scan_ch["encoding"] == "cdr"
+    assert scan_ch["schemaEncoding"] == "ros2msg" and "float32[] ranges" in scan_ch["schema"]
+    assert cmd_ch["schemaName"] == "geometry_msgs/msg/Twist"
+    recorded = {
+        topic: {m.log_time_ns: m for m in McapLog(tmp_path / "session.mcap").messages([topic])} for topic in WANTED
+    }
+    for topic in WANTED:
+        got = client.received[topic]
+        assert len(got) == client.limit, topic
+        for log_time, data in got:
+            # the live message is the recorded one: same log time, same decoded content
+            twin = recorded[topic][log_time].msg
+            live_msg = store.deserialize(data, recorded[topic][log_time].typename)
+            if topic.endswith("scan"):
+                assert len(live_msg.ranges) == 360
+                np.testing.assert_array_equal(live_msg.ranges, twin.ranges)
+            else:
+                assert (live_msg.linear.x, live_msg.angular.z) == (twin.linear.x, twin.angular.z)
