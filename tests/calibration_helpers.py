@@ -159,11 +159,13 @@ def simulate_session(
     profile: str = "simulated",
     beams: int = 360,
     commands: Callable[[np.ndarray, int], np.ndarray] | None = None,
+    tf_static: bool = False,
 ) -> Path:
     """A session recording in the deployment layout made by the simulator alone, without a network.
 
     Every 20 ms: the command (sent at the tick), ground truth and odometry; scans every 100 ms;
     one policy step every 100 ms. Topics whose name ends with an entry of `omit` are not written.
+    With `tf_static`, a ``/tf_static`` message gives each robot's ``base_link -> laser`` (the world's mount).
     """
     from pipeline.params import world_config
     from pipeline.sim.world import SimWorld
@@ -193,6 +195,15 @@ def simulate_session(
     documents = {"scenario": dumps(to_mapping(scen)), "policy": dumps(runtime.document)}
     t = 1_000_000_000
     with SessionLog(path, names, session, documents) as log:
+        if tf_static:
+            from pipeline.messages import convert as C
+            from pipeline.messages.topics import TF_MESSAGE, QosProfile, TopicSpec
+
+            lidar = world.world.lidar
+            mount = np.array([*(lidar.mount_xy_m or (0.0, 0.0)), lidar.mount_yaw_rad])
+            statics = [(f"{ns}/base_link", f"{ns}/laser", mount) for ns in names]
+            spec = TopicSpec("/tf_static", TF_MESSAGE, QosProfile("reliable", "transient_local", 1))
+            log.recorder.write(spec, C.tf_message(t, statics), t)
 
         def keep(topic: str) -> bool:
             return not any(topic.endswith(o) for o in omit)

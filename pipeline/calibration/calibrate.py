@@ -478,7 +478,8 @@ def _localized(data: SessionData, settings: CalibrationSettings) -> tuple[Sessio
     robots = []
     infos = []
     for robot in data.robots:
-        series, info = localize_robot(grid, robot, data.windows, np.zeros(3), initial, where)
+        mount = np.asarray(robot.lidar_mount if robot.lidar_mount is not None else (0.0, 0.0, 0.0))
+        series, info = localize_robot(grid, robot, data.windows, mount, initial, where)
         robots.append(replace(robot, truth=series))
         infos.append(info)
     return replace(data, robots=tuple(robots)), PoseSource("localized", grid.source, tuple(infos))
@@ -567,9 +568,21 @@ def calibrate(
             values[f"map.box_offsets_m[{b}][0]"] = dx
             values[f"map.box_offsets_m[{b}][1]"] = dy
         if any(s.kind == "localized" for s in pose_sources):
-            reason = "the poses were localized from the same scans (a mounting offset moves the localized pose with it)"
-            for key in ("lidar.mount_yaw_rad", "lidar.mount_xy_m[0]", "lidar.mount_xy_m[1]"):
-                values[key] = Estimate.unidentifiable(reason, values[key].unit)
+            mounts = [r.lidar_mount for d in sessions for r in d.robots]
+            keys = ("lidar.mount_xy_m[0]", "lidar.mount_xy_m[1]", "lidar.mount_yaw_rad")
+            if all(m is not None for m in mounts):
+                # the robot description's mounting, used by the localization: given, not estimated
+                given = np.array(mounts, dtype=np.float64).mean(axis=0)
+                for k, key in enumerate(keys):
+                    v = float(given[k])
+                    values[key] = Estimate.of(v, 0.0, (v, v), values[key].unit, "from /tf_static", len(mounts))
+            else:
+                reason = (
+                    "the poses were localized from the same scans (a mounting offset moves the localized pose with "
+                    "it) and the recording has no /tf_static base_link -> laser transform"
+                )
+                for key in keys:
+                    values[key] = Estimate.unidentifiable(reason, values[key].unit)
             bias, wall = values["lidar.bias_m"], values["map.wall_offset_m"]
             total = (
                 f" (together they read {bias.value + wall.value:+.4f} m)"

@@ -19,9 +19,9 @@ pose through it); an episode whose matches fall under it more than half the time
 The robot's pose at each odometry message is the odometry composed with the map<-odom correction
 the matches imply, smoothed by a local linear fit over `CORRECTION_SIGMA_S` (the odometry's
 short-term smoothness, the matches' long-term truth: a complementary filter), and the base pose is
-the laser's composed with the inverse of the laser's mounting (the nominal centre mount).
-Each match reports its
-own uncertainty: the covariance of the least-squares fit scaled by its residual variance, times the
+the laser's composed with the inverse of the laser's mounting (``/tf_static``'s base_link -> laser
+when the recording has it, else the centre of the base). Each match reports its own uncertainty:
+the covariance of the least-squares fit scaled by its residual variance, times the
 number of endpoints per independent one (`CORRELATED_BEAMS`, neighbouring beams see the same wall).
 """
 

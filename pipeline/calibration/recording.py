@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -126,6 +126,8 @@ class RobotData:
     scans: ScanSeries | None
     odom: PoseSeries | None
     commands: CommandSeries | None
+    lidar_mount: tuple[float, float, float] | None = None
+    """The laser's pose (x, y, yaw) on the base from the recording's ``/tf_static``, when it has one."""
 
 
 @dataclass(frozen=True)
@@ -376,6 +378,7 @@ def read_session(
         wanted += [f"/{ns}/{kind}" for ns in robots for kind in ("ground_truth", "odom")]
         wanted = list(dict.fromkeys(t for t in wanted if t in topics))
     raw: dict[str, dict[str, list[Any]]] = {t: {"log": [], "stamp": [], "data": []} for t in wanted}
+    frames: dict[str, str] = {}
     for m in log.messages(wanted, skip_undecodable=True):
         bucket = raw[m.topic]
         bucket["log"].append(m.log_time_ns)
@@ -396,6 +399,7 @@ def read_session(
                 (q.position.x, q.position.y, quaternion_yaw(q.orientation), float(tw.linear.x), float(tw.angular.z))
             )
         else:
+            frames.setdefault(m.topic.split("/")[1], str(msg.header.frame_id))
             bucket["data"].append(
                 (
                     np.asarray(msg.ranges, dtype=np.float64),
@@ -437,10 +441,44 @@ def read_session(
             )
         )
     followed = _followed_clock(log) if session.get("clock") == "ros_clock" and CLOCK_TOPIC in topics else None
+    if TF_STATIC_TOPIC in topics:
+        statics = _static_transforms(log)
+        robot_data = [
+            replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data
+        ]
     return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes, followed, pose_source)
 
 
 CLOCK_TOPIC = "/clock"
+TF_STATIC_TOPIC = "/tf_static"
+BASE_FRAMES = ("base_link", "base_footprint")
+"""Frames a robot description puts the base at (the lidar's mounting is taken relative to one of them)."""
+
+
+def _static_transforms(log: McapLog) -> dict[str, tuple[str, tuple[float, float, float]]]:
+    """Child frame -> (parent frame, planar x, y, yaw) of every transform on ``/tf_static`` (leading '/' dropped)."""
+    out: dict[str, tuple[str, tuple[float, float, float]]] = {}
+    for m in log.messages([TF_STATIC_TOPIC], skip_undecodable=True):
+        for tr in getattr(m.msg, "transforms", []):
+            t = tr.transform
+            yaw = quaternion_yaw(t.rotation)
+            child = str(tr.child_frame_id).lstrip("/")
+            out[child] = (str(tr.header.frame_id).lstrip("/"), (float(t.translation.x), float(t.translation.y), yaw))
+    return out
+
+
+def lidar_mount(
+    statics: dict[str, tuple[str, tuple[float, float, float]]], robot: str, scan_frame: str
+) -> tuple[float, float, float] | None:
+    """The laser's pose on robot `robot`'s base: the static transform from its base frame (``base_link`` or
+    ``base_footprint``, with or without the robot's namespace) to the frame its scans are stamped in."""
+    frame = scan_frame.lstrip("/")
+    found = statics.get(frame)
+    if not frame or found is None:
+        return None
+    parent, pose = found
+    bases = {b for base in BASE_FRAMES for b in (base, f"{robot}/{base}")}
+    return pose if parent in bases else None
 
 
 def _followed_clock(log: McapLog) -> tuple[np.ndarray, np.ndarray]:

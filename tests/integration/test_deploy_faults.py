@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def stage_params(tmp_path: Path, policy: Path, fleet: Path, **deploy: object) -> Path:
     """A params.yaml for stages/deploy.py that deploys `policy` (as the nominal round) on `fleet`."""
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    shutil.copytree(policy, tmp_path / "models" / "nominal" / "policy")
+    shutil.copytree(policy, tmp_path / "models" / "nominal" / "policy", dirs_exist_ok=True)
     params["export"]["out_dir"] = str(tmp_path / "models")
     params["deploy"].update(
         {"fleet": str(fleet), "episodes": 1, "time_scale": 0.0, "out_dir": str(tmp_path / "real"), **deploy}
@@ -102,8 +102,8 @@ def test_a_killed_runner_takes_its_twin_along_and_the_next_deploy_runs(tiny_poli
     stage.wait()
     _, alive = psutil.wait_procs(twins, timeout=15)
     assert not alive, f"twin process(es) {[p.pid for p in alive]} outlived their runner"
-    # the next deploy on the same domain runs, and keeps the killed run's recording aside
-    done = run_stage(params)
+    # the next deploy on the same domain runs (two episodes are enough), and keeps the killed run's recording aside
+    done = run_stage(stage_params(tmp_path, tiny_policy, fleet, episodes=2))
     assert done.returncode == 0, done.stderr
     out = tmp_path / "real" / "nominal"
     assert {"session.mcap", "episodes.csv", "metrics.json", "metadata.yaml"} <= {p.name for p in out.iterdir()}

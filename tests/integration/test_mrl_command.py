@@ -248,3 +248,28 @@ def test_episodes_table_printed_and_written_as_csv_and_parquet(session, tmp_path
         assert (table["path_length_m"] > 0).all() and table["steps"].to_list() == [STEPS] * table.height
     assert tables[".parquet"].schema == pl.Schema(EPISODES_SCHEMA)
     assert tables[".csv"]["path_length_m"].to_list() == pytest.approx(tables[".parquet"]["path_length_m"].to_list())
+
+
+# -- calibrate without motion capture -------------------------------------------------------------
+
+
+def test_calibrate_a_bag_without_ground_truth_in_a_map_server_map(tmp_path):
+    from pipeline.calibration.localize import OccupancyMap
+    from pipeline.core.scenario import load_scenario
+
+    bag = simulate_session(tmp_path / "nogt.mcap", {}, episodes=2, steps=60, seed=4, omit=["/ground_truth"])
+    floor = OccupancyMap.from_scenario(load_scenario("obstacles")).write_map_server(tmp_path / "floor.yaml")
+    proc = mrl("calibrate", bag, "--map", floor, "--parts", "actuation", "--bootstrap", "20", "--out", tmp_path / "c")
+    assert proc.returncode == 0, proc.stderr
+    assert "poses localized from scans and odometry in the map_server map floor.yaml" in proc.stdout
+    poses = yaml.safe_load((tmp_path / "c" / "calibration.yaml").read_text())["source"]["poses"]
+    assert poses["kind"] == "localized" and poses["match_score"] > 0.9 and set(poses["robots"]) == {
+        "robot_1",
+        "robot_2",
+        "robot_3",
+    }
+    bad = mrl("calibrate", bag, "--initial-pose", "1,2")  # argparse's usage, then its one error line
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].endswith("--initial-pose: '1,2': expected x,y,yaw (metres, metres, radians)")
+    refused(mrl("calibrate", bag, "--initial-pose", "1,2,0"), "calibrate", "one robot", "has 3")
+    refused(mrl("calibrate", bag, "--map", tmp_path / "none.yaml"), "calibrate", "none.yaml", "cannot read the map")
