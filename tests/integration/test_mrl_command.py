@@ -270,6 +270,7 @@ def test_calibrate_a_bag_without_ground_truth_in_a_map_server_map(tmp_path):
     }
     bad = mrl("calibrate", bag, "--initial-pose", "1,2")  # argparse's usage, then its one error line
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
-    assert bad.stderr.strip().splitlines()[-1].endswith("--initial-pose: '1,2': expected x,y,yaw (metres, metres, radians)")
+    last = bad.stderr.strip().splitlines()[-1]
+    assert last.endswith("--initial-pose: '1,2': expected x,y,yaw (metres, metres, radians)")
     refused(mrl("calibrate", bag, "--initial-pose", "1,2,0"), "calibrate", "one robot", "has 3")
     refused(mrl("calibrate", bag, "--map", tmp_path / "none.yaml"), "calibrate", "none.yaml", "cannot read the map")
