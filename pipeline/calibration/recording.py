@@ -443,9 +443,7 @@ def read_session(
     followed = _followed_clock(log) if session.get("clock") == "ros_clock" and CLOCK_TOPIC in topics else None
     if TF_STATIC_TOPIC in topics:
         statics = _static_transforms(log)
-        robot_data = [
-            replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data
-        ]
+        robot_data = [replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data]
     return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes, followed, pose_source)
 
 

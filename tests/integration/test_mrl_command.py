@@ -263,11 +263,16 @@ def test_calibrate_a_bag_without_ground_truth_in_a_map_server_map(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "poses localized from scans and odometry in the map_server map floor.yaml" in proc.stdout
     poses = yaml.safe_load((tmp_path / "c" / "calibration.yaml").read_text())["source"]["poses"]
-    assert poses["kind"] == "localized" and poses["match_score"] > 0.9 and set(poses["robots"]) == {
-        "robot_1",
-        "robot_2",
-        "robot_3",
-    }
+    assert (
+        poses["kind"] == "localized"
+        and poses["match_score"] > 0.9
+        and set(poses["robots"])
+        == {
+            "robot_1",
+            "robot_2",
+            "robot_3",
+        }
+    )
     bad = mrl("calibrate", bag, "--initial-pose", "1,2")  # argparse's usage, then its one error line
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     last = bad.stderr.strip().splitlines()[-1]
