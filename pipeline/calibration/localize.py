@@ -286,10 +286,6 @@ def _transform(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.stack([pose[0] + c * pts[:, 0] - s * pts[:, 1], pose[1] + s * pts[:, 0] + c * pts[:, 1]], axis=1)
 
 
-def inlier_fraction(grid: OccupancyMap, pose: np.ndarray, pts: np.ndarray) -> float:
-    return float(np.mean(np.abs(grid.distance_only(_transform(pose, pts))) < INLIER_M))
-
-
 def match_scan(grid: OccupancyMap, pts: np.ndarray, prior: np.ndarray) -> Match:
     """The laser pose near `prior` that best puts the endpoints `pts` (laser frame) on the map."""
 

@@ -39,10 +39,15 @@ def test_a_recording_without_a_needed_topic_names_it(tmp_path):
     assert "actuation.delay_s" not in lidar_only.values and "lidar.noise_sigma_m" in lidar_only.values
 
 
-def test_without_ground_truth_nothing_can_be_calibrated(tmp_path):
-    path = simulate_session(tmp_path / "no_truth.mcap", MILD_WORLD, episodes=1, steps=10, omit=["/ground_truth"])
+def test_without_ground_truth_or_scans_nothing_can_be_calibrated(tmp_path):
+    """Poses come from motion capture or from localization in the map; a recording with neither is refused,
+    naming what is missing, and asking for ground truth explicitly names the ground-truth topics."""
+    no_truth = simulate_session(tmp_path / "no_truth.mcap", MILD_WORLD, episodes=1, steps=10, omit=["/ground_truth"])
     with pytest.raises(MissingTopicError, match=r"/robot_1/ground_truth, /robot_2/ground_truth, /robot_3/ground_truth"):
-        calibrate(path)
+        calibrate(no_truth, CalibrationSettings(pose_source="ground_truth"))
+    blind = simulate_session(tmp_path / "blind.mcap", MILD_WORLD, episodes=1, steps=10, omit=["/ground_truth", "/scan"])
+    with pytest.raises(MissingTopicError, match=r"/robot_1/scan"):
+        calibrate(blind)
 
 
 def test_robots_standing_still_leave_actuation_and_odometry_unidentifiable(tmp_path):
