@@ -38,39 +38,49 @@ class Client:
 
     async def _session(self) -> None:
         by_sub: dict[int, str] = {}
+        ids = iter(range(1, 1 << 30))
         async with aiohttp.ClientSession() as http, http.ws_connect(self.url, protocols=["foxglove.sdk.v1"]) as ws:
-            async for frame in ws:
-                if frame.type == aiohttp.WSMsgType.TEXT:
-                    op = json.loads(frame.data)
-                    if op.get("op") == "status" and "unknown channel" in str(op.get("message", "")):
-                        # the server may announce a channel to clients a moment before it takes subscriptions
-                        # to it: ask again
-                        channel_id = int(str(op["message"]).rsplit(":", 1)[1])
-                        sub_id = next(k for k, t in by_sub.items() if self.channels[t]["id"] == channel_id)
-                        await asyncio.sleep(0.05)
-                        await ws.send_str(
-                            json.dumps({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channel_id}]})
-                        )
-                        continue
-                    if op.get("op") != "advertise":
-                        continue
-                    subs = []
-                    for ch in op["channels"]:
-                        wanted = not self.topics or ch["topic"] in self.topics
-                        if wanted and ch["topic"] not in self.channels:
-                            self.channels[ch["topic"]] = ch
-                            sub_id = len(by_sub) + 1
-                            by_sub[sub_id] = ch["topic"]
-                            subs.append({"id": sub_id, "channelId": ch["id"]})
-                    if subs:
-                        await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": subs}))
-                elif frame.type == aiohttp.WSMsgType.BINARY and frame.data[0] == MESSAGE_DATA:
-                    sub_id, log_time = struct.unpack_from("<IQ", frame.data, 1)
-                    self.count += 1
-                    got = self.received.setdefault(by_sub[sub_id], [])
-                    if len(got) < self.limit:
-                        got.append((log_time, bytes(frame.data[13:])))
-                    if self.topics and all(len(v) >= self.limit for v in self.received.values()):
+
+            async def subscribe(topic: str) -> None:
+                sub_id = next(ids)
+                by_sub[sub_id] = topic
+                channel = self.channels[topic]["id"]
+                await ws.send_str(
+                    json.dumps({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channel}]})
+                )
+
+            async def retry() -> None:
+                # the server may announce a channel a moment before it takes subscriptions to it ("unknown
+                # channel"): a subscribed topic that stays silent is asked for again under a new id
+                while True:
+                    await asyncio.sleep(0.5)
+                    for topic in list(self.channels):
+                        if not self.received.get(topic):
+                            old = [k for k, t in by_sub.items() if t == topic]
+                            await ws.send_str(json.dumps({"op": "unsubscribe", "subscriptionIds": old}))
+                            await subscribe(topic)
+
+            retrying = asyncio.create_task(retry())
+            try:
+                async for frame in ws:
+                    if frame.type == aiohttp.WSMsgType.TEXT:
+                        op = json.loads(frame.data)
+                        if op.get("op") != "advertise":
+                            continue
+                        for ch in op["channels"]:
+                            wanted = not self.topics or ch["topic"] in self.topics
+                            if wanted and ch["topic"] not in self.channels:
+                                self.channels[ch["topic"]] = ch
+                                await subscribe(ch["topic"])
+                    elif frame.type == aiohttp.WSMsgType.BINARY and frame.data[0] == MESSAGE_DATA:
+                        sub_id, log_time = struct.unpack_from("<IQ", frame.data, 1)
+                        self.count += 1
+                        got = self.received.setdefault(by_sub[sub_id], [])
+                        if len(got) < self.limit:
+                            got.append((log_time, bytes(frame.data[13:])))
+                        if self.topics and all(len(v) >= self.limit for v in self.received.values()):
+                            return
+                    elif frame.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
                         return
-                elif frame.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
-                    return
+            finally:
+                retrying.cancel()
