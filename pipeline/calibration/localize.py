@@ -38,6 +38,8 @@ import yaml
 from scipy import ndimage, optimize
 
 from pipeline.calibration.errors import CalibrationError
+from pipeline.calibration.raycast import wrap
+from pipeline.calibration.recording import PoseSeries, RobotData, Stamped
 from pipeline.core.scenario import Scenario, box_corners
 
 MAP_RESOLUTION_M = 0.02
@@ -482,7 +484,7 @@ def track_episode(
     correction = compose(base, inverse(odom_at_match))
     corr = smooth_correction(odom_t, mt, correction, CORRECTION_SIGMA_S)
     pose = compose(corr, odom)
-    pose[:, 2] = np.remainder(pose[:, 2] + np.pi, 2 * np.pi) - np.pi
+    pose[:, 2] = wrap(pose[:, 2])
     return Track(odom_t, pose, mt, base, np.asarray(used_score), np.asarray(used_std), start)
 
 
@@ -566,15 +568,13 @@ class PoseSource:
 
 def localize_robot(
     grid: OccupancyMap,
-    robot: Any,
+    robot: RobotData,
     windows: Sequence[tuple[int, int]],
     mount: np.ndarray,
     initial_pose: np.ndarray | None,
     where: str,
-) -> tuple[Any, RobotLocalization]:
+) -> tuple[PoseSeries, RobotLocalization]:
     """A robot's base poses (a PoseSeries at its odometry's times) localized per episode window, and how."""
-    from pipeline.calibration.recording import PoseSeries, Stamped
-
     scans, odom = robot.scans, robot.odom
     if scans is None or odom is None or len(scans.ranges) == 0 or len(odom.pose) < 2:
         raise CalibrationError(where, f"robot {robot.name!r}: localization needs its /scan and /odom")

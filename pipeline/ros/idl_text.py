@@ -18,9 +18,7 @@ from typing import Any
 
 from pipeline.messages.errors import MessageError
 from pipeline.messages.store import MessageStore, message_store
-from pipeline.ros.idl import field_definitions
-
-_BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4  # rosbags' node types, as in pipeline.ros.idl
+from pipeline.ros.idl import _ARRAY, _BASE, _NAME, _SEQUENCE, field_definitions
 
 IDL_PRIMITIVES: dict[str, str] = {
     "bool": "boolean",
