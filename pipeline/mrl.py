@@ -167,7 +167,7 @@ def describe(bag: ImportedBag) -> str:
     """What ``mrl info`` prints about one imported bag."""
     from pipeline.analysis.tables import EPISODE_TOPIC, Recording
     from pipeline.calibration import PARTS
-    from pipeline.calibration.recording import TOPICS_FOR
+    from pipeline.calibration.recording import PoseSourceKind, topics_for
 
     log = bag.log()
     meta = log.metadata()
@@ -218,16 +218,25 @@ def describe(bag: ImportedBag) -> str:
     lines.append("  what the verbs can do with it:")
     usable: list[tuple[str, list[str]]] = []
     missing: list[tuple[str, list[str]]] = []
+    source: PoseSourceKind = "ground_truth" if truth and len(truth) == len(robots) else "scans"
     for part in PARTS:
-        absent = [f"/{r}/{kind}" for kind in TOPICS_FOR[part] for r in robots if f"/{r}/{kind}" not in topics]
+        kinds = topics_for(part, source)
+        absent = [f"/{r}/{kind}" for kind in kinds for r in robots if f"/{r}/{kind}" not in topics]
         (missing if absent else usable).append((part, absent))
     if usable:
-        text = ", ".join(part for part, _ in usable) + " (ground truth present)"
-        text += f"; scenario {scenario} recorded" if scenario else "; needs --scenario since the bag names none"
+        poses = (
+            "ground truth present"
+            if source == "ground_truth"
+            else "no ground truth: poses localized from scans and odometry in the scenario's room or --map FLOOR.yaml"
+        )
+        text = ", ".join(part for part, _ in usable) + f" ({poses})"
+        text += (
+            f"; scenario {scenario} recorded" if scenario else "; needs --scenario or --map since the bag names none"
+        )
         if missing:
             text += "; not " + "; not ".join(f"{part} (no {', '.join(absent)})" for part, absent in missing)
     else:
-        text = "nothing: needs /<robot>/ground_truth (motion capture or the twin) and the sensor topics"
+        text = "nothing: needs /<robot>/ground_truth (motion capture) or /<robot>/scan and /<robot>/odom, and commands"
     lines.append(f"    calibrate: {text}")
     episodes_text = (
         f"{episodes} episodes x {len(robots)} robots"
@@ -376,6 +385,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         path = write_calibration(replace(calibration, sources=sources), args.out)
     for key, reason in calibration.unidentified().items():
         print(f"calibrate: {key} unidentifiable: {reason}")
+    for limit in calibration.speed_limits():
+        print(f"calibrate: {limit.sentence()}")
     poses = calibration.pose_source
     if poses.kind == "localized":
         print(f"calibrate: poses localized from scans and odometry in the {poses.map}, match score "

@@ -68,6 +68,10 @@ class ActuationConfig:
     """Wheel speeds (rad/s, from the command by the nominal wheel geometry below) under this stay at 0."""
     wheel_radius_m: float = setting(0.034, gt=0.0, le=0.5, optional=True)
     wheel_separation_m: float = setting(0.281, gt=0.0, le=2.0, optional=True)
+    max_linear_mps: float | None = setting(None, gt=0.0, le=10.0, optional=True)
+    """The base's speed limit: forward speeds (after the gain) beyond this are cut to it; None: no limit."""
+    max_angular_radps: float | None = setting(None, gt=0.0, le=50.0, optional=True)
+    """The same for the yaw rate."""
 
 
 Range = tuple[float, ...]

@@ -13,6 +13,16 @@ give a bootstrap over clusters for the uncertainties of all four values.
 
 Tracks are the contact-free stretches of smoothed ground truth (a robot touching a wall, a box or
 another robot does not follow its commands).
+
+Speed limits: a real base saturates (its motors reach their top speed), so a commanded 0.5 m/s that
+is never exceeded beyond 0.31 m/s is a limit, not a gain of 0.62. Per channel, the model's command
+is cut at a knee ``+-k`` (``y = gain * lag(clip(u, -k, k))``, achieved limit ``gain * k``): with the
+delay and time constant of a first fit, the knee is searched on a grid of shares of the largest
+command; a knee is kept when it removes at least `SATURATION_MIN_DROP` of the channel's residual
+with at least `SATURATION_MIN_SHARE` of the samples commanded beyond it, the whole fit is then
+done again on the cut commands, and the knee searched again at its delay and time constant, so the
+gains are the base's below its limit. The limit's interval is the bootstrap over clusters of the
+knee search.
 """
 
 from __future__ import annotations
@@ -38,6 +48,15 @@ LOCAL_DELAY_STEPS = 8
 LOCAL_LOG_TAU = 0.5
 """...and the coarse tau times exp(+-this)."""
 CHANNELS = ("linear", "angular")
+LIMIT_UNITS = ("m/s", "rad/s")
+KNEE_SHARES = np.linspace(0.25, 1.0, 61)
+"""Knees searched, as shares of the channel's largest command (1: no limit)."""
+SATURATION_MIN_DROP = 0.25
+"""A knee must remove this share of the channel's residual sum of squares to be a speed limit..."""
+SATURATION_MIN_SHARE = 0.03
+"""...with this share of the channel's samples commanded beyond it."""
+BLOCK_S = 5.0
+"""With a single robot-episode, its tracks are cut into blocks of this length for the bootstrap."""
 
 
 @dataclass(frozen=True)
@@ -93,6 +112,44 @@ class ActuationFit:
     tracks: int = 0
     duration_s: float = 0.0
     notes: tuple[str, ...] = ()
+    speed_limits: tuple[SpeedLimit | None, SpeedLimit | None] = (None, None)
+    """Per channel (linear, angular): what the recording says about the base's top speed; None: channel unused."""
+
+
+@dataclass(frozen=True)
+class SpeedLimit:
+    """A channel's top speed: `limit` (the achieved speed no command exceeds, m/s or rad/s) when the base
+    saturated, else unidentifiable; the largest speed commanded and achieved, and the share of the samples
+    commanded beyond the limit."""
+
+    channel: str
+    limit: Estimate
+    commanded_max: float
+    achieved_max: float
+    saturated_share: float = 0.0
+
+    @property
+    def saturated(self) -> bool:
+        return self.limit.ok
+
+    def as_mapping(self) -> dict[str, object]:
+        out: dict[str, object] = {"saturated": self.saturated, **self.limit.as_mapping()}
+        out["commanded_max"] = float(f"{self.commanded_max:.6g}")
+        out["achieved_max"] = float(f"{self.achieved_max:.6g}")
+        out["saturated_share"] = float(f"{self.saturated_share:.4g}")
+        return out
+
+    def sentence(self) -> str:
+        unit = self.limit.unit
+        if self.saturated and self.limit.value is not None:
+            iv = self.limit.interval
+            within = f" [{iv[0]:.3g}, {iv[1]:.3g}]" if iv is not None else ""
+            return (
+                f"{self.channel} speed limit {self.limit.value:.3g}{within} {unit}: commanded up to "
+                f"{self.commanded_max:.3g} {unit}, never above the limit ({self.saturated_share:.0%} of the samples "
+                "commanded beyond it); the gain is fitted below it"
+            )
+        return f"{self.channel}: no speed limit up to {self.achieved_max:.3g} {unit} achieved ({self.limit.reason})"
 
 
 class _Problem:
@@ -122,13 +179,17 @@ class _Problem:
         self.y = np.concatenate(y)
         self.n_tracks = n
 
-    def commands(self, delay_s: float) -> np.ndarray:
-        """(2, n_tracks, length) commands acting at grid cell midpoints delayed by `delay_s`."""
+    def commands(self, delay_s: float, knees: Sequence[float] = (math.inf, math.inf)) -> np.ndarray:
+        """(2, n_tracks, length) commands acting at grid cell midpoints delayed by `delay_s`, each channel cut
+        at +-its knee."""
         out = np.zeros((2, self.n_tracks, self.length))
         mid = (np.arange(self.length) + 0.5) * self.h_s - delay_s
         for i, t in enumerate(self.tracks):
             times = t.t_ns[0] + np.round(mid * NS_PER_S).astype(np.int64)
             out[:, i, :] = t.commands.at(times, self.timeout_s).T
+        for c, knee in enumerate(knees):
+            if math.isfinite(knee):
+                np.clip(out[c], -knee, knee, out=out[c])
         return out
 
     def response(self, u: np.ndarray, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -259,28 +320,25 @@ def estimate_actuation(
     channels = [c for c in range(2) if not problems[c]]
     if not channels:
         return _all_unidentifiable("; ".join(problems), len(tracks), duration)
+    blocks = len({t.cluster for t in tracks}) < 2
+    if blocks:  # one robot in one episode: consecutive blocks of its tracks are the bootstrap's clusters
+        tracks = [piece for i, t in enumerate(tracks) for piece in _blocks(t, BLOCK_S, f"{t.cluster} track {i}")]
     cluster_names = sorted({t.cluster for t in tracks})
     cluster_of = np.array([cluster_names.index(t.cluster) for t in tracks])
     n_clusters = len(cluster_names)
     max_delay = settings.actuation_delay_max_s
     timeout = settings.command_timeout_s
 
-    # coarse grid over the whole range
+    # coarse grid over the whole range; the speed limits at its best point; the coarse grid again on the cut commands
     coarse = _Problem(tracks, COARSE_STEP_S, timeout)
-    yy = np.array([np.sum(coarse.y[:, c] ** 2) for c in range(2)])
-    delays = np.arange(0.0, max_delay + 1e-9, COARSE_DELAY_STEP_S)
-    taus = np.geomspace(TAU_MIN_S, TAU_MAX_S, 36)
-    grid = np.full((len(delays), len(taus)), np.inf)
-    one = np.zeros(len(tracks), dtype=np.int64)
-    for i, d in enumerate(delays):
-        u = coarse.commands(float(d))
-        for j, tau in enumerate(taus):
-            grid[i, j] = _cost(_sums(coarse, coarse.response(u, float(tau)), one, 1)[0], yy, channels)
-    i0, j0 = np.unravel_index(int(np.argmin(grid)), grid.shape)
-    d0, tau0 = float(delays[i0]), float(taus[j0])
+    fine = _Problem(tracks, FINE_STEP_S, timeout)
+    d0, tau0 = _coarse_fit(coarse, channels, max_delay)
+    saturation = _speed_limits(fine, d0, tau0, channels, cluster_of, n_clusters, settings.bootstrap, rng)
+    knees = saturation.knees
+    if any(math.isfinite(k) for k in knees):
+        d0, tau0 = _coarse_fit(coarse, channels, max_delay, knees)
 
     # local grid on the fine step, with per-cluster sums for the bootstrap
-    fine = _Problem(tracks, FINE_STEP_S, timeout)
     yy = np.array([np.sum(fine.y[:, c] ** 2) for c in range(2)])
     local_d = d0 + FINE_STEP_S * np.arange(-LOCAL_DELAY_STEPS, LOCAL_DELAY_STEPS + 1)
     local_d = local_d[(local_d >= -1e-12) & (local_d <= max_delay + 1e-9)]
@@ -289,7 +347,7 @@ def estimate_actuation(
     log_step = float(np.log(local_tau[1] / local_tau[0])) if len(local_tau) > 1 else 0.0
     cluster_sums = np.zeros((len(local_d), len(local_tau), n_clusters, 2, 3))
     for i, d in enumerate(local_d):
-        u = fine.commands(float(d))
+        u = fine.commands(float(d), knees)
         for j, tau in enumerate(local_tau):
             cluster_sums[i, j] = _sums(fine, fine.response(u, float(tau)), cluster_of, n_clusters)
 
@@ -306,8 +364,11 @@ def estimate_actuation(
 
     best = solve(np.ones(n_clusters))
     delay, tau = max(float(best[0]), 0.0), float(best[1])
+    if any(math.isfinite(k) for k in knees):  # the knees again, at the refined (delay, tau)
+        saturation = _speed_limits(fine, delay, tau, channels, cluster_of, n_clusters, settings.bootstrap, rng)
+        knees = saturation.knees
     # gains, residuals and the report's example at the refined (delay, tau)
-    forced, free = fine.response(fine.commands(delay), tau)
+    forced, free = fine.response(fine.commands(delay, knees), tau)
     sums = _sums(fine, (forced, free), np.zeros(len(tracks), dtype=np.int64), 1)[0]
     gains = np.array([sums[c, 0] / sums[c, 1] if sums[c, 1] > 0 else np.nan for c in range(2)])
     fitted = forced * gains[:, None] + free
@@ -319,7 +380,10 @@ def estimate_actuation(
         samples = bootstrap(solve, n_clusters, settings.bootstrap, rng)
         # resampled gains are read at grid points: shift them by the refinement of the full data's
         samples[:, 2:] += gains - best[2:]
-        method = f"bootstrap over {n_clusters} robot-episodes"
+        for c, draws in saturation.gain_draws.items():
+            # a saturated channel's gain moves with its knee: the draws of the two fitted together
+            samples[:, 2 + c] = gains[c] + draws[: len(samples)]
+        method = f"bootstrap over {n_clusters} " + (f"blocks of {BLOCK_S:g} s" if blocks else "robot-episodes")
     else:
         samples = np.full((2, 4), np.nan)
         method = "one robot-episode: no uncertainty"
@@ -335,7 +399,8 @@ def estimate_actuation(
             out[name] = Estimate.unidentifiable(f"the velocity does not settle within {TAU_MAX_S:g} s", unit)
         else:
             out[name] = Estimate.of(values[k], known_se, known_interval, unit, method, len(fine.y))
-    notes = (f"{len(tracks)} contact-free tracks, {duration:.1f} s, {n_clusters} robot-episodes",)
+    notes: tuple[str, ...] = (f"{len(tracks)} contact-free tracks, {duration:.1f} s, {n_clusters} robot-episodes",)
+    notes += tuple(limit.sentence() for limit in saturation.limits if limit is not None)
     return ActuationFit(
         out["delay_s"],
         out["time_constant_s"],
@@ -346,7 +411,122 @@ def estimate_actuation(
         tracks=len(tracks),
         duration_s=duration,
         notes=notes,
+        speed_limits=saturation.limits,
     )
+
+
+def _blocks(track: VelocityTrack, block_s: float, name: str) -> list[VelocityTrack]:
+    """`track` cut into consecutive pieces of about `block_s` (the last one takes the remainder), each its own
+    cluster (`name` block k); each piece starts from its own measured velocity, as every track does."""
+    rel = (track.t_ns - track.t_ns[0]) / NS_PER_S
+    n = max(1, int(rel[-1] // block_s))
+    index = np.minimum((rel // block_s).astype(np.int64), n - 1)
+    out = []
+    for k in range(n):
+        sel = index == k
+        if sel.sum() >= 3:
+            out.append(
+                VelocityTrack(track.robot, f"{name} block {k}", track.t_ns[sel], track.achieved[sel], track.commands)
+            )
+    return out
+
+
+def _coarse_fit(
+    coarse: _Problem, channels: Sequence[int], max_delay: float, knees: Sequence[float] = (math.inf, math.inf)
+) -> tuple[float, float]:
+    """(delay, tau) of the least cost on the coarse grid, commands cut at `knees`."""
+    yy = np.array([np.sum(coarse.y[:, c] ** 2) for c in range(2)])
+    delays = np.arange(0.0, max_delay + 1e-9, COARSE_DELAY_STEP_S)
+    taus = np.geomspace(TAU_MIN_S, TAU_MAX_S, 36)
+    grid = np.full((len(delays), len(taus)), np.inf)
+    one = np.zeros(coarse.n_tracks, dtype=np.int64)
+    for i, d in enumerate(delays):
+        u = coarse.commands(float(d), knees)
+        for j, tau in enumerate(taus):
+            grid[i, j] = _cost(_sums(coarse, coarse.response(u, float(tau)), one, 1)[0], yy, channels)
+    i0, j0 = np.unravel_index(int(np.argmin(grid)), grid.shape)
+    return float(delays[i0]), float(taus[j0])
+
+
+def _knee_of(sums: np.ndarray, c: int) -> tuple[float, float, float, float]:
+    """From per-knee sums (n_knees, 2, 3) of channel `c`: the knee index refined by a parabola through the least
+    cost and its neighbours (fractional), the gain there, the least cost and the cost without a knee."""
+    ym, mm, rr = sums[:, c, 0], sums[:, c, 1], sums[:, c, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cost = np.where(mm > 0, rr - ym * ym / mm, np.inf)
+        gain = np.where(mm > 0, ym / mm, np.nan)
+    k = int(np.argmin(cost))
+    offset = 0.0
+    if 0 < k < len(cost) - 1 and np.all(np.isfinite(cost[k - 1 : k + 2])):
+        curve = cost[k - 1] - 2 * cost[k] + cost[k + 1]
+        if curve > 0:
+            offset = float(np.clip((cost[k - 1] - cost[k + 1]) / (2 * curve), -0.5, 0.5))
+    j = k + 1 if offset > 0 else k - 1
+    g = gain[k] + abs(offset) * (gain[j] - gain[k]) if 0 <= j < len(gain) else gain[k]
+    return k + offset, float(g), float(cost[k]), float(cost[-1])
+
+
+@dataclass(frozen=True)
+class _Limits:
+    limits: tuple[SpeedLimit | None, SpeedLimit | None]
+    knees: tuple[float, float]
+    gain_draws: dict[int, np.ndarray]
+
+
+def _speed_limits(
+    problem: _Problem,
+    delay: float,
+    tau: float,
+    channels: Sequence[int],
+    cluster_of: np.ndarray,
+    n_clusters: int,
+    resamples: int,
+    rng: np.random.Generator,
+) -> _Limits:
+    """Per channel: the speed limit the recording shows (see the module's notes), the command knee (inf: none) and,
+    where saturated, the bootstrap draws of the gain fitted with the knee (about the full data's)."""
+    u = problem.commands(delay)
+    peak = np.abs(u).reshape(2, -1).max(axis=1)
+    sums = np.zeros((len(KNEE_SHARES), n_clusters, 2, 3))
+    for k, share in enumerate(KNEE_SHARES):
+        cut = np.clip(u, -(peak * share)[:, None, None], (peak * share)[:, None, None])
+        sums[k] = _sums(problem, problem.response(cut, tau), cluster_of, n_clusters)
+    commanded = np.abs(u[:, problem.row, problem.idx])
+    limits: list[SpeedLimit | None] = [None, None]
+    knees = [math.inf, math.inf]
+    gain_draws: dict[int, np.ndarray] = {}
+    for c in channels:
+        achieved_max = float(np.abs(problem.y[:, c]).max())
+        position, gain, least, plain = _knee_of(sums.sum(axis=1), c)
+        share_at = float(np.interp(position, np.arange(len(KNEE_SHARES)), KNEE_SHARES))
+        knee = peak[c] * share_at
+        beyond = float(np.mean(commanded[c] > knee * 1.02))
+        drop = 1.0 - least / plain if plain > 0 else 0.0
+        unit = LIMIT_UNITS[c]
+        if share_at < 1.0 and drop >= SATURATION_MIN_DROP and beyond >= SATURATION_MIN_SHARE:
+
+            def limit_of(weights: np.ndarray, c: int = c) -> np.ndarray:
+                pos, g, _, _ = _knee_of(np.tensordot(weights, sums, axes=([0], [1])), c)
+                return np.array([g * peak[c] * float(np.interp(pos, np.arange(len(KNEE_SHARES)), KNEE_SHARES)), g])
+
+            if n_clusters >= 2:
+                draws = bootstrap(limit_of, n_clusters, resamples, rng)
+                gain_draws[c] = draws[:, 1] - gain
+                se, interval = spread(draws[:, 0])
+                method = f"knee of the command, bootstrap over {n_clusters} clusters"
+                estimate = Estimate.of(gain * knee, se, interval, unit, method, len(problem.y))
+            else:
+                estimate = Estimate.of(gain * knee, None, None, unit, "knee of the command, one robot-episode", 1)
+            limits[c] = SpeedLimit(CHANNELS[c], estimate, float(peak[c]), achieved_max, beyond)
+            knees[c] = knee
+        else:
+            why = (
+                f"a limit would explain {max(drop, 0.0):.0%} of the residual (needs {SATURATION_MIN_DROP:.0%}) with "
+                f"{beyond:.0%} of the samples beyond it (needs {SATURATION_MIN_SHARE:.0%}); commands reached "
+                f"{peak[c]:.3g} {unit}"
+            )
+            limits[c] = SpeedLimit(CHANNELS[c], Estimate.unidentifiable(why, unit), float(peak[c]), achieved_max)
+    return _Limits((limits[0], limits[1]), (knees[0], knees[1]), gain_draws)
 
 
 def _example(problem: _Problem, fitted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.calibration.actuation import ActuationFit, CommandTimeline, VelocityTrack, estimate_actuation
+from pipeline.calibration.actuation import ActuationFit, CommandTimeline, SpeedLimit, VelocityTrack, estimate_actuation
 from pipeline.calibration.clock import ClockFit, estimate_clock
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
@@ -201,6 +201,12 @@ class Calibration:
         scale = radius / NOMINAL_WHEEL_RADIUS_M
         return linear * scale, angular * scale * NOMINAL_WHEEL_SEPARATION_M / separation
 
+    def speed_limits(self) -> list[SpeedLimit]:
+        """The channels where the base saturated (a top speed below what was commanded)."""
+        if self.actuation is None:
+            return []
+        return [limit for limit in self.actuation.speed_limits if limit is not None and limit.saturated]
+
     def unidentified(self) -> dict[str, str]:
         """Dotted keys that the data cannot determine, with the reason."""
         return {k: e.reason for k, e in self.values.items() if not e.ok}
@@ -238,6 +244,10 @@ class Calibration:
         if arc is not None:
             out.setdefault("actuation", {})["yaw_rate_per_mps"] = _short(arc)
         put("actuation", "deadband_radps", "base.deadband_radps")
+        for limit in self.speed_limits():
+            key = "max_linear_mps" if limit.channel == "linear" else "max_angular_radps"
+            if limit.limit.value is not None:
+                out.setdefault("actuation", {})[key] = _short(limit.limit.value)
         put("odometry", "drift_per_m", "odometry.drift_per_m")
         ranges = self.randomize_ranges()
         if ranges:
@@ -511,8 +521,14 @@ def calibrate(
     sessions: list[SessionData] = []
     scenario: Scenario | None = None
     pose_sources: list[PoseSource] = []
+    # a map given without a scenario (a building of the user's): a stand-in scenario for a recording that names
+    # none, and the lidar and contacts against the map's own faces
+    floor = OccupancyMap.from_map_server(settings.map_file) if settings.map_file and not expected else None
+    fallback = floor.scenario(f"map {Path(settings.map_file).name}", 1) if floor is not None else None
     for path in paths:
-        data = read_session(path, parts, expected if scenario is None else scenario, settings.pose_source)
+        data = read_session(
+            path, parts, expected if scenario is None else scenario, settings.pose_source, fallback=fallback
+        )
         if scenario is not None and data.scenario.name != scenario.name:
             raise ScenarioMismatchError(str(path), data.scenario.name, scenario.name)
         scenario = data.scenario
@@ -523,7 +539,11 @@ def calibrate(
         sessions.append(data)
         pose_sources.append(source)
     assert scenario is not None
-    geometry = MapGeometry.from_scenario(scenario)
+    geometry = (
+        floor.geometry(scenario.robot.radius_m)
+        if floor is not None and scenario is fallback
+        else MapGeometry.from_scenario(scenario)
+    )
     spans: list[ScanSpan] = []
     tracks: list[VelocityTrack] = []
     episodes: list[OdometryEpisode] = []

@@ -38,9 +38,9 @@ import yaml
 from scipy import ndimage, optimize
 
 from pipeline.calibration.errors import CalibrationError
-from pipeline.calibration.raycast import wrap
+from pipeline.calibration.raycast import MapGeometry, wrap
 from pipeline.calibration.recording import PoseSeries, RobotData, Stamped
-from pipeline.core.scenario import Scenario, box_corners
+from pipeline.core.scenario import Point2D, Pose2D, RobotSpec, Room, Scenario, box_corners, load_scenario
 
 MAP_RESOLUTION_M = 0.02
 """Cell size of a map rasterized from a scenario."""
@@ -182,6 +182,79 @@ class OccupancyMap:
         }
         p.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
         return p
+
+    def geometry(self, robot_radius_m: float) -> MapGeometry:
+        """The map's obstacle faces seen from known free space, as segments for ray casting: every cell edge between
+        an occupied and a free cell, runs along a row or column merged into one segment (named wall_<k>)."""
+        occ = self.occupied
+        free = ~occ if self.known is None else (self.known & ~occ)
+        res = self.resolution_m
+        ends: list[tuple[float, float, float, float]] = []
+
+        def runs(mask: np.ndarray) -> list[tuple[int, int, int]]:
+            """(line, first, last) of each run of True along the second axis of `mask`."""
+            out = []
+            padded = np.pad(mask.astype(np.int8), ((0, 0), (1, 1)))
+            for line in np.flatnonzero(mask.any(axis=1)):
+                d = np.diff(padded[line])
+                out += [
+                    (int(line), int(a), int(b) - 1)
+                    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)
+                ]
+            return out
+
+        # faces between rows r and r + 1 (at v = (r + 1) res) and between columns c and c + 1, in cells, oriented
+        # so that free space lies on their left (the left normal points into free space, as a room's walls')
+        for r, c0, c1 in runs(occ[:-1] & free[1:]):
+            ends.append((c0, r + 1, c1 + 1, r + 1))
+        for r, c0, c1 in runs(free[:-1] & occ[1:]):
+            ends.append((c1 + 1, r + 1, c0, r + 1))
+        for c, r0, r1 in runs((occ[:, :-1] & free[:, 1:]).T):
+            ends.append((c + 1, r1 + 1, c + 1, r0))
+        for c, r0, r1 in runs((free[:, :-1] & occ[:, 1:]).T):
+            ends.append((c + 1, r0, c + 1, r1 + 1))
+        if not ends:
+            raise CalibrationError(
+                self.source, "the map has no obstacle next to free space: nothing for a lidar to see"
+            )
+        cells = np.asarray(ends, dtype=np.float64) * res
+        ox, oy, oyaw = self.origin
+        cs, sn = math.cos(oyaw), math.sin(oyaw)
+
+        def to_map(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            return np.stack([ox + cs * u - sn * v, oy + sn * u + cs * v], axis=1)
+
+        a, b = to_map(cells[:, 0], cells[:, 1]), to_map(cells[:, 2], cells[:, 3])
+        e = b - a
+        normal = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.hypot(e[:, 0], e[:, 1])[:, None]
+        names = tuple(f"wall_{k}" for k in range(len(a)))
+        return MapGeometry(a, b, normal, names, robot_radius_m)
+
+    def scenario(self, name: str, robots: int) -> Scenario:
+        """A stand-in scenario for a map without one: a room over the map's known cells, `robots` SPARKs (the
+        bundled scenarios' shape), no boxes (the map's obstacles are in :meth:`geometry`)."""
+        spark = load_scenario("empty").robot
+        rows, cols = np.nonzero(self.occupied | (self.known if self.known is not None else ~self.occupied))
+        corners = (
+            np.array(
+                [
+                    [cols.min(), rows.min()],
+                    [cols.max() + 1, rows.min()],
+                    [cols.min(), rows.max() + 1],
+                    [cols.max() + 1, rows.max() + 1],
+                ],
+                dtype=np.float64,
+            )
+            * self.resolution_m
+        )
+        ox, oy, oyaw = self.origin
+        cs, sn = math.cos(oyaw), math.sin(oyaw)
+        xs = ox + cs * corners[:, 0] - sn * corners[:, 1]
+        ys = oy + sn * corners[:, 0] + cs * corners[:, 1]
+        room = Room(float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max()))
+        centre = Pose2D(float(xs.mean()), float(ys.mean()), 0.0)
+        spec = RobotSpec(centre, Point2D(centre.x_m, centre.y_m))
+        return Scenario(name, room, spark, tuple(spec for _ in range(max(robots, 1))))
 
     # -- the distance field ---------------------------------------------------------------------
 

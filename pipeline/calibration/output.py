@@ -10,6 +10,8 @@ Layout of ``calibration.yaml``:
   top of params.yaml's ``world`` (:func:`pipeline.params.calibrated_world`); unidentified values are
   left out, so training keeps their nominal values;
 - ``unidentified``: the keys left out and why;
+- ``speed_limits``: per command channel (linear, angular), whether the base saturated and at what speed
+  (a top speed, not a gain: the gains are fitted below it), with the largest speeds commanded and achieved;
 - ``source``: the recordings (path and session metadata) and the calibration settings.
 """
 
@@ -50,6 +52,11 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             "uncertainty": uncertainty,
             "world": world,
             "unidentified": calibration.unidentified(),
+            "speed_limits": {
+                limit.channel: limit.as_mapping()
+                for limit in (calibration.actuation.speed_limits if calibration.actuation else ())
+                if limit is not None
+            },
             "source": {
                 "recordings": [
                     {"path": s.path, "episodes": s.episodes, "session": s.session} for s in calibration.sources
@@ -74,6 +81,8 @@ def _header(calibration: Calibration) -> str:
             f"# Poses: localized from scans and odometry in the {poses.map} (median match score "
             f"{poses.median_score:.2f}: the fraction of scan endpoints on the map), not motion capture."
         )
+    for limit in calibration.speed_limits():
+        lines.append(f"# Saturation: {limit.sentence()}.")
     missing = calibration.unidentified()
     if missing:
         lines.append("# Not identified (training keeps the nominal value):")

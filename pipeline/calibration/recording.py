@@ -177,11 +177,13 @@ def _robots(log: McapLog, session: dict[str, str]) -> tuple[str, ...]:
     return tuple(found)
 
 
-def recorded_scenario(log: McapLog, expected: str | Path | Scenario | None) -> Scenario:
+def recorded_scenario(
+    log: McapLog, expected: str | Path | Scenario | None, fallback: Scenario | None = None
+) -> Scenario:
     """The scenario of a recording (its ``scenario`` document, else the bundled one its session names).
 
     With `expected`, a recording of another scenario raises ScenarioMismatchError; a recording that
-    names no scenario uses `expected`.
+    names no scenario uses `expected`, else `fallback` (the stand-in of a map given without a scenario).
     """
     where = str(log.path)
     meta = log.metadata()
@@ -202,6 +204,8 @@ def recorded_scenario(log: McapLog, expected: str | Path | Scenario | None) -> S
         except MrlError as exc:
             raise CalibrationError(where, f"the scenario asked for cannot be loaded: {exc}") from exc
     if recorded is None:
+        if wanted is None and fallback is not None:
+            return fallback
         if wanted is None:
             raise CalibrationError(
                 where, "the recording names no scenario (no 'scenario' metadata); pass the scenario it was made in"
@@ -332,19 +336,24 @@ def read_session(
     parts: Sequence[Part],
     scenario: str | Path | Scenario | None = None,
     pose_source: PoseSourceKind | Literal["auto"] = "auto",
+    fallback: Scenario | None = None,
 ) -> SessionData:
     """The streams of a recording needed for `parts`; MissingTopicError names every topic that is absent.
 
     `pose_source` says where the robots' poses come from: ``ground_truth`` (``/<ns>/ground_truth``,
     motion capture), ``scans`` (localization from ``/<ns>/scan`` and ``/<ns>/odom`` against a map,
-    done by the caller), or ``auto``: ground truth where every robot has it, else scans.
+    done by the caller), or ``auto``: ground truth where every robot has it, else scans. `fallback` is the
+    scenario of a recording that names none when `scenario` is not given either.
+
+    A session recording of this project must hold as many robots as its scenario; a bag recorded elsewhere may
+    hold fewer or more (one robot of a fleet, in the scenario's room).
     """
     p = Path(path)
     where = str(p)
     log = McapLog(p)
     meta = log.metadata()
     session = dict(meta.get("session", {}))
-    scen = recorded_scenario(log, scenario)
+    scen = recorded_scenario(log, scenario, fallback)
     robots = _robots(log, session)
     if not robots:
         raise MissingTopicError(
@@ -364,7 +373,7 @@ def read_session(
     if needed:
         uses = sorted({part for parts_ in needed.values() for part in parts_})
         raise MissingTopicError(where, sorted(needed), "the " + ", ".join(uses) + " calibration")
-    if len(robots) != scen.n_robots:
+    if session.get("robots") and len(robots) != scen.n_robots:
         raise CalibrationError(
             where, f"the recording has {len(robots)} robots, scenario {scen.name!r} has {scen.n_robots}"
         )

@@ -123,6 +123,9 @@ class SimWorld:
     def _apply(self, cmd: np.ndarray) -> None:
         target = cmd * self._gain
         act = self.world.actuation
+        for c, limit in enumerate((act.max_linear_mps, act.max_angular_radps)):
+            if limit is not None:
+                target[:, c] = np.clip(target[:, c], -limit, limit)
         if self._wheels:
             # wheel speeds by the nominal geometry; the motors do not turn under the deadband
             half = act.wheel_separation_m / 2

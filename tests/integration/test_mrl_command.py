@@ -279,3 +279,74 @@ def test_calibrate_a_bag_without_ground_truth_in_a_map_server_map(tmp_path):
     assert last.endswith("--initial-pose: '1,2': expected x,y,yaw (metres, metres, radians)")
     refused(mrl("calibrate", bag, "--initial-pose", "1,2,0"), "calibrate", "one robot", "has 3")
     refused(mrl("calibrate", bag, "--map", tmp_path / "none.yaml"), "calibrate", "none.yaml", "cannot read the map")
+
+
+def bare_robot_bag(session: Path, dest: Path) -> Path:
+    """Robot robot_1 of `session` as a single-robot driver records it: ``/scan``, ``/odom``, ``/cmd_vel``, ``/tf``
+    (odom -> base_link) and ``/tf_static`` (base_link -> laser), frames without namespace, as a rosbag2 folder."""
+    store = message_store()
+    out: list[RawMessage] = []
+    keep = ["/robot_1/scan", "/robot_1/odom", "/robot_1/cmd_vel", "/tf_static"]
+    for raw in McapLog(session).raw(keep):
+        msg = store.deserialize(raw.data, raw.typename)
+        if raw.typename == T.TF_MESSAGE:
+            msg.transforms = [tr for tr in msg.transforms if tr.header.frame_id.startswith("robot_1/")]
+            for tr in msg.transforms:
+                tr.header.frame_id = tr.header.frame_id.removeprefix("robot_1/")
+                tr.child_frame_id = tr.child_frame_id.removeprefix("robot_1/")
+        elif hasattr(msg, "header"):
+            msg.header.frame_id = msg.header.frame_id.removeprefix("robot_1/")
+        if raw.typename == T.ODOMETRY:
+            msg.child_frame_id = msg.child_frame_id.removeprefix("robot_1/")
+            q = msg.pose.pose
+            pose = np.array([q.position.x, q.position.y, 2 * np.arctan2(q.orientation.z, q.orientation.w)])
+            tf = C.tf_message(raw.log_time_ns, [("odom", "base_link", pose)], store=store)
+            out.append(
+                RawMessage("/tf", T.TF_MESSAGE, raw.log_time_ns, raw.log_time_ns, 0, store.serialize(tf, T.TF_MESSAGE))
+            )
+        topic = raw.topic.removeprefix("/robot_1")
+        out.append(raw._replace(topic=topic, data=store.serialize(msg, raw.typename)))
+    return write_rosbag2(dest, sorted(out, key=lambda m: m.log_time_ns), StoragePlugin.MCAP)
+
+
+def test_calibrate_a_single_robot_bag_without_namespace_ground_truth_or_scenario(tmp_path):
+    from pipeline.calibration.localize import OccupancyMap
+    from pipeline.core.scenario import load_scenario
+
+    room = load_scenario("obstacles", n_robots=1)
+    world = {
+        "lidar": {"noise_sigma_m": 0.01, "mount_xy_m": [0.05, 0.0], "mount_yaw_rad": 0.03},
+        "actuation": {"max_linear_mps": 0.25},  # commands go up to 0.4 m/s
+    }
+    session = simulate_session(
+        tmp_path / "s.mcap", world, episodes=3, steps=100, seed=5, scenario=room, tf_static=True, omit=["/ground_truth"]
+    )
+    bag = bare_robot_bag(session, tmp_path / "bag")
+    floor = OccupancyMap.from_scenario(room).write_map_server(tmp_path / "floor.yaml")
+    info = mrl("info", bag)
+    assert info.returncode == 0 and "robots: robot_1 (1)" in info.stdout, info.stdout
+    assert "/robot_1/scan     sensor_msgs/msg/LaserScan       300  (from /scan)" in info.stdout
+    assert "(no ground truth: poses localized from scans and odometry" in info.stdout
+    out = tmp_path / "c"
+    proc = mrl("calibrate", bag, "--map", floor, "--parts", "lidar,actuation", "--bootstrap", "30", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert "poses localized from scans and odometry in the map_server map floor.yaml" in proc.stdout
+    assert "calibrate: linear speed limit 0.2" in proc.stdout and "commanded up to 0.4 m/s" in proc.stdout, proc.stdout
+    data = yaml.safe_load((out / "calibration.yaml").read_text())
+    # no scenario anywhere: the map stands for the room, its faces for the lidar's surfaces
+    assert data["scenario"] == "map floor.yaml"
+    poses = data["source"]["poses"]
+    assert poses["kind"] == "localized" and set(poses["robots"]) == {"robot_1"} and poses["match_score"] > 0.9
+    # the laser's mounting from /tf_static (base_link -> laser), used by the localization
+    lidar = data["uncertainty"]["lidar"]
+    assert (
+        lidar["mount_yaw_rad"]["value"] == pytest.approx(0.03) and lidar["mount_yaw_rad"]["method"] == "from /tf_static"
+    )
+    assert lidar["mount_xy_m[0]"]["value"] == pytest.approx(0.05)
+    assert lidar["noise_sigma_m"]["value"] == pytest.approx(0.01, rel=0.15)
+    # the base saturates: a top speed of 0.25 m/s, and the gain below it stays about 1 (not 0.25 / 0.4)
+    limit = data["speed_limits"]["linear"]
+    assert limit["saturated"] and limit["value"] == pytest.approx(0.25, rel=0.03) and limit["commanded_max"] > 0.35
+    assert not data["speed_limits"]["angular"]["saturated"]
+    assert data["uncertainty"]["actuation"]["linear_gain"]["value"] == pytest.approx(1.0, rel=0.05)
+    assert data["world"]["actuation"]["max_linear_mps"] == pytest.approx(0.25, rel=0.03)

@@ -23,8 +23,11 @@ def simulate(
     turning: bool = True,
     noise: float = 0.003,
     start_s: float = 100.0,
+    limits: tuple[float, float] = (math.inf, math.inf),
 ) -> tuple[np.ndarray, np.ndarray, CommandTimeline]:
-    """Truth sample times (ns), achieved (v, w) at them with noise, and the commands as sent every 20 ms."""
+    """Truth sample times (ns), achieved (v, w) at them with noise, and the commands as sent every 20 ms.
+
+    The base follows ``gain * command`` cut at +-`limits` (its top speeds)."""
     h = 0.001
     t = start_s + np.arange(0, duration_s, h)
     # a new command every 0.1 s, sent (repeated) on a 20 ms grid
@@ -38,9 +41,10 @@ def simulate(
     timeline = CommandTimeline(np.round(send * NS).astype(np.int64), cmd)
     acting = timeline.at(np.round((t - delay_s) * NS).astype(np.int64), timeout_s=0.5)
     y = np.zeros((len(t), 2))
+    top = np.array(limits)
     a = math.exp(-h / tau_s)
     for i in range(1, len(t)):
-        y[i] = a * y[i - 1] + (1 - a) * acting[i - 1] * np.array(gains)
+        y[i] = a * y[i - 1] + (1 - a) * np.clip(acting[i - 1] * np.array(gains), -top, top)
     sample = np.arange(0, len(t), 20)
     achieved = y[sample] + rng.normal(0, noise, size=(len(sample), 2))
     return np.round(t[sample] * NS).astype(np.int64), achieved, timeline
@@ -101,3 +105,39 @@ def test_commands_stop_acting_after_the_timeout():
     timeline = CommandTimeline(np.array([0, NS]), np.array([[0.3, 0.1], [0.2, 0.0]]))
     acting = timeline.at(np.array([-1, 0, NS // 2, NS - 1, NS, 2 * NS]), timeout_s=0.5)
     np.testing.assert_allclose(acting[:, 0], [0.0, 0.3, 0.3, 0.0, 0.2, 0.0])
+
+
+def test_a_base_that_saturates_has_a_speed_limit_not_a_smaller_gain():
+    # commands up to 0.4 m/s, a base that never goes beyond 0.25 m/s: a limit of 0.25, the gain 0.95 below it
+    covered = 0
+    trials = 6
+    for seed in range(trials):
+        rng = np.random.default_rng(100 + seed)
+        data = tracks(rng, 6, delay_s=0.08, tau_s=0.2, gains=(0.95, 0.9), limits=(0.25, math.inf))
+        fit = estimate_actuation(data, SETTINGS, rng)
+        linear, angular = fit.speed_limits
+        assert linear is not None and linear.saturated and linear.limit.value is not None
+        assert linear.limit.value == pytest.approx(0.25, rel=0.005)
+        assert linear.commanded_max == pytest.approx(0.4) and linear.saturated_share > 0.1
+        assert linear.limit.interval is not None and linear.limit.unit == "m/s"
+        covered += linear.limit.interval[0] <= 0.25 <= linear.limit.interval[1]
+        assert fit.linear_gain.value == pytest.approx(0.95, rel=0.005)
+        assert fit.delay_s.value == pytest.approx(0.08, abs=0.005)
+        assert fit.time_constant_s.value == pytest.approx(0.2, rel=0.05)
+        assert angular is not None and not angular.saturated and "no speed limit up to" in angular.sentence()
+        assert any(note.startswith("linear speed limit 0.25") for note in fit.notes)
+    # the 95 % interval of the limit holds the true one (6 robot-episodes per fit: allow one miss)
+    assert covered >= trials - 1
+
+
+def test_a_base_below_its_limit_shows_none_and_keeps_its_fit():
+    rng = np.random.default_rng(7)
+    data = tracks(rng, 6, delay_s=0.08, tau_s=0.2, gains=(0.95, 0.9))
+    fit = estimate_actuation(data, SETTINGS, np.random.default_rng(7))
+    assert all(limit is not None and not limit.saturated for limit in fit.speed_limits)
+    assert fit.linear_gain.value == pytest.approx(0.95, rel=0.005)
+    # a limit above every command changes nothing: the base never reached it
+    rng = np.random.default_rng(7)
+    high = tracks(rng, 6, delay_s=0.08, tau_s=0.2, gains=(0.95, 0.9), limits=(0.5, 0.5))
+    again = estimate_actuation(high, SETTINGS, np.random.default_rng(7))
+    assert again.linear_gain.value == fit.linear_gain.value and again.delay_s.value == fit.delay_s.value

@@ -211,3 +211,34 @@ def test_the_lidar_mounting_comes_from_tf_static_when_the_recording_has_it(tmp_p
     assert cal.values["lidar.mount_yaw_rad"].method == "from /tf_static"
     bare = calibrate(without_tf, CalibrationSettings(parts=("lidar",), bootstrap=20))
     assert "no /tf_static" in bare.values["lidar.mount_yaw_rad"].reason
+
+
+def test_a_map_without_a_scenario_gives_the_lidar_its_faces_and_a_stand_in_room():
+    scenario = load_scenario("obstacles")
+    grid = OccupancyMap.from_scenario(scenario)
+    faces = grid.geometry(0.165)
+    walls = MapGeometry.from_scenario(scenario)
+    rng = np.random.default_rng(3)
+    angles = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    errors = []
+    for _ in range(30):
+        origin = np.array([rng.uniform(0.2, 5.8), rng.uniform(0.2, 3.8)])
+        if walls.clearance(origin[None])[0] < 0.2:
+            continue
+        a = faces.cast(origin[None, None, :], angles[None, :]).range_m
+        b = walls.cast(origin[None, None, :], angles[None, :]).range_m
+        assert np.isfinite(a).all()  # a closed room: every ray ends on a face
+        errors.append(np.abs(a - b).ravel())
+    err = np.concatenate(errors)
+    # the same room to within the grid's 2 cm, but for rays grazing a box's rasterized corner (1.5 % of rays here)
+    assert np.mean(err <= 0.021) >= 0.98 and np.median(err) == 0.0
+    # each face's normal points into free space; merged runs: a few dozen faces, not a face per cell
+    mid = (faces.a + faces.b) / 2
+    assert (grid.distance_only(mid + 0.05 * faces.normal) > 0.04).all()
+    assert (grid.distance_only(mid - 0.05 * faces.normal) < -0.04).all()
+    assert len(faces.names) < 40 and all(n.startswith("wall_") for n in faces.names)
+    room = grid.scenario("map floor.yaml", 1)
+    assert room.name == "map floor.yaml" and room.n_robots == 1 and room.obstacles == ()
+    assert room.room.x_min_m < 0 < 6 < room.room.x_max_m and room.robot == scenario.robot
+    with pytest.raises(CalibrationError, match="no obstacle next to free space"):
+        OccupancyMap(np.zeros((10, 10), dtype=bool), 0.05, (0.0, 0.0, 0.0), "blank").geometry(0.165)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import yaml
 
@@ -14,6 +16,7 @@ from pipeline.calibration import (
     calibration_settings,
     write_calibration,
 )
+from pipeline.calibration.actuation import ActuationFit, SpeedLimit
 from pipeline.errors import ConfigError
 from pipeline.params import WorldConfig, calibrated_world
 
@@ -50,7 +53,17 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
     assert path.name == "calibration.yaml"
     assert "#   actuation.angular_gain: no turning commands above 0.05 rad/s" in text
     data = yaml.safe_load(text)
-    assert set(data) == {"format", "scenario", "profile", "uncertainty", "world", "unidentified", "source"}
+    assert set(data) == {
+        "format",
+        "scenario",
+        "profile",
+        "uncertainty",
+        "world",
+        "unidentified",
+        "speed_limits",
+        "source",
+    }
+    assert data["speed_limits"] == {}  # no actuation fit
     assert data["profile"]["lidar"] == {
         "beams": 360,
         "rate_hz": 10.0,
@@ -153,3 +166,35 @@ def test_a_range_below_a_keys_bound_is_kept_inside_it(tmp_path):
     data = yaml.safe_load(write_calibration(flat, tmp_path, report=False).read_text())
     assert data["world"]["randomize"]["lidar"]["noise_per_m"] == [0.0, 0.0]
     assert data["world"]["lidar"]["noise_per_m"] == 0.0
+
+
+def test_a_speed_limit_is_reported_and_given_to_the_simulator(tmp_path):
+    limit = SpeedLimit("linear", ok(0.31, 0.002, "m/s"), commanded_max=0.5, achieved_max=0.312, saturated_share=0.2)
+    below = SpeedLimit("angular", Estimate.unidentifiable("no knee", "rad/s"), commanded_max=0.2, achieved_max=0.19)
+    values = calibration().values
+    fit = ActuationFit(
+        *(values[f"actuation.{k}"] for k in ("delay_s", "time_constant_s", "linear_gain", "angular_gain")),
+        speed_limits=(limit, below),
+    )
+    path = write_calibration(replace(calibration(), actuation=fit), tmp_path, report=False)
+    text = path.read_text()
+    assert "# Saturation: linear speed limit 0.31 [0.306, 0.314] m/s: commanded up to 0.5 m/s" in text
+    data = yaml.safe_load(text)
+    assert data["speed_limits"]["linear"]["saturated"] is True
+    assert data["speed_limits"]["linear"]["value"] == 0.31 and data["speed_limits"]["linear"]["commanded_max"] == 0.5
+    assert data["speed_limits"]["angular"] == {
+        "saturated": False,
+        "status": "unidentifiable",
+        "reason": "no knee",
+        "unit": "rad/s",
+        "n": 0,
+        "commanded_max": 0.2,
+        "achieved_max": 0.19,
+        "saturated_share": 0.0,
+    }
+    # the simulator cuts its forward speed there; the gain stays the one fitted below the limit
+    assert data["world"]["actuation"]["max_linear_mps"] == 0.31
+    assert "max_angular_radps" not in data["world"]["actuation"]
+    assert data["world"]["actuation"]["linear_gain"] == 0.95
+    world = calibrated_world(WorldConfig(), path)
+    assert world.actuation.max_linear_mps == 0.31 and world.actuation.max_angular_radps is None

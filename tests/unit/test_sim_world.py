@@ -127,3 +127,18 @@ def test_actuation_delay_and_gains():
         drive(sim, [[0.2, 0.0]], 20)
     assert (fast.truth[0, 0] - 1.0) / (plain.truth[0, 0] - 1.0) == pytest.approx(1.5, rel=0.02)
     assert plain.truth[0, 0] - delayed.truth[0, 0] == pytest.approx(0.04, abs=0.005)
+
+
+def test_a_speed_limit_cuts_the_achieved_speed_not_the_slower_commands():
+    limited = world("empty", n_robots=1, actuation={"max_linear_mps": 0.25, "max_angular_radps": 0.1})
+    plain = world("empty", n_robots=1)
+    for sim in (limited, plain):
+        drive(sim, [[0.4, 0.0]], 20)
+    assert limited.body_velocity()[0, 0] == pytest.approx(0.25, abs=1e-3)
+    assert plain.body_velocity()[0, 0] == pytest.approx(0.4, abs=1e-3)
+    for sim in (limited, plain):
+        drive(sim, [[0.2, 0.3]], 20)
+    # below the limit the two bases are the same; the yaw rate is cut at its own limit
+    assert limited.body_velocity()[0, 0] == pytest.approx(plain.body_velocity()[0, 0], abs=1e-3)
+    assert limited.body_velocity()[0, 1] == pytest.approx(0.1, abs=1e-3)
+    assert plain.body_velocity()[0, 1] == pytest.approx(0.3, abs=1e-3)
