@@ -84,3 +84,18 @@ class Client:
                         return
             finally:
                 retrying.cancel()
+
+
+def main() -> None:
+    """``python -m tests.peers.foxglove_client URL SECONDS``: the app's side in a process of its own (as the app
+    is); subscribes to everything until the server closes or SECONDS pass, then prints ``received=<n>``."""
+    import sys
+
+    url, seconds = sys.argv[1], float(sys.argv[2])
+    client = Client(url, (), limit=1, timeout_s=seconds)
+    client.stop(timeout_s=seconds + 5)
+    print(f"received={client.count}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
