@@ -187,16 +187,23 @@ def _shared_groups(stamps: Sequence[np.ndarray]) -> list[list[int]]:
             groups.setdefault(round(math.log(p) * 50), []).append(i)  # periods within 2 %
     out: list[list[int]] = []
     for members in groups.values():
-        if len(members) < 2:
-            out.extend([m] for m in members)
-            continue
-        shared = True
+        # streams are linked when one's stamps are mostly the other's; groups are the linked components (so two
+        # sensors at about the same rate on different clocks, each shared by several robots, stay two groups)
+        parent = {m: m for m in members}
+
+        def root(m: int) -> int:
+            while parent[m] != m:
+                m = parent[m]
+            return m
+
+        for a, i in enumerate(members):
+            for j in members[a + 1 :]:
+                if np.isin(stamps[i], stamps[j]).sum() >= SHARED_TICKS * min(len(stamps[i]), len(stamps[j])):
+                    parent[root(j)] = root(i)
+        components: dict[int, list[int]] = {}
         for m in members:
-            others = np.unique(np.concatenate([stamps[o] for o in members if o != m]))
-            if np.isin(stamps[m], others).sum() < SHARED_TICKS * len(stamps[m]):
-                shared = False
-                break
-        out.extend([members] if shared else [[m] for m in members])
+            components.setdefault(root(m), []).append(m)
+        out.extend(components.values())
     return out
 
 

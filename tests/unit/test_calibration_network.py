@@ -121,3 +121,23 @@ def test_losses_in_bursts_on_topics_with_rates_of_their_own():
         lo, hi = fit.loss_prob.interval
         covered += lo <= 0.03 <= hi
     assert covered >= 17
+
+
+def test_two_sensors_at_one_rate_on_two_clocks_are_two_groups_of_shared_ticks():
+    """Motion capture at 50 Hz on the host's clock and odometry at 49.97 Hz on the robots' clock, each sent by one
+    driver for three robots: each sensor's robots share ticks, the two sensors do not. Taken as one group, each
+    stream would lack the other sensor's stamps and read a loss near 0.5."""
+    rng = np.random.default_rng(5)
+    windows = tuple((5 * NS + w * 12 * NS, 5 * NS + (w + 1) * 12 * NS - 1) for w in range(5))
+    host = np.round((5.0 + np.arange(3000) / 50.0) * NS).astype(np.int64)
+    robot = np.round((5.0063 + np.arange(2998) / 49.97) * NS).astype(np.int64)
+    out = []
+    for k in range(3):
+        for name, stamps in (("ground_truth", host), ("odom", robot)):
+            keep = rng.random(len(stamps)) >= 0.01
+            received = stamps[keep] + 2_000_000 + rng.integers(0, 5_000_000, keep.sum())
+            out.append(StampStream(f"/robot_{k + 1}/{name}", stamps[keep], received, windows))
+    fit = estimate_network(out, SETTINGS, rng)
+    assert fit.loss_prob.value == pytest.approx(0.01, abs=0.005)
+    lo, hi = fit.loss_prob.interval
+    assert lo <= 0.01 <= hi
