@@ -45,6 +45,10 @@ BURST_PERIODS = 20
 MIN_LOSS_CLUSTERS = 5
 """Topic-episodes needed to resample the loss over them."""
 MAX_ISOLATED_SHARE = 4.0 / 27.0
+RUN_BREAK_MADS = 6.0
+"""A gap off the fitted period by more than this many robust deviations ends its run of regular sending..."""
+RUN_BREAK_MIN_S = 2e-6
+"""...or by more than this (stamps exact to the nanosecond have no spread)."""
 """The largest value of p (1 - p)^2 (at p = 1/3)."""
 
 
@@ -89,15 +93,9 @@ def period_s(stamp_ns: np.ndarray) -> float | None:
     return float(np.median(np.diff(s))) / NS_PER_S
 
 
-def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] | None:
-    """(period s, its standard error, gaps used) from stamps `ticks` (ns): each stamp's index in its run of
-    regular sending (gaps near whole multiples of `period0`, losses allowed), then one slope of stamp on
-    index over all runs (each with its own start). A sender whose stamps fall on a coarser grid (24 and
-    26 ms apart for 40 Hz on a 2 ms grid) still gets its mean period, where a median gap would not."""
-    t = (ticks - ticks[0]) / NS_PER_S
-    gaps = np.diff(t)
-    steps = np.round(gaps / period0)
-    regular = (steps >= 1) & (steps <= 10) & (np.abs(gaps / period0 - steps) < 0.25)
+def _slope_over_runs(t: np.ndarray, regular: np.ndarray, steps: np.ndarray) -> tuple[float, float, list[np.ndarray]]:
+    """Period (s), its standard error and the runs' centred indices: one slope of stamp `t` on message index over
+    the runs of `regular` gaps (`steps` periods each), each run with its own start."""
     run = np.r_[0, np.cumsum(~regular)]
     index = np.r_[0.0, np.cumsum(np.where(regular, steps, 0.0))]
     xs, ys = [], []
@@ -108,24 +106,47 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
         xs.append(index[sel] - index[sel].mean())
         ys.append(t[sel] - t[sel].mean())
     if not xs:
-        return None
+        return math.nan, math.nan, []
     x, y = np.concatenate(xs), np.concatenate(ys)
     sxx = float(x @ x)
     if sxx <= 0:
-        return None
+        return math.nan, math.nan, []
     slope = float(x @ y) / sxx
     resid = y - slope * x
     dof = max(len(x) - len(xs) - 1, 1)
-    se = math.sqrt(float(resid @ resid) / dof / sxx)
-    # stamps on a grid (a sender that stamps at its physics steps) fix each run's ends only to a grid step:
-    # a period no more certain than one step over a typical run, whatever the message count
-    levels = np.unique(np.round(gaps[regular] * 1e6))
+    return slope, math.sqrt(float(resid @ resid) / dof / sxx), xs
+
+
+def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] | None:
+    """(period s, its standard error, gaps used) from stamps `ticks` (ns): each stamp's index in its run of
+    regular sending (gaps near whole multiples of `period0`, losses allowed), then one slope of stamp on
+    index over all runs (each with its own start). A sender whose stamps fall on a coarser grid (24 and
+    26 ms apart for 40 Hz on a 2 ms grid) still gets its mean period, where a median gap would not. A gap
+    that the first slope cannot explain (off by more than `RUN_BREAK_MADS` robust deviations of the gaps;
+    e.g. a sweep cut short by a reset, 1.2 periods long) ends its run, and the slope is fitted again."""
+    t = (ticks - ticks[0]) / NS_PER_S
+    gaps = np.diff(t)
+    steps = np.round(gaps / period0)
+    regular = (steps >= 1) & (steps <= 10) & (np.abs(gaps / period0 - steps) < 0.25)
+    slope, se, xs = _slope_over_runs(t, regular, steps)
+    if not xs:
+        return None
+    deviation = np.abs(gaps - steps * slope)
+    spread_s = 1.4826 * float(np.median(deviation[regular]))
+    regular &= deviation <= max(RUN_BREAK_MADS * spread_s, RUN_BREAK_MIN_S)
+    refit = _slope_over_runs(t, regular, steps)
+    if refit[2]:
+        slope, se, xs = refit
+    # stamps on a grid (a sender that stamps at its physics steps) fix each run's ends only to a grid step, so
+    # the period is no more certain than one grid step over a typical run, whatever the message count
+    levels = np.unique(np.round((gaps - steps * slope)[regular] * 1e6))
     steps_between = np.diff(levels)
     grid_s = float(steps_between[steps_between > 0].min()) * 1e-6 if len(steps_between) else 0.0
+    grid_s = max(grid_s, 1e-9)  # stamps are whole nanoseconds
     spans = [float(np.ptp(i)) * slope for i in xs]
     if grid_s > 0 and spans and np.median(spans) > 0:
         se = max(se, grid_s / float(np.median(spans)) * slope)
-    return slope, se, len(x)
+    return slope, se, sum(len(i) for i in xs)
 
 
 def rate_estimate(streams: Sequence[np.ndarray], unit: str = "Hz") -> Estimate:
@@ -190,21 +211,21 @@ def _shared_groups(stamps: Sequence[np.ndarray]) -> list[list[int]]:
         # streams are linked when one's stamps are mostly the other's; groups are the linked components (so two
         # sensors at about the same rate on different clocks, each shared by several robots, stay two groups)
         parent = {m: m for m in members}
-
-        def root(m: int) -> int:
-            while parent[m] != m:
-                m = parent[m]
-            return m
-
         for a, i in enumerate(members):
             for j in members[a + 1 :]:
                 if np.isin(stamps[i], stamps[j]).sum() >= SHARED_TICKS * min(len(stamps[i]), len(stamps[j])):
-                    parent[root(j)] = root(i)
+                    parent[_root(parent, j)] = _root(parent, i)
         components: dict[int, list[int]] = {}
         for m in members:
-            components.setdefault(root(m), []).append(m)
+            components.setdefault(_root(parent, m), []).append(m)
         out.extend(components.values())
     return out
+
+
+def _root(parent: dict[int, int], m: int) -> int:
+    while parent[m] != m:
+        m = parent[m]
+    return m
 
 
 def isolated_loss(isolated: int, expected: int) -> Estimate:

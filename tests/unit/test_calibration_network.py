@@ -141,3 +141,18 @@ def test_two_sensors_at_one_rate_on_two_clocks_are_two_groups_of_shared_ticks():
     assert fit.loss_prob.value == pytest.approx(0.01, abs=0.005)
     lo, hi = fit.loss_prob.interval
     assert lo <= 0.01 <= hi
+
+
+def test_a_sweep_cut_short_by_a_reset_does_not_bend_the_rate():
+    """A lidar that restarts its sweep at each reset: runs of exact periods, joined by gaps of 1.2 periods (within
+    the quarter period that counts a gap as regular). The gaps the first slope cannot explain end their runs."""
+    period_ns = 89_795_195
+    stamps, t = [], 5 * NS
+    for cut in (0.197, 0.677, 1.204, 0.31):
+        stamps += [t + k * period_ns for k in range(200)]
+        t = stamps[-1] + round((1 + cut) * period_ns)
+    rate = rate_estimate([np.array(stamps, dtype=np.int64)])
+    truth = NS / period_ns
+    assert rate.value == pytest.approx(truth, rel=1e-7)
+    lo, hi = rate.interval
+    assert lo <= truth <= hi and hi - lo < truth * 1e-5
