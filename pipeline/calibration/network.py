@@ -47,6 +47,8 @@ MIN_LOSS_CLUSTERS = 5
 MAX_ISOLATED_SHARE = 4.0 / 27.0
 RUN_BREAK_MADS = 6.0
 """A gap off the fitted period by more than this many robust deviations ends its run of regular sending..."""
+GRID_MIN_COUNT = 3
+"""A gap deviation seen this often is a level of the stamps' grid."""
 RUN_BREAK_MIN_S = 2e-6
 """...or by more than this (stamps exact to the nanosecond have no spread)."""
 """The largest value of p (1 - p)^2 (at p = 1/3)."""
@@ -117,13 +119,25 @@ def _slope_over_runs(t: np.ndarray, regular: np.ndarray, steps: np.ndarray) -> t
     return slope, math.sqrt(float(resid @ resid) / dof / sxx), xs
 
 
+def _grid_s(deviation_s: np.ndarray) -> float:
+    """The step of the grid the stamps fall on (s; 0 if none): the smallest spacing of the gaps' deviations from
+    the period (in microseconds) among the values that recur (at least `GRID_MIN_COUNT` times; a gap cut short by
+    a reset is a value of its own, not a grid level)."""
+    levels, counts = np.unique(np.round(deviation_s * 1e6), return_counts=True)
+    common = levels[counts >= GRID_MIN_COUNT]
+    if len(common) < 2:
+        return 0.0
+    return float(np.diff(common).min()) * 1e-6
+
+
 def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] | None:
     """(period s, its standard error, gaps used) from stamps `ticks` (ns): each stamp's index in its run of
     regular sending (gaps near whole multiples of `period0`, losses allowed), then one slope of stamp on
     index over all runs (each with its own start). A sender whose stamps fall on a coarser grid (24 and
     26 ms apart for 40 Hz on a 2 ms grid) still gets its mean period, where a median gap would not. A gap
-    that the first slope cannot explain (off by more than `RUN_BREAK_MADS` robust deviations of the gaps;
-    e.g. a sweep cut short by a reset, 1.2 periods long) ends its run, and the slope is fitted again."""
+    that the first slope cannot explain (off by more than `RUN_BREAK_MADS` robust deviations of the gaps and
+    1.5 grid steps; e.g. a sweep cut short by a reset, 1.2 periods long) ends its run, and the slope is fitted
+    again."""
     t = (ticks - ticks[0]) / NS_PER_S
     gaps = np.diff(t)
     steps = np.round(gaps / period0)
@@ -131,18 +145,16 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
     slope, se, xs = _slope_over_runs(t, regular, steps)
     if not xs:
         return None
-    deviation = np.abs(gaps - steps * slope)
-    spread_s = 1.4826 * float(np.median(deviation[regular]))
-    regular &= deviation <= max(RUN_BREAK_MADS * spread_s, RUN_BREAK_MIN_S)
+    deviation = gaps - steps * slope
+    grid_s = _grid_s(deviation[regular])
+    spread_s = 1.4826 * float(np.median(np.abs(deviation[regular])))
+    regular &= np.abs(deviation) <= max(RUN_BREAK_MADS * spread_s, 1.5 * grid_s, RUN_BREAK_MIN_S)
     refit = _slope_over_runs(t, regular, steps)
     if refit[2]:
         slope, se, xs = refit
     # stamps on a grid (a sender that stamps at its physics steps) fix each run's ends only to a grid step, so
     # the period is no more certain than one grid step over a typical run, whatever the message count
-    levels = np.unique(np.round((gaps - steps * slope)[regular] * 1e6))
-    steps_between = np.diff(levels)
-    grid_s = float(steps_between[steps_between > 0].min()) * 1e-6 if len(steps_between) else 0.0
-    grid_s = max(grid_s, 1e-9)  # stamps are whole nanoseconds
+    grid_s = max(_grid_s((gaps - steps * slope)[regular]), 1e-9)  # stamps are whole nanoseconds
     spans = [float(np.ptp(i)) * slope for i in xs]
     if grid_s > 0 and spans and np.median(spans) > 0:
         se = max(se, grid_s / float(np.median(spans)) * slope)
