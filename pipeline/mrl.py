@@ -12,7 +12,9 @@ params.yaml:
   recorded commands open loop in the policy's simulator;
 - ``mrl twin ...``: the hardware twin (the options of ``python -m pipeline.twin``);
 - ``mrl deploy --policy DIR --fleet FLEET [--out DIR] [--live]``: a recorded deployment on a fleet;
-- ``mrl eval --policy DIR [--episodes N] [--out DIR] [--live]``: a recorded evaluation in the policy's simulator.
+- ``mrl eval --policy DIR [--episodes N] [--out DIR] [--live]``: a recorded evaluation in the policy's simulator;
+- ``mrl sweep --algorithms ... --modes ... --scenarios ... --seeds N [--axis KEY=V1,V2] [--address ADDR]``: the
+  training matrix as Ray tasks (:mod:`pipeline.bench`), resumable, with its statistics across seeds.
 
 ``--live`` serves the session to the Foxglove app while it runs (:mod:`pipeline.record.live`).
 
@@ -709,7 +711,79 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=10_000, metavar="N", help="(default: 10000)")
     evaluate.add_argument("--out", default="evaluation", metavar="DIR", help="the output folder (default: evaluation)")
     _live_options(evaluate)
+
+    sweep = _verb(
+        subparsers,
+        "sweep",
+        "the training matrix (algorithm x mode x scenario x seed x params keys) as Ray tasks, with statistics",
+        "Each trial trains, exports and evaluates (--episodes from the exact starts) and writes its row; finished\n"
+        "trials are skipped when the sweep is run again. Results: results.parquet/csv, results.md (IQM with\n"
+        "stratified bootstrap intervals, by rliable), learning_curves.png, performance_profiles.png in --out.",
+    )
+    sweep.add_argument("--algorithms", nargs="+", default=["sac", "dqn"], metavar="A", help="sac dqn ppo")
+    sweep.add_argument(
+        "--modes", nargs="+", default=["independent"], metavar="M", help="independent shared centralized"
+    )
+    sweep.add_argument("--scenarios", nargs="+", default=["empty", "obstacles"], metavar="S", help="bundled or YAML")
+    sweep.add_argument("--seeds", type=int, default=3, metavar="N", help="seeds per cell (default: 3)")
+    sweep.add_argument("--first-seed", type=int, default=0, metavar="N", help="(default: 0)")
+    sweep.add_argument(
+        "--axis",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2",
+        help="a params.yaml key as one more axis, e.g. train.total_steps=100000,200000 (repeatable)",
+    )
+    sweep.add_argument(
+        "--params", default="params.yaml", metavar="FILE", help="the base settings (default: params.yaml)"
+    )
+    sweep.add_argument("--episodes", type=int, default=200, metavar="N", help="evaluation episodes (default: 200)")
+    sweep.add_argument("--out", default="logs/sweep", metavar="DIR", help="the sweep folder (default: logs/sweep)")
+    sweep.add_argument("--address", default="", metavar="ADDR", help="a Ray cluster to use (default: a local one)")
+    sweep.add_argument(
+        "--workers", type=int, default=1, metavar="N", help="trials at once on the local Ray (default 1)"
+    )
+    sweep.add_argument("--cpus-per-trial", type=float, default=1.0, metavar="X", help="(default: 1)")
+    sweep.add_argument("--bootstrap", type=int, default=2000, metavar="N", help="bootstrap resamples (default: 2000)")
+    sweep.add_argument("--report-only", action="store_true", help="report the finished trials, run nothing")
+    sweep.add_argument("--readme", default="", metavar="FILE", help="put the table between FILE's sweep markers")
     return parser
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from pipeline.bench.report import splice_readme, write_report
+    from pipeline.bench.stats import cell_stats, markdown_table
+    from pipeline.bench.sweep import collect, run_sweep
+    from pipeline.bench.trials import base_mapping, expand, parse_axis
+    from pipeline.params import load_params
+
+    params = load_params(args.params)
+    axes = [parse_axis(text) for text in args.axis]
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    trials = expand(args.algorithms, args.modes, args.scenarios, seeds, axes)
+    base = base_mapping(params)
+    out = Path(args.out)
+    command = "mrl sweep " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["sweep"] else "mrl sweep"
+    if args.report_only:
+        rows = collect(out, trials, base)
+        print(f"sweep: report of {rows.height} finished trials of {len(trials)} in {out}")
+    else:
+        outcome = run_sweep(trials, base, out, args.episodes, args.address or None, args.workers, args.cpus_per_trial)
+        rows = outcome.rows
+    if rows.is_empty():
+        print("sweep: no finished trial yet: nothing to report")
+        return 0 if args.report_only else 1
+    stats = cell_stats(rows, reps=args.bootstrap)
+    print(markdown_table(stats), end="")
+    report = write_report(out, rows, stats, command)
+    print(f"sweep: {report}, {out / 'results.parquet'}, {out / 'results.csv'}")
+    if args.readme:
+        readme = Path(args.readme)
+        if splice_readme(readme, report.read_text(encoding="utf-8")):
+            print(f"sweep: the results table is in {readme}")
+        else:
+            print(f"sweep: {readme} has no sweep markers: left as it is")
+    return 0
 
 
 VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
@@ -720,6 +794,7 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "replay": _replay,
     "deploy": _deploy,
     "eval": _eval,
+    "sweep": _sweep,
 }
 
 

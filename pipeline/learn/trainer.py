@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -81,12 +82,15 @@ def train(
     out_dir: Path,
     progress: bool = True,
     extra_meta: dict[str, Any] | None = None,
+    report: Callable[[int, int, float], None] | None = None,
 ) -> TrainResult:
     """Train `cfg.algorithm` in `cfg.mode` on `scenario`; writes the checkpoint and the learning curve to `out_dir`.
 
     With `cfg.selection.keep == "best"` the checkpoint holds the weights that did best in the periodic
     deterministic evaluations (see :mod:`pipeline.learn.selection`), else the final ones.
     On KeyboardInterrupt the current weights are checkpointed and TrainingInterrupted is raised.
+    `report` is called with (episodes, world steps, windowed robot success) at every checkpoint (progress for
+    callers without a terminal, e.g. a sweep's trials).
     """
     th.set_num_threads(cfg.torch_threads)
     start = time.perf_counter()
@@ -172,6 +176,8 @@ def train(
                 if tracker.episodes % cfg.checkpoint_every_episodes == 0:
                     curve.flush()
                     checkpoint()
+                    if report is not None:
+                        report(tracker.episodes, steps, float(tracker.rates().mean()))
             evaluated = selector.due(steps)
             if evaluated:
                 selector.offer(steps, greedy, models)

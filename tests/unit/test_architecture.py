@@ -49,6 +49,8 @@ FORBIDDEN = {
     "twin": ("pipeline.sim", "pipeline.learn", "pipeline.rollout", "pipeline.policy", "pipeline.mdp"),
     "analysis": ("pipeline.ros", "cyclonedds", "rclpy"),
     "calibration": ("pipeline.ros", "pipeline.learn", "cyclonedds", "rclpy"),
+    # the benchmark trains and evaluates in the simulator: no network, no twin
+    "bench": ("pipeline.ros", "pipeline.twin", "pipeline.rollout.deployment", "cyclonedds", "rclpy"),
 }
 
 
@@ -60,7 +62,19 @@ def test_roles_do_not_import_what_they_must_not(folder):
 
 
 def test_only_ros_talks_to_the_network():
-    for folder in ("core", "sim", "learn", "policy", "record", "analysis", "calibration", "messages", "twin", ""):
+    for folder in (
+        "core",
+        "sim",
+        "learn",
+        "bench",
+        "policy",
+        "record",
+        "analysis",
+        "calibration",
+        "messages",
+        "twin",
+        "",
+    ):
         for module, names in imports_of(folder).items():
             assert not any(n.startswith(("cyclonedds", "rclpy")) for n in names), f"pipeline/{module} imports DDS"
 
@@ -80,12 +94,14 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("sim", "policy", "record", "ros"),
     ("twin", "rollout", "analysis", "calibration"),
     ("learn",),
+    ("bench",),
     ("cli",),
     ("mrl",),
 )
 """Who may import whom, bottom up: a part imports only parts of lower layers (and itself). Rollouts sit
 above the simulator, the policy runtime, the recorder and the transport; training runs its selection
-episodes through rollouts and exports policies, so it sits above them; the command line is on top."""
+episodes through rollouts and exports policies, so it sits above them; the benchmark runs training; the
+command line is on top."""
 
 
 def _layer(part: str) -> int:

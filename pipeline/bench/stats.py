@@ -1,0 +1,169 @@
+"""Statistics of a sweep across seeds, with ``rliable``: interquartile means, stratified bootstrap intervals,
+performance profiles.
+
+Per cell (algorithm, mode, scenario and any swept keys), the scores are a runs x tasks matrix as rliable
+takes them: robot-level success is seeds x robots (each robot's success over the evaluation episodes of
+one seed), team-level success seeds x 1. The interquartile mean (IQM) is rliable's ``aggregate_iqm`` and
+its 95 % interval rliable's stratified bootstrap over the seeds (``get_interval_estimates``,
+percentile method). With 3 seeds the IQM is the mean of all 3 and the interval reflects only what 3
+seeds can show; the table says how many seeds each cell has. Convergence is the paper's criterion
+(every robot over 80 % success in 20 consecutive training episodes); the episodes and wall-clock to
+it are medians over the seeds that reached it, with the count of those seeds.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import polars as pl
+
+TARGET_SUCCESS = 0.95
+"""The benchmark's bar: robot-level sim success IQM..."""
+TARGET_EPISODES = 300
+"""...and convergence within this many training episodes."""
+
+
+@dataclass(frozen=True)
+class CellStats:
+    cell: str
+    algorithm: str
+    mode: str
+    scenario: str
+    seeds: int
+    robot_iqm: float
+    robot_ci: tuple[float, float]
+    team_iqm: float
+    team_ci: tuple[float, float]
+    per_robot_iqm: dict[str, float]
+    converged_seeds: int
+    episodes_to_convergence: float | None
+    wall_to_convergence_s: float | None
+    train_wall_s: float
+    env_steps_per_s: float
+
+    @property
+    def meets_target(self) -> bool:
+        return (
+            self.robot_iqm >= TARGET_SUCCESS
+            and self.converged_seeds == self.seeds
+            and self.episodes_to_convergence is not None
+            and self.episodes_to_convergence <= TARGET_EPISODES
+        )
+
+
+def _robots(rows: pl.DataFrame) -> list[str]:
+    return sorted((c.removeprefix("success_") for c in rows.columns if c.startswith("success_")), key=_natural)
+
+
+def _natural(name: str) -> tuple[str, int]:
+    head, _, tail = name.rpartition("_")
+    return (head, int(tail)) if tail.isdigit() else (name, 0)
+
+
+def score_matrices(rows: pl.DataFrame) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per cell: (seeds x robots robot-level success, seeds x 1 team success), rows in seed order."""
+    robots = _robots(rows)
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for (cell,), part in rows.sort("seed").group_by(["cell"], maintain_order=True):
+        present = [r for r in robots if part[f"success_{r}"].null_count() < part.height]
+        robot = part.select([f"success_{r}" for r in present]).to_numpy().astype(np.float64)
+        team = part["team_success"].to_numpy().astype(np.float64)[:, None]
+        out[str(cell)] = (robot, team)
+    return out
+
+
+def cell_stats(rows: pl.DataFrame, reps: int = 2000, seed: int = 0) -> list[CellStats]:
+    """Every cell's IQMs with 95 % stratified bootstrap intervals, per-robot IQMs and convergence figures."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    matrices = score_matrices(rows)
+
+    def iqm(x: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(x)])
+
+    state = np.random.RandomState(seed)
+    with warnings.catch_warnings():  # arch deprecates the random_state that rliable hands it
+        warnings.simplefilter("ignore", FutureWarning)
+        robot_point, robot_ci = rly.get_interval_estimates(
+            {c: m[0] for c, m in matrices.items()}, iqm, reps=reps, random_state=state
+        )
+        team_point, team_ci = rly.get_interval_estimates(
+            {c: m[1] for c, m in matrices.items()}, iqm, reps=reps, random_state=state
+        )
+    robots = _robots(rows)
+    out = []
+    for cell, (robot, _team) in matrices.items():
+        part = rows.filter(pl.col("cell") == cell)
+        first = part.row(0, named=True)
+        converged = part.filter(pl.col("converged_at_episode").is_not_null())
+        present = [r for r in robots if part[f"success_{r}"].null_count() < part.height]
+        out.append(
+            CellStats(
+                cell=cell,
+                algorithm=str(first["algorithm"]),
+                mode=str(first["mode"]),
+                scenario=str(first["scenario"]),
+                seeds=part.height,
+                robot_iqm=float(robot_point[cell][0]),
+                robot_ci=(float(robot_ci[cell][0, 0]), float(robot_ci[cell][1, 0])),
+                team_iqm=float(team_point[cell][0]),
+                team_ci=(float(team_ci[cell][0, 0]), float(team_ci[cell][1, 0])),
+                per_robot_iqm={r: float(metrics.aggregate_iqm(robot[:, [k]])) for k, r in enumerate(present)},
+                converged_seeds=converged.height,
+                episodes_to_convergence=_median(converged["converged_at_episode"]) if converged.height else None,
+                wall_to_convergence_s=_median(converged["wall_to_convergence_s"]) if converged.height else None,
+                train_wall_s=_median(part["train_wall_s"]) or 0.0,
+                env_steps_per_s=_median(part["env_steps_per_s"]) or 0.0,
+            )
+        )
+    return out
+
+
+def _median(series: pl.Series) -> float | None:
+    value = series.drop_nulls().median()
+    return None if value is None else float(value)  # type: ignore[arg-type]
+
+
+def performance_profiles(
+    rows: pl.DataFrame, taus: Sequence[float] | None = None, reps: int = 2000
+) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """rliable's score distributions of robot-level success per cell: the share of (seed, robot) scores above each
+    threshold tau, with 95 % bootstrap bands. Returns (taus, profiles, bands (2 x taus))."""
+    from rliable import library as rly
+
+    grid = np.linspace(0.0, 1.0, 51) if taus is None else np.asarray(taus, dtype=np.float64)
+    matrices = {c: m[0] for c, m in score_matrices(rows).items()}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        profiles, bands = rly.create_performance_profile(matrices, grid, reps=reps)
+    return grid, dict(profiles), dict(bands)
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}"
+
+
+def markdown_table(stats: Sequence[CellStats]) -> str:
+    """The results table: one line per cell (generated, not typed)."""
+    lines = [
+        "| algorithm | mode | scenario | seeds | robot success IQM [95 % CI] | team success IQM [95 % CI] | "
+        "per robot (IQM) | converged seeds | episodes to convergence | wall-clock to convergence | "
+        "env steps/s | target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in stats:
+        robots = ", ".join(_pct(v) for v in s.per_robot_iqm.values())
+        episodes = "-" if s.episodes_to_convergence is None else f"{s.episodes_to_convergence:.0f}"
+        wall = "-" if s.wall_to_convergence_s is None else f"{s.wall_to_convergence_s:.0f} s"
+        target = "met" if s.meets_target else "missed"
+        lines.append(
+            f"| {s.algorithm} | {s.mode} | {s.scenario} | {s.seeds} | {_pct(s.robot_iqm)} "
+            f"[{_pct(s.robot_ci[0])}, {_pct(s.robot_ci[1])}] | {_pct(s.team_iqm)} "
+            f"[{_pct(s.team_ci[0])}, {_pct(s.team_ci[1])}] | {robots} | {s.converged_seeds}/{s.seeds} | "
+            f"{episodes} | {wall} | {s.env_steps_per_s:.0f} | {target} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,137 @@
+"""A training sweep on Ray: every trial of the matrix is a Ray task; finished trials are never run again.
+
+The driver starts a local Ray instance (``workers`` x ``cpus_per_trial`` CPUs) or joins a cluster at
+``address`` (its nodes need this package installed), submits one task per unfinished trial with
+``num_cpus=cpus_per_trial`` and collects them as they finish, printing each trial's progress lines
+(forwarded by Ray from the workers) and the sweep's (trials done, elapsed, estimated time left). A
+trial that fails is reported and left without a row; the sweep goes on. The rows of every finished
+trial, this run's and earlier runs', make the sweep's table: ``results.parquet`` and ``results.csv``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+from pipeline.bench.trials import Trial, read_row, run_trial
+from pipeline.errors import MrlError
+
+RESULTS = "results"
+"""The table's file stem in the sweep folder (``results.parquet``, ``results.csv``)."""
+
+
+class SweepError(MrlError):
+    """The sweep cannot start (Ray cannot be reached or started)."""
+
+
+@dataclass(frozen=True)
+class SweepOutcome:
+    rows: pl.DataFrame
+    ran: int
+    skipped: int
+    failed: dict[str, str]
+    wall_s: float
+
+
+def trial_folder(out: Path, trial: Trial) -> Path:
+    return out / "trials" / trial.name
+
+
+def _task(trial: Trial, base: Mapping[str, Any], folder: str, eval_episodes: int) -> dict[str, Any]:
+    return run_trial(trial, base, Path(folder), eval_episodes, say=lambda line: print(line, flush=True))
+
+
+def run_sweep(
+    trials: Sequence[Trial],
+    base: Mapping[str, Any],
+    out: Path,
+    eval_episodes: int = 200,
+    address: str | None = None,
+    workers: int = 1,
+    cpus_per_trial: float = 1.0,
+    say: Callable[[str], None] = print,
+) -> SweepOutcome:
+    """Run the unfinished `trials` as Ray tasks; the table of all finished ones (see the module's description)."""
+    for trial in trials:  # every trial's settings are valid before anything starts
+        trial.params(base)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    pending = [t for t in trials if read_row(trial_folder(out, t), t.digest(base)) is None]
+    skipped = len(trials) - len(pending)
+    say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), {len(pending)} to run")
+    failed: dict[str, str] = {}
+    if pending:
+        failed = _run_on_ray(pending, base, out, eval_episodes, address, workers, cpus_per_trial, say, start)
+    rows = collect(out, trials, base)
+    write_table(out, rows)
+    wall = time.perf_counter() - start
+    say(f"sweep: {rows.height} of {len(trials)} trials have rows, {len(failed)} failed, {wall:.0f} s")
+    return SweepOutcome(rows, len(pending) - len(failed), skipped, failed, wall)
+
+
+def _run_on_ray(
+    pending: Sequence[Trial],
+    base: Mapping[str, Any],
+    out: Path,
+    eval_episodes: int,
+    address: str | None,
+    workers: int,
+    cpus_per_trial: float,
+    say: Callable[[str], None],
+    start: float,
+) -> dict[str, str]:
+    import ray
+
+    try:
+        if address:
+            ray.init(address=address, log_to_driver=True)
+        else:
+            ray.init(
+                num_cpus=max(1, round(workers * cpus_per_trial)),
+                include_dashboard=False,
+                log_to_driver=True,
+                configure_logging=False,
+            )
+    except Exception as exc:  # Ray's own connection and start-up errors
+        raise SweepError(
+            f"sweep: cannot {'reach Ray at ' + address if address else 'start a local Ray'}: {exc}"
+        ) from exc
+    failed: dict[str, str] = {}
+    try:
+        task = ray.remote(num_cpus=cpus_per_trial, max_retries=0)(_task)
+        refs = {task.remote(t, dict(base), str(trial_folder(out, t)), eval_episodes): t for t in pending}
+        done = 0
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1)
+            trial = refs.pop(ready[0])
+            done += 1
+            try:
+                row = ray.get(ready[0])
+                what = f"robot success {row['robot_success']:.3f}"
+            except Exception as exc:  # a failed trial is reported, the sweep goes on
+                failed[trial.name] = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+                what = f"FAILED: {failed[trial.name]}"
+            elapsed = time.perf_counter() - start
+            left = elapsed / done * (len(pending) - done)
+            say(f"sweep: [{done}/{len(pending)}] {trial.name}: {what} ({elapsed:.0f} s elapsed, ~{left:.0f} s left)")
+    finally:
+        ray.shutdown()
+    return failed
+
+
+def collect(out: Path, trials: Sequence[Trial], base: Mapping[str, Any]) -> pl.DataFrame:
+    """The rows of the `trials` finished with the settings of `base`, in the trials' order."""
+    rows = [row for t in trials if (row := read_row(trial_folder(out, t), t.digest(base))) is not None]
+    return pl.DataFrame(rows) if rows else pl.DataFrame()
+
+
+def write_table(out: Path, rows: pl.DataFrame) -> None:
+    if rows.is_empty():
+        return
+    rows.write_parquet(out / f"{RESULTS}.parquet")
+    rows.write_csv(out / f"{RESULTS}.csv")

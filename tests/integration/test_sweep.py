@@ -1,0 +1,91 @@
+"""A tiny sweep on a local Ray instance: real training, export and evaluation per trial; resumed without redoing
+finished trials; its table, statistics and report through the installed command."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import polars as pl
+import pytest
+import yaml
+
+from pipeline.bench.sweep import run_sweep, trial_folder
+from pipeline.bench.trials import ROW_FILE, base_mapping, expand
+from pipeline.mappings import merge
+from pipeline.params import load_params
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).resolve().parents[2]
+MRL = Path(sys.executable).parent / "mrl"
+TINY = {
+    "world": {"max_steps": 80},
+    "train": {
+        "total_steps": 600,
+        "n_envs": 2,
+        "net_arch": [16, 16],
+        "batch_size": 32,
+        "buffer_size": 2000,
+        "learning_starts": 100,
+        "checkpoint_every_episodes": 4,
+        "selection": {"keep": "last"},
+    },
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_params(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("sweep_params") / "params.yaml"
+    data = merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    load_params(path)  # valid
+    return path
+
+
+def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
+    base = base_mapping(load_params(tiny_params))
+    out = tmp_path / "sweep"
+    lines: list[str] = []
+    first = run_sweep(expand(["sac"], ["independent"], ["empty"], [0]), base, out, eval_episodes=2, say=lines.append)
+    assert first.ran == 1 and first.skipped == 0 and not first.failed, (first.failed, lines)
+    row0 = trial_folder(out, expand(["sac"], ["independent"], ["empty"], [0])[0]) / ROW_FILE
+    before = row0.read_bytes()
+
+    # the sweep grows by a seed: the finished trial is skipped, the new one runs (two workers on the local Ray)
+    trials = expand(["sac"], ["independent"], ["empty"], [0, 1])
+    second = run_sweep(trials, base, out, eval_episodes=2, workers=2, say=lines.append)
+    assert second.skipped == 1 and second.ran == 1 and not second.failed
+    assert "sweep: 2 trials, 1 finished before (skipped), 1 to run" in lines
+    assert any(line.startswith("sweep: [1/1] sac-independent-empty-seed1: robot success") for line in lines)
+    assert row0.read_bytes() == before
+
+    rows = second.rows
+    assert rows.height == 2 and rows["seed"].to_list() == [0, 1]
+    assert set(rows["cell"]) == {"sac/independent/empty"}
+    for row in rows.iter_rows(named=True):
+        assert row["train_steps"] >= 600 and row["eval_episodes"] == 2 and row["env_steps_per_s"] > 0
+        assert 0.0 <= row["robot_success"] <= 1.0
+        per_robot = [row[f"success_robot_{k}"] for k in (1, 2, 3)]
+        assert row["robot_success"] == pytest.approx(sum(per_robot) / 3)
+    for trial in trials:
+        folder = trial_folder(out, trial)
+        assert (folder / "policy" / "policy.json").is_file() and (folder / "run" / "curve.csv").is_file()
+    assert pl.read_parquet(out / "results.parquet").equals(rows)
+    assert pl.read_csv(out / "results.csv").height == 2
+
+    # the report from the finished trials, through the installed command
+    proc = subprocess.run(
+        [
+            str(MRL), "sweep", "--algorithms", "sac", "--modes", "independent", "--scenarios", "empty",
+            "--seeds", "2", "--params", str(tiny_params), "--out", str(out), "--report-only", "--bootstrap", "200",
+        ],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "sweep: report of 2 finished trials of 2" in proc.stdout
+    assert "| sac | independent | empty | 2 |" in proc.stdout
+    report = (out / "results.md").read_text()
+    assert "| sac | independent | empty | 2 |" in report and "![learning curves](learning_curves.png)" in report
+    assert (out / "learning_curves.png").stat().st_size > 0 and (out / "performance_profiles.png").stat().st_size > 0
