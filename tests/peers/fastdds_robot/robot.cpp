@@ -363,13 +363,17 @@ int main(int argc, char** argv) {
             scan.ranges(ranges);
             stamp(scan.header(), now, o.ns + "/laser");
             scan_writer->write(&scan);
-            if (log) {
+            if (log) {  // the listener logs commands from its own thread: one line at a time
+                std::lock_guard<std::mutex> guard(listener.lock);
                 std::fprintf(log, "scan %d %u", scan.header().stamp().sec(), scan.header().stamp().nanosec());
                 for (float r : ranges) std::fprintf(log, " %a", static_cast<double>(r));
                 std::fprintf(log, "\n");
             }
         }
-        if (log) std::fflush(log);
+        if (log) {
+            std::lock_guard<std::mutex> guard(listener.lock);
+            std::fflush(log);
+        }
         ++step;
         std::this_thread::sleep_until(t0 + std::chrono::nanoseconds(static_cast<int64_t>(step * dt * 1e9)));
     }
