@@ -150,8 +150,8 @@ def _pct(x: float) -> str:
 def markdown_table(stats: Sequence[CellStats]) -> str:
     """The results table: one line per cell (generated, not typed)."""
     lines = [
-        "| algorithm | mode | scenario | seeds | robot success IQM [95 % CI] | team success IQM [95 % CI] | "
-        "per robot (IQM) | converged seeds | episodes to convergence | wall-clock to convergence | "
+        "| algorithm | mode | scenario | seeds | robot success IQM, % [95 % CI] | team success IQM, % [95 % CI] | "
+        "per robot (IQM, %) | converged seeds | episodes to convergence | wall-clock to convergence | "
         "env steps/s | target |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
