@@ -474,14 +474,17 @@ def _network_streams(tag: str, data: SessionData) -> list[StampStream]:
     return out
 
 
-def _localized(data: SessionData, settings: CalibrationSettings) -> tuple[SessionData, PoseSource]:
-    """`data` with each robot's poses localized from its scans and odometry in the map."""
+def _localized(
+    data: SessionData, settings: CalibrationSettings, floor: OccupancyMap | None = None
+) -> tuple[SessionData, PoseSource]:
+    """`data` with each robot's poses localized from its scans and odometry in the map (`floor` when already read)."""
     where = str(data.path)
-    grid = (
-        OccupancyMap.from_map_server(settings.map_file)
-        if settings.map_file
-        else OccupancyMap.from_scenario(data.scenario)
-    )
+    if floor is not None:
+        grid = floor
+    elif settings.map_file:
+        grid = OccupancyMap.from_map_server(settings.map_file)
+    else:
+        grid = OccupancyMap.from_scenario(data.scenario)
     initial = np.asarray(settings.initial_pose, dtype=np.float64) if settings.initial_pose else None
     if initial is not None and len(data.robots) != 1:
         raise CalibrationError(where, f"an initial pose is for one robot; the recording has {len(data.robots)}")
@@ -533,7 +536,7 @@ def calibrate(
             raise ScenarioMismatchError(str(path), data.scenario.name, scenario.name)
         scenario = data.scenario
         if data.pose_source == "scans":
-            data, source = _localized(data, settings)
+            data, source = _localized(data, settings, floor)
         else:
             source = PoseSource("ground_truth")
         sessions.append(data)
