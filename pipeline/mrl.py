@@ -13,8 +13,8 @@ params.yaml:
 - ``mrl twin ...``: the hardware twin (the options of ``python -m pipeline.twin``);
 - ``mrl deploy --policy DIR --fleet FLEET [--out DIR] [--live]``: a recorded deployment on a fleet;
 - ``mrl eval --policy DIR [--episodes N] [--out DIR] [--live]``: a recorded evaluation in the policy's simulator;
-- ``mrl sweep --algorithms ... --modes ... --scenarios ... --seeds N [--axis KEY=V1,V2] [--address ADDR]``: the
-  training matrix as Ray tasks (:mod:`pipeline.bench`), resumable, with its statistics across seeds.
+- ``mrl sweep --algorithms ... --seeds N [--axis KEY=V1,V2] [--set KEY=V] [--address ADDR]``: the training
+  matrix as Ray tasks (:mod:`pipeline.bench`), resumable, with its statistics across seeds.
 
 ``--live`` serves the session to the Foxglove app while it runs (:mod:`pipeline.record.live`).
 
@@ -735,6 +735,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="a params.yaml key as one more axis, e.g. train.total_steps=100000,200000 (repeatable)",
     )
     sweep.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a params.yaml key set for every trial, e.g. train.total_steps=300000 (repeatable)",
+    )
+    sweep.add_argument(
         "--params", default="params.yaml", metavar="FILE", help="the base settings (default: params.yaml)"
     )
     sweep.add_argument("--episodes", type=int, default=200, metavar="N", help="evaluation episodes (default: 200)")
@@ -754,14 +761,14 @@ def _sweep(args: argparse.Namespace) -> int:
     from pipeline.bench.report import splice_readme, write_report
     from pipeline.bench.stats import cell_stats, markdown_table
     from pipeline.bench.sweep import collect, run_sweep
-    from pipeline.bench.trials import base_mapping, expand, parse_axis
+    from pipeline.bench.trials import base_mapping, expand, parse_axis, parse_setting, with_settings
     from pipeline.params import load_params
 
     params = load_params(args.params)
     axes = [parse_axis(text) for text in args.axis]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     trials = expand(args.algorithms, args.modes, args.scenarios, seeds, axes)
-    base = base_mapping(params)
+    base = with_settings(base_mapping(params), [parse_setting(text) for text in args.set])
     out = Path(args.out)
     command = "mrl sweep " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["sweep"] else "mrl sweep"
     if args.report_only:

@@ -288,10 +288,14 @@ class SelectionConfig:
     every_steps: int = setting(0, ge=0, le=100_000_000)
     episodes: int = setting(20, ge=1, le=10_000)
     seed: int = setting(5_000, ge=0)
+    stop_at_success: float | None = setting(None, gt=0.0, le=1.0, optional=True)
+    """Stop training once an evaluation reaches this robot success (None: train the whole budget)."""
 
     def check(self) -> list[tuple[str, object, str]]:
         if self.keep == "best" and self.every_steps == 0:
             return [("every_steps", 0, "> 0 with keep 'best' (the best needs evaluations)")]
+        if self.stop_at_success is not None and self.every_steps == 0:
+            return [("every_steps", 0, "> 0 with stop_at_success (stopping needs evaluations)")]
         return []
 
 

@@ -10,6 +10,7 @@ trial, this run's and earlier runs', make the sweep's table: ``results.parquet``
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -85,6 +86,8 @@ def _run_on_ray(
     say: Callable[[str], None],
     start: float,
 ) -> dict[str, str]:
+    # each trial's progress lines differ only in numbers, which Ray's log deduplication would fold into one
+    os.environ.setdefault("RAY_DEDUP_LOGS", "0")
     import ray
 
     try:

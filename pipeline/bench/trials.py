@@ -100,6 +100,26 @@ def parse_axis(text: str) -> tuple[str, list[Any]]:
     return key, [yaml.safe_load(v) for v in values.split(",")]
 
 
+def parse_setting(text: str) -> tuple[str, Any]:
+    """``train.total_steps=300000`` -> ("train.total_steps", 300000) (the value read as YAML)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key or not value or "." not in key:
+        raise ConfigError(
+            "--set", [ConfigProblem(text, "", "KEY=VALUE with a dotted params.yaml key (train.total_steps=300000)")]
+        )
+    return key, yaml.safe_load(value)
+
+
+def with_settings(base: Mapping[str, Any], settings: Sequence[tuple[str, Any]]) -> dict[str, Any]:
+    """`base` with every trial's `settings` set; checked against params.yaml's rules before anything runs."""
+    out = dict(base)
+    for key, value in settings:
+        out = merge(out, _nested(key, value))
+    if settings:
+        from_mapping(Params, out, "params.yaml with --set " + " ".join(f"{k}={v}" for k, v in settings))
+    return out
+
+
 def expand(
     algorithms: Sequence[str],
     modes: Sequence[str],

@@ -179,8 +179,11 @@ def train(
                     if report is not None:
                         report(tracker.episodes, steps, float(tracker.rates().mean()))
             evaluated = selector.due(steps)
+            good_enough = False
             if evaluated:
-                selector.offer(steps, greedy, models)
+                ev = selector.offer(steps, greedy, models)
+                stop_at = cfg.selection.stop_at_success
+                good_enough = stop_at is not None and ev.robot_success >= stop_at - 1e-12
             if result.finished or evaluated:
                 postfix = {"episodes": tracker.episodes, "success": f"{tracker.rates().mean():.2f}"}
                 if selector.best is not None:
@@ -188,7 +191,7 @@ def train(
                 bar.set_postfix(postfix, refresh=False)
             bar.update(worlds.n_worlds)
             obs = result.obs
-            if cfg.convergence.stop and tracker.converged_at is not None:
+            if (cfg.convergence.stop and tracker.converged_at is not None) or good_enough:
                 break
         if selector.enabled and (not selector.evaluations or selector.evaluations[-1].world_steps != steps):
             selector.offer(steps, greedy, models)  # the final weights compete too

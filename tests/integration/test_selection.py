@@ -95,3 +95,40 @@ def test_keep_best_needs_evaluations(params_data, write_params):
     params_data["train"]["selection"] = {"keep": "best", "every_steps": 0, "episodes": 5, "seed": 1}
     with pytest.raises(ConfigError, match=r"train\.selection\.every_steps = 0.*keep 'best'"):
         load_params(write_params(params_data))
+
+
+def test_training_stops_at_the_first_evaluation_that_reaches_stop_at_success(tmp_path):
+    # robots that start on their goals succeed at once: the first evaluation scores 1.0 and training stops there
+    room = tmp_path / "at_goal.yaml"
+    room.write_text(
+        "name: at_goal\n"
+        "room: {x_min_m: 0.0, x_max_m: 6.0, y_min_m: 0.0, y_max_m: 4.0, wall_thickness_m: 0.1, wall_height_m: 0.5}\n"
+        "robot: {radius_m: 0.165, height_m: 0.2, mass_kg: 5.0, wheel_separation_m: 0.281, wheel_diameter_m: 0.068}\n"
+        "goal_size_m: 0.4\n"
+        "robots:\n"
+        "  - {start: {x_m: 1.0, y_m: 1.0, yaw_rad: 0.0}, goal: {x_m: 1.0, y_m: 1.0}}\n"
+        "  - {start: {x_m: 4.0, y_m: 2.0, yaw_rad: 0.0}, goal: {x_m: 4.0, y_m: 2.0}}\n"
+        "obstacles: []\n",
+        encoding="utf-8",
+    )
+    scenario, world = make_world(world=world_config({**WORLD, "scenario": str(room), "max_steps": 30}))
+    stopped = train(
+        scenario, world, tiny_cfg(keep="best", every_steps=60, episodes=2, stop_at_success=1.0), tmp_path / "stop"
+    )
+    assert stopped.world_steps == 60 and stopped.selected_robot_success == 1.0
+    assert [r["world_steps"] for r in rows(tmp_path / "stop" / SELECTION_FILE)] == ["60"]
+    assert load_checkpoint(stopped.checkpoint).meta["world_steps"] == 60
+
+    # in the reference room an untrained policy never reaches its goals: the whole budget is trained
+    scenario, world = make_world(world=world_config({**WORLD, "max_steps": 30}))
+    whole = train(
+        scenario, world, tiny_cfg(keep="best", every_steps=60, episodes=2, stop_at_success=1.0), tmp_path / "whole"
+    )
+    assert whole.world_steps == 240 and len(rows(tmp_path / "whole" / SELECTION_FILE)) == 4
+
+
+def test_stop_at_success_needs_evaluations(params_data, write_params):
+    selection = {"keep": "last", "every_steps": 0, "episodes": 5, "seed": 1, "stop_at_success": 0.9}
+    params_data["train"]["selection"] = selection
+    with pytest.raises(ConfigError, match=r"train\.selection\.every_steps = 0.*stop_at_success"):
+        load_params(write_params(params_data))

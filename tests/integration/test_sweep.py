@@ -3,6 +3,7 @@ finished trials; its table, statistics and report through the installed command.
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -53,16 +54,31 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
     row0 = trial_folder(out, expand(["sac"], ["independent"], ["empty"], [0])[0]) / ROW_FILE
     before = row0.read_bytes()
 
-    # the sweep grows by a seed: the finished trial is skipped, the new one runs (two workers on the local Ray)
-    trials = expand(["sac"], ["independent"], ["empty"], [0, 1])
-    second = run_sweep(trials, base, out, eval_episodes=2, workers=2, say=lines.append)
-    assert second.skipped == 1 and second.ran == 1 and not second.failed
-    assert "sweep: 2 trials, 1 finished before (skipped), 1 to run" in lines
-    assert any(line.startswith("sweep: [1/1] sac-independent-empty-seed1: robot success") for line in lines)
+    # the sweep grows by two seeds, through the installed command: the finished trial is skipped, the new ones
+    # run at once on two workers of the local Ray, each showing its own progress; --set of an unchanged value
+    # leaves the finished trial's settings (and so its row) as they were
+    proc = subprocess.run(
+        [
+            str(MRL), "sweep", "--algorithms", "sac", "--modes", "independent", "--scenarios", "empty",
+            "--seeds", "3", "--params", str(tiny_params), "--out", str(out), "--workers", "2", "--episodes", "2",
+            "--set", "train.total_steps=600", "--bootstrap", "200",
+        ],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "sweep: 3 trials, 1 finished before (skipped), 2 to run" in proc.stdout
+    for seed in (1, 2):
+        name = f"sac-independent-empty-seed{seed}"
+        assert f"trial {name}: training 600 steps" in proc.stdout
+        assert re.search(rf"trial {name}: \d+ episodes, \d+ steps, success", proc.stdout), proc.stdout
+        assert re.search(rf"sweep: \[\d/2\] {name}: robot success", proc.stdout), proc.stdout
     assert row0.read_bytes() == before
 
+    trials = expand(["sac"], ["independent"], ["empty"], [0, 1, 2])
+    second = run_sweep(trials, base, out, eval_episodes=2, say=lines.append)
+    assert second.skipped == 3 and second.ran == 0 and not second.failed
     rows = second.rows
-    assert rows.height == 2 and rows["seed"].to_list() == [0, 1]
+    assert rows.height == 3 and rows["seed"].to_list() == [0, 1, 2]
     assert set(rows["cell"]) == {"sac/independent/empty"}
     for row in rows.iter_rows(named=True):
         assert row["train_steps"] >= 600 and row["eval_episodes"] == 2 and row["env_steps_per_s"] > 0
@@ -73,19 +89,33 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
         folder = trial_folder(out, trial)
         assert (folder / "policy" / "policy.json").is_file() and (folder / "run" / "curve.csv").is_file()
     assert pl.read_parquet(out / "results.parquet").equals(rows)
-    assert pl.read_csv(out / "results.csv").height == 2
+    assert pl.read_csv(out / "results.csv").height == 3
 
     # the report from the finished trials, through the installed command
     proc = subprocess.run(
         [
             str(MRL), "sweep", "--algorithms", "sac", "--modes", "independent", "--scenarios", "empty",
-            "--seeds", "2", "--params", str(tiny_params), "--out", str(out), "--report-only", "--bootstrap", "200",
+            "--seeds", "3", "--params", str(tiny_params), "--out", str(out), "--report-only", "--bootstrap", "200",
         ],
         capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert "sweep: report of 2 finished trials of 2" in proc.stdout
-    assert "| sac | independent | empty | 2 |" in proc.stdout
+    assert "sweep: report of 3 finished trials of 3" in proc.stdout
+    assert "| sac | independent | empty | 3 |" in proc.stdout
     report = (out / "results.md").read_text()
-    assert "| sac | independent | empty | 2 |" in report and "![learning curves](learning_curves.png)" in report
+    assert "| sac | independent | empty | 3 |" in report and "![learning curves](learning_curves.png)" in report
     assert (out / "learning_curves.png").stat().st_size > 0 and (out / "performance_profiles.png").stat().st_size > 0
+
+
+def test_a_setting_for_every_trial_is_checked_before_anything_runs(tiny_params, tmp_path):
+    proc = subprocess.run(
+        [
+            str(MRL), "sweep", "--algorithms", "sac", "--scenarios", "empty", "--seeds", "1",
+            "--params", str(tiny_params), "--out", str(tmp_path / "sweep"),
+            "--set", "train.selection.stop_at_success=2",
+        ],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "train.selection.stop_at_success = 2" in proc.stderr and "<= 1.0" in proc.stderr
+    assert not (tmp_path / "sweep").exists()

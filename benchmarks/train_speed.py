@@ -1,0 +1,101 @@
+"""Training speed per algorithm and mode, against the rate of the simulated worlds alone.
+
+For each algorithm and mode, training runs `--steps` world steps (params.yaml's settings, with updates
+from `--learning-starts` transitions on, no periodic evaluations, one torch thread) in the obstacle room;
+its rate (world steps per second, summed over the `train.n_envs` parallel worlds, as training counts
+them) is set against the env-only limit measured in the same run: the same parallel worlds stepped with
+random actions and nothing else. Where the ratio is far below 1 the learner (action inference and
+gradient steps) is the bottleneck, not the simulator. Printed per row: steps/s, seconds per 100k steps,
+ratio to the limit, and the share of the time spent outside the worlds. Last line:
+``env_only=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.bench.trials import action_kind
+from pipeline.learn.trainer import train
+from pipeline.learn.worlds import VecWorlds
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import TrainConfig, load_params, world_config
+from pipeline.sim import make_world
+
+
+def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: int) -> float:
+    """World steps per second of `n_envs` worlds stepped together with random actions."""
+    params = load_params()
+    world_map = merge(to_mapping(params.world), {"scenario": scenario_name, "actions": {"kind": kind}})
+    scenario, world = make_world(world=world_config(world_map))
+    worlds = VecWorlds(scenario, world, n_envs, seed)
+    rng = np.random.default_rng(seed)
+    worlds.reset()
+    n = scenario.n_robots
+    rounds = max(1, steps // n_envs)
+    if kind == "discrete":
+        actions = rng.integers(0, worlds.codec.n_discrete, size=(rounds, n_envs, n))
+    else:
+        actions = rng.uniform(-1.0, 1.0, size=(rounds, n_envs, n, 2)).astype(np.float32)
+    t0 = time.perf_counter()
+    for k in range(rounds):
+        worlds.step(actions[k])
+    return rounds * n_envs / (time.perf_counter() - t0)
+
+
+def train_rate(algorithm: str, mode: str, scenario_name: str, steps: int, learning_starts: int, out: Path) -> float:
+    params = load_params()
+    kind = action_kind(algorithm)
+    world_map = merge(to_mapping(params.world), {"scenario": scenario_name, "actions": {"kind": kind}})
+    scenario, world = make_world(world=world_config(world_map))
+    changes = {
+        "algorithm": algorithm,
+        "mode": mode,
+        "total_steps": steps,
+        "learning_starts": learning_starts,
+        "torch_threads": 1,
+        "checkpoint_every_episodes": 1_000_000,
+        "selection": {"keep": "last", "every_steps": 0, "stop_at_success": None},
+        "convergence": {"stop": False},
+    }
+    cfg = from_mapping(TrainConfig, merge(to_mapping(params.train), changes), "params.yaml (train_speed)")
+    result = train(scenario, world, cfg, out, progress=False)
+    return result.world_steps / result.wall_s
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--algorithms", nargs="+", default=["sac", "dqn", "ppo"])
+    parser.add_argument("--modes", nargs="+", default=["independent", "shared", "centralized"])
+    parser.add_argument("--scenario", default="obstacles")
+    parser.add_argument("--steps", type=int, default=12_000, help="world steps per training run")
+    parser.add_argument("--learning-starts", type=int, default=1_000, help="transitions before updates (sac, dqn)")
+    args = parser.parse_args()
+    n_envs = load_params().train.n_envs
+    limits = {kind: env_only_rate(args.scenario, kind, n_envs, args.steps, 0) for kind in ("continuous", "discrete")}
+    for kind, rate in limits.items():
+        print(f"env only ({kind} actions, {n_envs} worlds): {rate:.0f} steps/s, {1e5 / rate:.0f} s per 100k steps")
+    figures = [f"env_only={limits['continuous']:.0f}"]
+    print(f"{'algorithm/mode':<20} {'steps/s':>8} {'s/100k':>8} {'ratio':>6} {'learner share':>14}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for algorithm in args.algorithms:
+            for mode in args.modes:
+                limit = limits[action_kind(algorithm)]
+                rate = train_rate(
+                    algorithm, mode, args.scenario, args.steps, args.learning_starts, Path(tmp) / f"{algorithm}-{mode}"
+                )
+                share = max(0.0, 1.0 - rate / limit)  # of each training second, what the worlds do not use
+                print(
+                    f"{algorithm + '/' + mode:<20} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f} {share:>13.0%}",
+                    flush=True,
+                )
+                figures.append(f"{algorithm}/{mode}={rate:.0f} (ratio {rate / limit:.2f})")
+    print(" ".join(figures))
+
+
+if __name__ == "__main__":
+    main()
