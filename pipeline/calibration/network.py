@@ -119,15 +119,18 @@ def _slope_over_runs(t: np.ndarray, regular: np.ndarray, steps: np.ndarray) -> t
     return slope, math.sqrt(float(resid @ resid) / dof / sxx), xs
 
 
-def _grid_s(deviation_s: np.ndarray) -> float:
+def _grid_s(deviation_s: np.ndarray, steps: np.ndarray) -> float:
     """The step of the grid the stamps fall on (s; 0 if none): the smallest spacing of the gaps' deviations from
     the period (in microseconds) among the values that recur (at least `GRID_MIN_COUNT` times; a gap cut short by
-    a reset is a value of its own, not a grid level)."""
-    levels, counts = np.unique(np.round(deviation_s * 1e6), return_counts=True)
-    common = levels[counts >= GRID_MIN_COUNT]
-    if len(common) < 2:
-        return 0.0
-    return float(np.diff(common).min()) * 1e-6
+    a reset is a value of its own, not a grid level), compared among gaps of the same number of periods (one and
+    two periods differ by the period's own error, which is no grid)."""
+    spacings: list[float] = []
+    for k in np.unique(steps):
+        levels, counts = np.unique(np.round(deviation_s[steps == k] * 1e6), return_counts=True)
+        common = levels[counts >= GRID_MIN_COUNT]
+        if len(common) >= 2:
+            spacings.append(float(np.diff(common).min()))
+    return min(spacings) * 1e-6 if spacings else 0.0
 
 
 def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] | None:
@@ -146,7 +149,7 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
     if not xs:
         return None
     deviation = gaps - steps * slope
-    grid_s = _grid_s(deviation[regular])
+    grid_s = _grid_s(deviation[regular], steps[regular])
     spread_s = 1.4826 * float(np.median(np.abs(deviation[regular])))
     regular &= np.abs(deviation) <= max(RUN_BREAK_MADS * spread_s, 1.5 * grid_s, RUN_BREAK_MIN_S)
     refit = _slope_over_runs(t, regular, steps)
@@ -154,7 +157,7 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
         slope, se, xs = refit
     # stamps on a grid (a sender that stamps at its physics steps) fix each run's ends only to a grid step, so
     # the period is no more certain than one grid step over a typical run, whatever the message count
-    grid_s = max(_grid_s((gaps - steps * slope)[regular]), 1e-9)  # stamps are whole nanoseconds
+    grid_s = max(_grid_s((gaps - steps * slope)[regular], steps[regular]), 1e-9)  # stamps are whole nanoseconds
     spans = [float(np.ptp(i)) * slope for i in xs]
     if grid_s > 0 and spans and np.median(spans) > 0:
         se = max(se, grid_s / float(np.median(spans)) * slope)
