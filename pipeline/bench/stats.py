@@ -43,6 +43,7 @@ class CellStats:
     wall_to_convergence_s: float | None
     train_wall_s: float
     env_steps_per_s: float
+    train_steps: float = 0.0
 
     @property
     def meets_target(self) -> bool:
@@ -118,6 +119,7 @@ def cell_stats(rows: pl.DataFrame, reps: int = 2000, seed: int = 0) -> list[Cell
                 wall_to_convergence_s=_median(converged["wall_to_convergence_s"]) if converged.height else None,
                 train_wall_s=_median(part["train_wall_s"]) or 0.0,
                 env_steps_per_s=_median(part["env_steps_per_s"]) or 0.0,
+                train_steps=_median(part["train_steps"]) or 0.0,
             )
         )
     return out
@@ -152,8 +154,8 @@ def markdown_table(stats: Sequence[CellStats]) -> str:
     lines = [
         "| algorithm | mode | scenario | seeds | robot success IQM, % [95 % CI] | team success IQM, % [95 % CI] | "
         "per robot (IQM, %) | converged seeds | episodes to convergence | wall-clock to convergence | "
-        "env steps/s | target |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "training steps, wall-clock | env steps/s | target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in stats:
         robots = ", ".join(_pct(v) for v in s.per_robot_iqm.values())
@@ -164,6 +166,7 @@ def markdown_table(stats: Sequence[CellStats]) -> str:
             f"| {s.algorithm} | {s.mode} | {s.scenario} | {s.seeds} | {_pct(s.robot_iqm)} "
             f"[{_pct(s.robot_ci[0])}, {_pct(s.robot_ci[1])}] | {_pct(s.team_iqm)} "
             f"[{_pct(s.team_ci[0])}, {_pct(s.team_ci[1])}] | {robots} | {s.converged_seeds}/{s.seeds} | "
-            f"{episodes} | {wall} | {s.env_steps_per_s:.0f} | {target} |"
+            f"{episodes} | {wall} | {s.train_steps / 1000:.0f}k, {s.train_wall_s / 60:.0f} min | "
+            f"{s.env_steps_per_s:.0f} | {target} |"
         )
     return "\n".join(lines) + "\n"

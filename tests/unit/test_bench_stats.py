@@ -31,7 +31,8 @@ def rows_of(cells: dict[str, np.ndarray], team: float = 0.5) -> pl.DataFrame:
                     "team_success": team,
                     "converged_at_episode": 150 + 10 * seed if robots.min() > 0.5 else None,
                     "wall_to_convergence_s": 60.0 + seed if robots.min() > 0.5 else None,
-                    "train_wall_s": 100.0,
+                    "train_wall_s": 100.0 + 30 * seed,
+                    "train_steps": 100_000 + 1_000 * seed,
                     "env_steps_per_s": 900.0,
                     **{f"success_robot_{k + 1}": float(v) for k, v in enumerate(robots)},
                 }
@@ -57,6 +58,7 @@ def test_the_iqm_is_the_trimmed_mean_of_seeds_by_robots_with_an_interval_around_
     assert stats["sac/independent/empty"].episodes_to_convergence == 170.0  # median of 150..190
     table = markdown_table(list(stats.values()))
     assert "| sac | independent | empty | 5 |" in table and table.count("\n") == 4
+    assert "| 102k, 3 min |" in table  # medians over the seeds: 102 000 steps, 160 s
     assert ("met" in table) == stats["sac/independent/empty"].meets_target
 
 
