@@ -86,15 +86,22 @@ def parse_type_hash(user_data: bytes) -> str:
     return ""
 
 
+READER_MIN_DEPTH = 100
+"""Keep-last depth of every reader at least: a topic's depth (5 for sensors) is what its writer keeps; a reader
+whose receive thread stalls for a few periods (a loaded machine, a twin at 3x) would otherwise overwrite samples
+it has not taken, losses that no network made."""
+
+
 def endpoint_qos(spec: TopicSpec, *, writer: bool) -> Qos:
-    """The DDS QoS of a reader or writer of `spec`, as rmw_cyclonedds_cpp sets it for the same ROS QoS."""
+    """The DDS QoS of a reader or writer of `spec`, as rmw_cyclonedds_cpp sets it for the same ROS QoS (a reader
+    keeps at least `READER_MIN_DEPTH` samples)."""
     qos: QosProfile = spec.qos
     policies: list[Any] = [
         Policy.Reliability.Reliable(max_blocking_time=duration(seconds=RELIABLE_MAX_BLOCKING_S))
         if qos.reliability == "reliable"
         else Policy.Reliability.BestEffort,
         Policy.Durability.TransientLocal if qos.durability == "transient_local" else Policy.Durability.Volatile,
-        Policy.History.KeepLast(depth=qos.depth),
+        Policy.History.KeepLast(depth=qos.depth if writer else max(qos.depth, READER_MIN_DEPTH)),
         Policy.Liveliness.Automatic(lease_duration=duration(infinite=True)),
         Policy.DataRepresentation(use_cdrv0_representation=True),
         Policy.Userdata(data=type_hash_user_data(spec.typename)),

@@ -6,8 +6,11 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from typing import Any
 
+import numpy as np
 import pytest
 from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, BuiltinTopicDcpsSubscription
 from cyclonedds.core import Policy
@@ -116,3 +119,34 @@ def test_open_transport_does_not_hang_interpreter_exit(domain_id: int, ns: str) 
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "LEAVING"
+
+
+def test_a_receiver_that_stalls_loses_no_sensor_samples(domain_id: int, ns: str) -> None:
+    """Odometry (best effort, depth 5 offered) while the receiving callback blocks for half a second: the reader
+    keeps what arrives meanwhile (its own depth is READER_MIN_DEPTH), as a recorder must; with the writer's
+    depth it kept the last 5 and lost the rest without a trace."""
+    spec = T.robot_topics(ns)["odom"]
+    settings = NetworkSettings(domain_id=domain_id)
+    got: list[int] = []
+    release = threading.Event()
+
+    def slow(_spec: Any, msg: Any, _t: int) -> None:
+        if not got:
+            release.wait(5.0)  # the receive thread stalls on the first sample
+        got.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+
+    with open_transport("dds", settings) as planner, open_transport("dds", settings) as robot:
+        planner.subscribe(spec, slow)
+        pub = robot.publisher(spec)
+        require_match(planner, spec)
+        require_match(robot, spec)
+        sent = []
+        for k in range(60):
+            stamp = 1_000_000_000 + k * 20_000_000
+            pub.publish(convert.odometry(stamp, ns, np.array([0.01 * k, 0.0, 0.0]), (0.1, 0.0)))
+            sent.append(stamp)
+            time.sleep(0.005)
+        time.sleep(0.2)
+        release.set()
+        wait_until(lambda: len(got) == len(sent), 3.0, "every odometry sample")
+    assert got == sent

@@ -12,7 +12,7 @@ from cyclonedds.core import Policy
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
 from pipeline.ros import NetworkSettings, TransportError, open_transport
-from pipeline.ros.dds import DdsTransport, type_hash_user_data
+from pipeline.ros.dds import READER_MIN_DEPTH, DdsTransport, type_hash_user_data
 
 _domains = itertools.count()
 
@@ -41,7 +41,10 @@ def test_writer_and_reader_qos_follow_the_topic_and_pin_xcdr1(transport: DdsTran
         assert qos[Policy.Userdata] == Policy.Userdata(data=type_hash_user_data(spec.typename))
         assert qos[Policy.Userdata].data == f"typehash={message_store().rihs01(spec.typename)};".encode()
         assert qos[Policy.DataRepresentation] == Policy.DataRepresentation(use_cdrv0_representation=True)
-        assert qos[Policy.History] == Policy.History.KeepLast(depth=spec.qos.depth)
+    assert writer.get_qos()[Policy.History] == Policy.History.KeepLast(depth=spec.qos.depth)
+    assert reader.get_qos()[Policy.History] == Policy.History.KeepLast(depth=max(spec.qos.depth, READER_MIN_DEPTH))
+    for entity in (writer, reader):
+        qos = entity.get_qos()
         if spec.qos.reliability == "reliable":
             assert isinstance(qos[Policy.Reliability], Policy.Reliability.Reliable)
         else:
