@@ -6,7 +6,8 @@ its rate (world steps per second, summed over the `train.n_envs` parallel worlds
 them) is set against the env-only limit measured in the same run: the same parallel worlds stepped with
 random actions and nothing else. Where the ratio is far below 1 the learner (action inference and
 gradient steps) is the bottleneck, not the simulator. Printed per row: steps/s, seconds per 100k steps,
-ratio to the limit, and the share of the time spent outside the worlds. Last line:
+ratio to the limit, and where the time goes (the worlds' step, the learners' action inference, storing
+transitions, gradient updates; measured by timing those calls). Last line:
 ``env_only=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
 """
 
@@ -15,11 +16,15 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from pipeline.bench.trials import action_kind
+from pipeline.learn import learners
 from pipeline.learn.trainer import train
 from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, to_mapping
@@ -47,7 +52,31 @@ def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: 
     return rounds * n_envs / (time.perf_counter() - t0)
 
 
-def train_rate(algorithm: str, mode: str, scenario_name: str, steps: int, learning_starts: int, out: Path) -> float:
+SPENT: dict[str, float] = defaultdict(float)
+
+
+def _timed(kind: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            SPENT[kind] += time.perf_counter() - t0
+
+    return wrapper
+
+
+def instrument() -> None:
+    """Time the calls the training loop makes (for the breakdown only)."""
+    VecWorlds.step = _timed("worlds", VecWorlds.step)  # type: ignore[method-assign]
+    for cls in (learners.OffPolicyLearner, learners.OnPolicyLearner):
+        for name, kind in (("act", "inference"), ("observe", "store"), ("update", "updates")):
+            setattr(cls, name, _timed(kind, getattr(cls, name)))
+
+
+def train_rate(
+    algorithm: str, mode: str, scenario_name: str, steps: int, learning_starts: int, out: Path
+) -> tuple[float, dict[str, float]]:
     params = load_params()
     kind = action_kind(algorithm)
     world_map = merge(to_mapping(params.world), {"scenario": scenario_name, "actions": {"kind": kind}})
@@ -63,8 +92,10 @@ def train_rate(algorithm: str, mode: str, scenario_name: str, steps: int, learni
         "convergence": {"stop": False},
     }
     cfg = from_mapping(TrainConfig, merge(to_mapping(params.train), changes), "params.yaml (train_speed)")
+    SPENT.clear()
     result = train(scenario, world, cfg, out, progress=False)
-    return result.world_steps / result.wall_s
+    shares = {kind: SPENT[kind] / result.wall_s for kind in ("worlds", "inference", "store", "updates")}
+    return result.world_steps / result.wall_s, shares
 
 
 def main() -> None:
@@ -80,17 +111,18 @@ def main() -> None:
     for kind, rate in limits.items():
         print(f"env only ({kind} actions, {n_envs} worlds): {rate:.0f} steps/s, {1e5 / rate:.0f} s per 100k steps")
     figures = [f"env_only={limits['continuous']:.0f}"]
-    print(f"{'algorithm/mode':<20} {'steps/s':>8} {'s/100k':>8} {'ratio':>6} {'learner share':>14}")
+    instrument()
+    print(f"{'algorithm/mode':<20} {'steps/s':>8} {'s/100k':>8} {'ratio':>6}   time in: worlds inference store updates")
     with tempfile.TemporaryDirectory() as tmp:
         for algorithm in args.algorithms:
             for mode in args.modes:
                 limit = limits[action_kind(algorithm)]
-                rate = train_rate(
+                rate, shares = train_rate(
                     algorithm, mode, args.scenario, args.steps, args.learning_starts, Path(tmp) / f"{algorithm}-{mode}"
                 )
-                share = max(0.0, 1.0 - rate / limit)  # of each training second, what the worlds do not use
+                parts = " ".join(f"{shares[k]:>6.0%}" for k in ("worlds", "inference", "store", "updates"))
                 print(
-                    f"{algorithm + '/' + mode:<20} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f} {share:>13.0%}",
+                    f"{algorithm + '/' + mode:<20} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f}   {parts}",
                     flush=True,
                 )
                 figures.append(f"{algorithm}/{mode}={rate:.0f} (ratio {rate / limit:.2f})")
