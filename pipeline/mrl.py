@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import re
 import sys
 import tempfile
 import warnings
@@ -43,7 +44,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from pipeline.cli import deploy_summary, operator_reset, run_stage
 from pipeline.core.timebase import NS_PER_S
-from pipeline.errors import MrlError
+from pipeline.errors import ConfigError, ConfigProblem, MrlError
 from pipeline.record.live import live_view
 
 if TYPE_CHECKING:
@@ -753,17 +754,32 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--cpus-per-trial", type=float, default=1.0, metavar="X", help="(default: 1)")
     sweep.add_argument("--bootstrap", type=int, default=2000, metavar="N", help="bootstrap resamples (default: 2000)")
     sweep.add_argument("--report-only", action="store_true", help="report the finished trials, run nothing")
-    sweep.add_argument("--readme", default="", metavar="FILE", help="put the table between FILE's sweep markers")
+    sweep.add_argument("--readme", default="", metavar="FILE", help="put the report between FILE's sweep markers")
+    sweep.add_argument(
+        "--readme-section",
+        default="",
+        metavar="NAME",
+        help="use the markers '<!-- sweep results NAME: start/end -->' (default: '<!-- sweep results: ... -->')",
+    )
     return parser
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from pipeline.bench.report import splice_readme, write_report
+    from pipeline.bench.report import marks, splice_readme, write_report
     from pipeline.bench.stats import cell_stats, markdown_table
     from pipeline.bench.sweep import collect, run_sweep
     from pipeline.bench.trials import base_mapping, expand, parse_axis, parse_setting, with_settings
     from pipeline.params import load_params
 
+    if args.readme:  # checked before a sweep of hours, not after it
+        start_mark, end_mark = marks(args.readme_section)
+        if not re.fullmatch(r"[A-Za-z0-9_-]*", args.readme_section):
+            raise ConfigError("--readme-section", [ConfigProblem("name", args.readme_section, "letters, digits, _ and -")])
+        text = Path(args.readme).read_text(encoding="utf-8") if Path(args.readme).is_file() else None
+        if text is None or start_mark not in text or end_mark not in text:
+            found = "missing" if text is None else "without the markers"
+            problem = ConfigProblem(args.readme, found, f"a file with {start_mark} and {end_mark}")
+            raise ConfigError("--readme", [problem])
     params = load_params(args.params)
     axes = [parse_axis(text) for text in args.axis]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -786,10 +802,10 @@ def _sweep(args: argparse.Namespace) -> int:
     print(f"sweep: {report}, {out / 'results.parquet'}, {out / 'results.csv'}")
     if args.readme:
         readme = Path(args.readme)
-        if splice_readme(readme, report.read_text(encoding="utf-8")):
+        if splice_readme(readme, report, args.readme_section):
             print(f"sweep: the results table is in {readme}")
         else:
-            print(f"sweep: {readme} has no sweep markers: left as it is")
+            print(f"sweep: {readme} lost its sweep markers while the sweep ran: left as it is")
     return 0
 
 

@@ -4,12 +4,15 @@ Written into the sweep folder: ``results.md`` (the table of :func:`pipeline.benc
 with the sweep's command line), ``learning_curves.png`` (per cell, the windowed robot success of the
 training episodes: median over seeds, band from the lowest to the highest seed) and
 ``performance_profiles.png`` (rliable's score distributions of robot-level success with their 95 %
-bands). :func:`splice_readme` puts the table between the README's sweep markers.
+bands). :func:`splice_readme` puts the report between a README's sweep markers, its plots copied beside the
+README (``benchmarks/figures/<section>_*.png``) so that its links work there.
 """
 
 from __future__ import annotations
 
 import csv
+import re
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -25,8 +28,14 @@ from pipeline.bench.stats import CellStats, markdown_table, performance_profiles
 
 CURVE_GRID = 200
 """Points on the common episode grid the seeds' curves are put on."""
-START_MARK = "<!-- sweep results: start -->"
-END_MARK = "<!-- sweep results: end -->"
+FIGURES = Path("benchmarks") / "figures"
+"""Where the README's copies of a sweep's plots go (relative to the README)."""
+
+
+def marks(section: str = "") -> tuple[str, str]:
+    """The README markers of a sweep's report (``<!-- sweep results[ SECTION]: start/end -->``)."""
+    name = f"sweep results {section}" if section else "sweep results"
+    return f"<!-- {name}: start -->", f"<!-- {name}: end -->"
 
 
 def _curve(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
@@ -108,12 +117,25 @@ def write_report(out: Path, rows: pl.DataFrame, stats: Sequence[CellStats], comm
     return path
 
 
-def splice_readme(readme: Path, text: str) -> bool:
-    """Put `text` between the README's sweep markers; False when the README has no markers."""
+def splice_readme(readme: Path, report: Path, section: str = "") -> bool:
+    """Put the `report` (``results.md``) between the README's markers of `section`, its plots copied to the
+    README's ``benchmarks/figures`` and linked from there; False (and nothing changed) without the markers."""
     content = readme.read_text(encoding="utf-8")
-    start, end = content.find(START_MARK), content.find(END_MARK)
+    start_mark, end_mark = marks(section)
+    start, end = content.find(start_mark), content.find(end_mark)
     if start < 0 or end < start:
         return False
-    new = content[: start + len(START_MARK)] + "\n" + text.rstrip("\n") + "\n" + content[end:]
+    text = report.read_text(encoding="utf-8")
+    figures = readme.parent / FIGURES
+    prefix = f"{section or 'sweep'}_"
+
+    def relink(match: re.Match[str]) -> str:
+        source = report.parent / match.group(2)
+        figures.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source, figures / (prefix + source.name))
+        return f"![{match.group(1)}]({(FIGURES / (prefix + source.name)).as_posix()})"
+
+    text = re.sub(r"!\[([^\]]*)\]\(([^)/]+\.png)\)", relink, text)
+    new = content[: start + len(start_mark)] + "\n" + text.rstrip("\n") + "\n" + content[end:]
     readme.write_text(new, encoding="utf-8")
     return True

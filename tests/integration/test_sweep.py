@@ -91,11 +91,14 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
     assert pl.read_parquet(out / "results.parquet").equals(rows)
     assert pl.read_csv(out / "results.csv").height == 3
 
-    # the report from the finished trials, through the installed command
+    # the report from the finished trials, through the installed command, into a README's section of its own
+    readme = tmp_path / "README.md"
+    readme.write_text("# Results\n\n<!-- sweep results tiny: start -->\nold\n<!-- sweep results tiny: end -->\nrest\n")
     proc = subprocess.run(
         [
             str(MRL), "sweep", "--algorithms", "sac", "--modes", "independent", "--scenarios", "empty",
             "--seeds", "3", "--params", str(tiny_params), "--out", str(out), "--report-only", "--bootstrap", "200",
+            "--readme", str(readme), "--readme-section", "tiny",
         ],
         capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
@@ -105,6 +108,11 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
     report = (out / "results.md").read_text()
     assert "| sac | independent | empty | 3 |" in report and "![learning curves](learning_curves.png)" in report
     assert (out / "learning_curves.png").stat().st_size > 0 and (out / "performance_profiles.png").stat().st_size > 0
+    text = readme.read_text()
+    assert "| sac | independent | empty | 3 |" in text and "old" not in text and text.endswith("end -->\nrest\n")
+    assert "![learning curves](benchmarks/figures/tiny_learning_curves.png)" in text
+    copied = tmp_path / "benchmarks" / "figures" / "tiny_learning_curves.png"
+    assert copied.read_bytes() == (out / "learning_curves.png").read_bytes()
 
 
 def test_a_setting_for_every_trial_is_checked_before_anything_runs(tiny_params, tmp_path):
@@ -119,3 +127,17 @@ def test_a_setting_for_every_trial_is_checked_before_anything_runs(tiny_params, 
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "train.selection.stop_at_success = 2" in proc.stderr and "<= 1.0" in proc.stderr
     assert not (tmp_path / "sweep").exists()
+
+    # a README without the section's markers is refused before anything runs, not after hours of training
+    readme = tmp_path / "README.md"
+    readme.write_text("# no markers\n")
+    proc = subprocess.run(
+        [
+            str(MRL), "sweep", "--algorithms", "sac", "--scenarios", "empty", "--seeds", "1",
+            "--params", str(tiny_params), "--out", str(tmp_path / "sweep"), "--readme", str(readme),
+        ],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert f"--readme: 1 invalid setting(s): {readme} = 'without the markers'" in proc.stderr
+    assert "<!-- sweep results: start -->" in proc.stderr and not (tmp_path / "sweep").exists()
