@@ -66,15 +66,11 @@ class EpisodeJudge:
         distance: ProgressDistance = "euclidean",
     ) -> None:
         """`distance` measures progress toward the goal: straight-line, or along the free path ("geodesic")."""
-        self.scenario = scenario
         self.distance = distance
-        self._fields = _goal_fields(scenario) if distance == "geodesic" else None
         self.weights = weights
         self.max_steps = max_steps
         self.margin_m = collision_margin_m
-        self.goals = scenario.goals
-        self.half_goal_m = scenario.goal_size_m / 2
-        self.radius_m = scenario.robot.radius_m
+        self.use_layout(scenario)
         n = scenario.n_robots
         self.reached = np.zeros(n, dtype=bool)
         self.collided = np.zeros(n, dtype=bool)
@@ -82,6 +78,14 @@ class EpisodeJudge:
         self.team_success = False
         self._prev_dist = np.zeros(n)
         self._prev_heading_err = np.zeros(n)
+
+    def use_layout(self, scenario: Scenario) -> None:
+        """Judge against `scenario`'s goals and map from the next episode on (the same robots; another layout)."""
+        self.scenario = scenario
+        self._fields = goal_fields(scenario) if self.distance == "geodesic" else None
+        self.goals = scenario.goals
+        self.half_goal_m = scenario.goal_size_m / 2
+        self.radius_m = scenario.robot.radius_m
 
     @property
     def done(self) -> np.ndarray:
@@ -202,6 +206,7 @@ class EpisodeJudge:
 
 
 @lru_cache(maxsize=16)
-def _goal_fields(scenario: Scenario) -> GoalFields:
-    """The free-path distance fields of every robot's goal (cached: scenarios are immutable)."""
+def goal_fields(scenario: Scenario) -> GoalFields:
+    """The free-path distance fields of every robot's goal (cached: scenarios are immutable; the last few
+    layouts, so that an episode's layout drawn and checked for reachability is not computed again)."""
     return GoalFields([DistanceField(scenario, goal) for goal in scenario.goals])

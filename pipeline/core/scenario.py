@@ -88,9 +88,45 @@ class Box:
     yaw_rad: float = setting(0.0)
 
 
+Range = tuple[float, ...]
+"""[low, high] of a uniform draw."""
+
+
+@dataclass(frozen=True)
+class LayoutRanges:
+    """Per-episode layouts (:mod:`pipeline.core.layouts`): each episode draws every robot's start pose and goal
+    and every box's centre (and yaw) uniformly from these ranges (metres, radians), seeded by the episode's
+    seed; boxes keep their sizes. A draw keeps `clearance_m` of free space between bodies, walls and goal
+    squares and each goal at least `min_goal_distance_m` from its robot's start; a scenario whose ranges give
+    no such layout in `tries` draws is refused with the reason."""
+
+    start_x_m: Range = setting(min_len=2, max_len=2)
+    start_y_m: Range = setting(min_len=2, max_len=2)
+    goal_x_m: Range = setting(min_len=2, max_len=2)
+    goal_y_m: Range = setting(min_len=2, max_len=2)
+    start_yaw_rad: Range = setting((-math.pi, math.pi), min_len=2, max_len=2, optional=True)
+    box_x_m: Range = setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
+    box_y_m: Range = setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
+    box_yaw_rad: Range = setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
+    move_boxes: bool = setting(True, optional=True)
+    """False: the boxes stay where `obstacles` puts them (box ranges unused)."""
+    min_goal_distance_m: float = setting(1.0, ge=0.0, optional=True)
+    clearance_m: float = setting(0.1, ge=0.0, optional=True)
+    tries: int = setting(1000, ge=1, le=1_000_000, optional=True)
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad: list[tuple[str, object, str]] = []
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, tuple) and len(value) == 2 and not value[0] <= value[1]:
+                bad.append((f.name, list(value), "[low, high] with low <= high"))
+        return bad
+
+
 @dataclass(frozen=True)
 class Scenario:
-    """A room, its robots (named robot_1..N in order) and obstacles."""
+    """A room, its robots (named robot_1..N in order) and obstacles (and, optionally, ranges that draw another
+    layout of them per episode)."""
 
     name: str = setting()
     room: Room = setting()
@@ -98,6 +134,8 @@ class Scenario:
     robots: tuple[RobotSpec, ...] = setting(min_len=1)
     goal_size_m: float = setting(0.4, gt=0.0)
     obstacles: tuple[Box, ...] = setting(())
+    layouts: LayoutRanges | None = setting(None, optional=True)
+    """Ranges for a layout per episode; None: every episode uses the layout above."""
 
     @property
     def n_robots(self) -> int:
@@ -283,6 +321,15 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
     if n_robots is not None:
         scenario = scenario.with_robots(n_robots)
     scenario.validate(source)
+    if scenario.layouts is not None:
+        from pipeline.core.layouts import draw_layout  # (it builds on this module)
+
+        try:
+            draw_layout(scenario, 0)  # a scenario whose ranges hold no valid layout is refused now
+        except ScenarioError as exc:
+            raise ScenarioError(
+                exc.scenario, f"{exc.problem}" + (f" (scenario file {source})" if source else "")
+            ) from None
     return scenario
 
 

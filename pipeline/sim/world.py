@@ -78,6 +78,15 @@ class SimWorld:
     def time_s(self) -> float:
         return float(self.data.time)
 
+    def use_layout(self, layout: Scenario) -> None:
+        """Move the boxes to `layout`'s and start the robots at its starts from the next reset (the same room,
+        robots and box sizes: a layout drawn from this world's scenario)."""
+        for k, box in enumerate(layout.obstacles):
+            gid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"box_{k}")
+            self.model.geom_pos[gid, :2] = (box.x_m, box.y_m)
+            self.model.geom_quat[gid] = (math.cos(box.yaw_rad / 2), 0.0, 0.0, math.sin(box.yaw_rad / 2))
+        self.scenario = layout
+
     def _use(self, world: WorldConfig) -> None:
         """Take the dynamics and sensor settings of `world` (the episode's draw)."""
         self.world = world
