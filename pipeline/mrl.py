@@ -774,7 +774,8 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.readme:  # checked before a sweep of hours, not after it
         start_mark, end_mark = marks(args.readme_section)
         if not re.fullmatch(r"[A-Za-z0-9_-]*", args.readme_section):
-            raise ConfigError("--readme-section", [ConfigProblem("name", args.readme_section, "letters, digits, _ and -")])
+            problem = ConfigProblem("name", args.readme_section, "letters, digits, _ and -")
+            raise ConfigError("--readme-section", [problem])
         text = Path(args.readme).read_text(encoding="utf-8") if Path(args.readme).is_file() else None
         if text is None or start_mark not in text or end_mark not in text:
             found = "missing" if text is None else "without the markers"
