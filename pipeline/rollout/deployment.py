@@ -123,6 +123,15 @@ def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scen
     trained = runtime.spec.scenario.name
     if trained != scenario.name:
         problems.append(f"it was trained in scenario {trained!r}, the fleet drives in {scenario.name!r}")
+    if scenario.layouts is not None and runtime.layout.name == "paper":
+        problems.append(
+            f"scenario {scenario.name!r} draws a layout per episode and the policy's observation ('paper') has no goal"
+        )
+    if scenario.layouts is not None and fleet.target == "robots":
+        problems.append(
+            f"scenario {scenario.name!r} draws a layout per episode: on real robots someone would have to move the "
+            "boxes before every episode (deploy its fixed layout with a scenario without layouts ranges)"
+        )
     codec = runtime.codec
     for robot in fleet.robots:
         if codec.v_max_mps > robot.v_max_mps + 1e-9 or codec.w_max_radps > robot.w_max_radps + 1e-9:

@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.core.episode import EpisodeResult
+from pipeline.core.layouts import draw_layout
 from pipeline.core.scan import uncovered_beams
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
@@ -72,6 +73,9 @@ class DeployRunner:
         self.mdp = mdp_parts(scenario, runtime.spec.world)  # the MDP the policy was trained in
         self.builder = self.mdp.observer
         self.judge = self.mdp.judge
+        self.layout = scenario
+        """The current episode's layout: drawn from its seed when the fleet's scenario has layouts ranges, as the
+        twin draws it (:mod:`pipeline.core.layouts`)."""
         self.period_ns = self.mdp.period_ns
         self.use_truth = fleet.timing.use_ground_truth
         self.handshake = ResetHandshake(
@@ -166,7 +170,10 @@ class DeployRunner:
     # -- episodes --------------------------------------------------------------------------
 
     def _reset(self, episode: int, seed: int) -> None:
-        """The handshake, then fresh data from every robot; odometry is rebased onto the scenario's starts."""
+        """The handshake, then fresh data from every robot; odometry is rebased onto the layout's starts."""
+        self.layout = draw_layout(self.scenario, seed)
+        self.judge.use_layout(self.layout)
+        self.builder.scenario = self.layout
         self.emitter.clear()
         self.handshake.request(episode, seed)
         timeout_s = self.fleet.timing.reset_timeout_s
@@ -189,7 +196,7 @@ class DeployRunner:
         self.samples.clear()
         self.staleness.reset()
         odom = np.stack([state.robots[ns].odom.pose for ns in self.namespaces])  # type: ignore[union-attr]
-        self.odometry.rebase(self.scenario.starts, odom)
+        self.odometry.rebase(self.layout.starts, odom)
 
     def next_control_time(self, now_ns: int) -> int:
         """The first control time at or after `now_ns` on the grid half an emitter tick before the ticks.
@@ -208,7 +215,7 @@ class DeployRunner:
         t_start = self.next_control_time(self.clock.now_ns())
         self.clock.sleep_until(t_start)
         self.log.start_episode(t_start, episode, seed)
-        self.log.map(t_start, self.scenario)
+        self.log.map(t_start, self.layout)
         _, _, odom_raw, truth = self.samples.arrays(self.receiver.joint_state(t_start))
         odom = self.odometry.to_map(odom_raw)
         self.judge.reset(truth if truth is not None else odom)

@@ -176,6 +176,8 @@ class FleetPhysics:
         self.scenario = scenario
         self.base = base
         self.n = scenario.n_robots
+        self._offsets = np.zeros((len(scenario.obstacles), 2))
+        self._offsets[: len(offsets)] = offsets
         self.model = mujoco.MjModel.from_xml_string(_model_xml(scenario, base, offsets, wall_offset_m, timestep_s))
         self.data = mujoco.MjData(self.model)
         self.timestep_s = float(self.model.opt.timestep)
@@ -208,6 +210,13 @@ class FleetPhysics:
         self.reset(scenario.starts)
 
     # -- state -----------------------------------------------------------------------------
+
+    def use_layout(self, layout: Scenario) -> None:
+        """Boxes where `layout` puts them (plus the profile's offsets): the episode's layout of this scenario."""
+        for k, box in enumerate(layout.obstacles):
+            gid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"box_{k}")
+            self.model.geom_pos[gid, :2] = (box.x_m + self._offsets[k, 0], box.y_m + self._offsets[k, 1])
+            self.model.geom_quat[gid] = (math.cos(box.yaw_rad / 2), 0.0, 0.0, math.sin(box.yaw_rad / 2))
 
     def reset(self, poses: np.ndarray) -> None:
         """Bases at `poses` (n, 3) at rest, settled on their wheels; motors stopped; wheel angles count from 0."""

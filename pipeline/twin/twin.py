@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.core.layouts import draw_layout
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
@@ -254,11 +255,13 @@ class HardwareTwin:
     def _begin_episode(self, now_ns: int, episode_seed: int) -> None:
         """Robots at their starts, sensors restarted, with random streams of their own for this episode."""
         streams = np.random.SeedSequence([self.seed, episode_seed]).spawn(len(self.namespaces) + 1)
-        self.physics.reset(self.scenario.starts)
+        layout = draw_layout(self.scenario, episode_seed)  # the runner draws the same one from the same seed
+        self.physics.use_layout(layout)
+        self.physics.reset(layout.starts)
         self.driver.reset()
         self.physics_ns = now_ns
         self.odometry = EncoderOdometry(len(self.namespaces), self.profile.odometry, np.random.default_rng(streams[-1]))
-        self.odometry.reset(self.scenario.starts, self.physics.wheel_angles())
+        self.odometry.reset(layout.starts, self.physics.wheel_angles())
         self.lidars = [
             LidarSweep(self.profile.lidar, np.random.default_rng(streams[i]), now_ns) for i in range(len(streams) - 1)
         ]

@@ -47,3 +47,37 @@ def test_training_on_random_layouts_is_deterministic_and_evaluates_on_held_out_l
     results = evaluate(sim, runtime.actions, 4, seed=10_000, progress=False)
     assert [r.seed for r in results] == [10_000, 10_001, 10_002, 10_003]
     assert np.array_equal(sim.episode_layout.goals, draw_layout(scenario, 10_003).goals)
+
+
+def test_the_twin_and_the_runner_play_each_episode_in_the_layout_drawn_from_its_seed(tmp_path):
+    """Deployment on the twin of a scenario with layouts ranges: both sides draw the layout from the episode's
+    seed; the twin places its robots and boxes there, the runner judges and records it."""
+    from pipeline.record import McapLog
+    from pipeline.rollout.deployment import DeployRequest, deploy_policy
+    from pipeline.ros.fleet import load_fleet
+    from tests.integration.conftest import write_fleet
+
+    scenario, world = make_world(world=world_config({**WORLD, "max_steps": 20}))
+    cfg = from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), TINY_TRAIN), "<test>")
+    trained = train(scenario, world, cfg, tmp_path / "run", progress=False)
+    export_policy(trained.checkpoint, tmp_path / "policy", golden_observations(scenario, world, 8))
+    fleet_file = write_fleet(tmp_path / "fleet.yaml", scenario="obstacles_random")
+    request = DeployRequest(episodes=2, seed=5, recording=tmp_path / "session.mcap", progress=False)
+    results, _ = deploy_policy(PolicyRuntime(tmp_path / "policy"), load_fleet(fleet_file), str(fleet_file), request)
+    assert [r.seed for r in results] == [5, 6] and not any(r.aborted for r in results)
+
+    log = McapLog(tmp_path / "session.mcap")
+    maps = [m for m in log.messages(["/mrl/map"])]
+    assert len(maps) == 2
+    truth = [(m.log_time_ns, m.msg) for m in log.messages(["/robot_1/ground_truth"])]
+    for episode, map_msg in enumerate(maps):
+        layout = draw_layout(scenario, 5 + episode)
+        boxes = [mk for mk in map_msg.msg.markers if mk.ns == "boxes"]
+        recorded = [(mk.pose.position.x, mk.pose.position.y) for mk in boxes]
+        np.testing.assert_allclose(recorded, [(b.x_m, b.y_m) for b in layout.obstacles], atol=1e-9)
+        goals = [mk for mk in map_msg.msg.markers if mk.ns == "goals"]
+        np.testing.assert_allclose([(g.pose.position.x, g.pose.position.y) for g in goals], layout.goals, atol=1e-9)
+        # the twin's motion capture shows robot_1 at the layout's start when the episode begins
+        first = next(msg for t, msg in truth if t >= map_msg.log_time_ns)
+        at = np.array([first.pose.position.x, first.pose.position.y])
+        assert np.hypot(*(at - layout.starts[0, :2])) < 0.05
