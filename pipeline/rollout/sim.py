@@ -62,7 +62,7 @@ def run_episode(
     step = 0
     if log is not None:
         log.start_episode(t0_ns, episode, seed)
-        log.map(t0_ns, sim.scenario)
+        log.map(t0_ns, sim.episode_layout)
         _record_state(log, sim, t0_ns)
     while True:
         t_ns = t0_ns + step * period_ns
@@ -217,7 +217,8 @@ def evaluate_session(
         raise
     write_metrics(folder.staged("metrics.json"), metrics)
     write_episodes(folder.staged("episodes.csv"), results)
-    write_paths_picture(folder.staged("paths.png"), scenario, results)
+    random_layouts = scenario.layouts is not None and world.layouts == "random"
+    write_paths_picture(folder.staged("paths.png"), scenario, results, random_layouts=random_layouts)
     if cfg.record:
         write_rosbag2_metadata(recording)
     folder.publish()

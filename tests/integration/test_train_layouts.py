@@ -4,6 +4,9 @@ the same weights to the bit, and evaluation on layouts drawn from seeds training
 from __future__ import annotations
 
 import csv
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +20,7 @@ from pipeline.learn.worlds import TRAIN_SEED_MIN
 from pipeline.mappings import from_mapping, merge, to_mapping
 from pipeline.params import TrainConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record import McapLog
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
@@ -24,6 +28,7 @@ from tests.integration.conftest import TINY_TRAIN
 
 pytestmark = pytest.mark.integration
 
+MRL = Path(sys.executable).parent / "mrl"
 WORLD = {"scenario": "obstacles_random", "observation": "rich", "max_steps": 25}
 
 
@@ -48,11 +53,26 @@ def test_training_on_random_layouts_is_deterministic_and_evaluates_on_held_out_l
     assert [r.seed for r in results] == [10_000, 10_001, 10_002, 10_003]
     assert np.array_equal(sim.episode_layout.goals, draw_layout(scenario, 10_003).goals)
 
+    # the installed command evaluates in the scenario's own layout on request, recording each episode's map
+    for layouts, expected in (("fixed", [scenario, scenario]), ("random", [draw_layout(scenario, s) for s in (7, 8)])):
+        out = tmp_path / f"eval_{layouts}"
+        proc = subprocess.run(
+            [str(MRL), "eval", "--policy", str(tmp_path / "policy"), "--episodes", "2", "--seed", "7",
+             "--layouts", layouts, "--out", str(out)],
+            capture_output=True, text=True, timeout=300, check=False,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        maps = [m.msg for m in McapLog(out / "session.mcap").messages(["/mrl/map"])]
+        for msg, layout in zip(maps, expected, strict=True):
+            goals = [(mk.pose.position.x, mk.pose.position.y) for mk in msg.markers if mk.ns == "goals"]
+            np.testing.assert_allclose(goals, layout.goals, atol=1e-9)
+
 
 def test_the_twin_and_the_runner_play_each_episode_in_the_layout_drawn_from_its_seed(tmp_path):
     """Deployment on the twin of a scenario with layouts ranges: both sides draw the layout from the episode's
     seed; the twin places its robots and boxes there, the runner judges and records it."""
-    from pipeline.record import McapLog
+    from pipeline.calibration import calibrate
+    from pipeline.calibration.errors import CalibrationError
     from pipeline.rollout.deployment import DeployRequest, deploy_policy
     from pipeline.ros.fleet import load_fleet
     from tests.integration.conftest import write_fleet
@@ -81,3 +101,7 @@ def test_the_twin_and_the_runner_play_each_episode_in_the_layout_drawn_from_its_
         first = next(msg for t, msg in truth if t >= map_msg.log_time_ns)
         at = np.array([first.pose.position.x, first.pose.position.y])
         assert np.hypot(*(at - layout.starts[0, :2])) < 0.05
+
+    # calibration fits one layout: a recording of layouts drawn per episode is refused, saying why
+    with pytest.raises(CalibrationError, match=r"draws a layout per episode.*cannot use this recording yet"):
+        calibrate(tmp_path / "session.mcap")
