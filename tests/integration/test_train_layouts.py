@@ -105,3 +105,19 @@ def test_the_twin_and_the_runner_play_each_episode_in_the_layout_drawn_from_its_
     # calibration fits one layout: a recording of layouts drawn per episode is refused, saying why
     with pytest.raises(CalibrationError, match=r"draws a layout per episode.*cannot use this recording yet"):
         calibrate(tmp_path / "session.mcap")
+
+
+def test_a_sweep_trial_on_random_layouts_also_scores_the_scenarios_own_layout(tmp_path):
+    from pipeline.bench.trials import Trial, base_mapping, run_trial
+    from pipeline.params import load_params
+
+    tiny = {
+        "world": {"max_steps": 25},
+        "train": {**TINY_TRAIN, "total_steps": 160, "selection": {"keep": "last", "every_steps": 0}},
+    }
+    base = merge(base_mapping(load_params()), tiny)
+    row = run_trial(Trial("sac", "shared", "obstacles_random", 0), base, tmp_path / "trial", 3, say=lambda _: None)
+    assert row["eval_episodes"] == 3 and 0.0 <= row["robot_success"] <= 1.0
+    assert row["fixed_layout_robot_success"] is not None and 0.0 <= row["fixed_layout_robot_success"] <= 1.0
+    plain = run_trial(Trial("sac", "shared", "obstacles", 0), base, tmp_path / "plain", 2, say=lambda _: None)
+    assert plain["fixed_layout_robot_success"] is None
