@@ -82,10 +82,16 @@ class EpisodeJudge:
     def use_layout(self, scenario: Scenario) -> None:
         """Judge against `scenario`'s goals and map from the next episode on (the same robots; another layout)."""
         self.scenario = scenario
-        self._fields = goal_fields(scenario) if self.distance == "geodesic" else None
+        # a moving target's free-path field would change every step: a pursuit measures progress straight
+        self._fields = goal_fields(scenario) if self.distance == "geodesic" and not scenario.pursuit else None
         self.goals = scenario.goals
+        self.capture_m = scenario.target.capture_distance_m if scenario.target is not None else None
         self.half_goal_m = scenario.goal_size_m / 2
         self.radius_m = scenario.robot.radius_m
+
+    def track(self, target_xy: np.ndarray) -> None:
+        """A pursuit's target is now at `target_xy` (2,): every robot's goal from the next judgement on."""
+        self.goals = np.tile(np.asarray(target_xy, dtype=np.float64)[:2], (self.scenario.n_robots, 1))
 
     @property
     def done(self) -> np.ndarray:
@@ -123,7 +129,11 @@ class EpisodeJudge:
         return np.asarray(np.hypot(d[:, 0], d[:, 1]))
 
     def in_goal(self, pose: np.ndarray) -> np.ndarray:
-        """(n_robots,) robot centres inside their own goal squares."""
+        """(n_robots,) robot centres inside their own goal squares (in a pursuit: within capture distance of the
+        target)."""
+        if self.capture_m is not None:
+            d = np.asarray(pose)[:, :2] - self.goals
+            return np.asarray(np.hypot(d[:, 0], d[:, 1]) <= self.capture_m)
         d = np.abs(np.asarray(pose)[:, :2] - self.goals)
         return np.asarray((d[:, 0] <= self.half_goal_m) & (d[:, 1] <= self.half_goal_m))
 
@@ -164,6 +174,8 @@ class EpisodeJudge:
         arrived = self.in_goal(pose)
         new_collided = active & hit
         new_reached = active & arrived & ~hit
+        if self.capture_m is not None and new_reached.any():  # one robot's capture is the whole team's
+            new_reached = active & ~hit
         dist = self.goal_distance(pose)
         w = self.weights
         zeros = np.zeros(len(active))

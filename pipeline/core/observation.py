@@ -136,6 +136,8 @@ class ObservationBuilder:
         reduction: Reduction = "sector_min",
     ) -> None:
         self.scenario = scenario
+        self.goals = scenario.goals
+        """(n_robots, 2) the goals the observation points at: the layout's, or a pursuit's moving target."""
         self.layout = layout
         self.range_min_m = range_min_m
         self.range_max_m = range_max_m
@@ -144,6 +146,15 @@ class ObservationBuilder:
         self.low, self.high = layout.bounds(
             (room.x_min_m, room.x_max_m), (room.y_min_m, room.y_max_m), range_min_m, range_max_m
         )
+
+    def use_layout(self, scenario: Scenario) -> None:
+        """Observe against `scenario`'s goals (another layout of the same room and robots)."""
+        self.scenario = scenario
+        self.goals = scenario.goals
+
+    def track(self, target_xy: np.ndarray) -> None:
+        """A pursuit's target is now at `target_xy` (2,): every robot's goal in its observation."""
+        self.goals = np.tile(np.asarray(target_xy, dtype=np.float64)[:2], (self.scenario.n_robots, 1))
 
     def reduce(
         self, scans: np.ndarray | Sequence[np.ndarray], geometry: ScanGeometry | Sequence[ScanGeometry]
@@ -169,5 +180,5 @@ class ObservationBuilder:
     ) -> Observed:
         """Observations from scans and odometry poses (n_robots, 3) x, y (m), yaw (rad)."""
         ranges = self.reduce(scans, geometry)
-        obs = self.layout.build(odom_pose, ranges, self.scenario.goals)
+        obs = self.layout.build(odom_pose, ranges, self.goals)
         return Observed(ranges=ranges, obs=np.clip(obs, self.low, self.high))

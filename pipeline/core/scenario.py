@@ -69,10 +69,26 @@ class Point2D:
 
 @dataclass(frozen=True)
 class RobotSpec:
-    """Where a robot starts and the centre of its goal square."""
+    """Where a robot starts and the centre of its goal square (none in a pursuit: the target is the goal)."""
 
     start: Pose2D = setting()
-    goal: Point2D = setting()
+    goal: Point2D | None = setting(None, optional=True)
+
+
+@dataclass(frozen=True)
+class Target:
+    """The pursuit task's moving target (a quadruped in the reference paper), driven by the scripted evader of
+    :mod:`pipeline.core.evader`: it flees the nearest pursuer closer than `flee_distance_m` at up to
+    `speed_mps`, stays `radius_m` plus `clearance_m` off walls and boxes, and is caught when any robot's centre
+    comes within `capture_distance_m` of its own."""
+
+    start: Point2D = setting()
+    radius_m: float = setting(0.25, gt=0.0, le=2.0, optional=True)
+    height_m: float = setting(0.4, gt=0.0, optional=True)
+    speed_mps: float = setting(0.2, ge=0.0, le=5.0, optional=True)
+    flee_distance_m: float = setting(2.0, gt=0.0, optional=True)
+    capture_distance_m: float = setting(0.6, gt=0.0, optional=True)
+    clearance_m: float = setting(0.1, ge=0.0, optional=True)
 
 
 @dataclass(frozen=True)
@@ -136,6 +152,12 @@ class Scenario:
     obstacles: tuple[Box, ...] = setting(())
     layouts: LayoutRanges | None = setting(None, optional=True)
     """Ranges for a layout per episode; None: every episode uses the layout above."""
+    target: Target | None = setting(None, optional=True)
+    """The pursuit task: the robots chase this target instead of driving to goals."""
+
+    @property
+    def pursuit(self) -> bool:
+        return self.target is not None
 
     @property
     def n_robots(self) -> int:
@@ -152,8 +174,10 @@ class Scenario:
 
     @cached_property
     def goals(self) -> np.ndarray:
-        """(n_robots, 2) goal square centres (m)."""
-        return np.array([[r.goal.x_m, r.goal.y_m] for r in self.robots])
+        """(n_robots, 2) goal square centres (m); in a pursuit, the target's start for every robot."""
+        if self.target is not None:
+            return np.tile([self.target.start.x_m, self.target.start.y_m], (self.n_robots, 1))
+        return np.array([[r.goal.x_m, r.goal.y_m] for r in self.robots])  # type: ignore[union-attr]
 
     @property
     def diagonal_m(self) -> float:
@@ -181,8 +205,17 @@ class Scenario:
         r = self.robot.radius_m
         room = self.room
         half = self.goal_size_m / 2
+        missing = [n for n, spec in zip(self.robot_names, self.robots, strict=True) if spec.goal is None]
+        if self.target is None and missing:
+            raise ScenarioError(
+                self.name, f"{', '.join(missing)} has no goal (only a pursuit scenario, with a target, leaves them out)"
+            )
+        if self.target is not None:
+            if self.layouts is not None:
+                raise ScenarioError(self.name, "a pursuit scenario cannot draw random layouts (yet)")
+            self._check_target()
         for name, spec in zip(self.robot_names, self.robots, strict=True):
-            s, g = spec.start, spec.goal
+            s, g = spec.start, spec.goal if spec.goal is not None else Point2D(*self.goals[0])
             if not (room.x_min_m + r <= s.x_m <= room.x_max_m - r and room.y_min_m + r <= s.y_m <= room.y_max_m - r):
                 raise ScenarioError(
                     self.name,
@@ -218,7 +251,8 @@ class Scenario:
                         f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
                         f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap",
                     )
-        self._check_goals_apart()
+        if self.target is None:
+            self._check_goals_apart()
         for k, box in enumerate(self.obstacles):
             corners = box_corners(box)
             if (
@@ -228,6 +262,28 @@ class Scenario:
                 or corners[:, 1].max() > room.y_max_m
             ):
                 raise ScenarioError(self.name, f"obstacle {k} at ({box.x_m}, {box.y_m}) reaches outside the room")
+
+    def _check_target(self) -> None:
+        t = self.target
+        if t is None:
+            return
+        room, p = self.room, np.array([[t.start.x_m, t.start.y_m]])
+        keep = t.radius_m + t.clearance_m
+        if not (
+            room.x_min_m + keep <= p[0, 0] <= room.x_max_m - keep
+            and room.y_min_m + keep <= p[0, 1] <= room.y_max_m - keep
+        ):
+            raise ScenarioError(self.name, f"the target starts at ({p[0, 0]}, {p[0, 1]}), within {keep:g} m of a wall")
+        for k, box in enumerate(self.obstacles):
+            if box_clearance(box, p)[0] < keep:
+                raise ScenarioError(self.name, f"the target starts within {keep:g} m of obstacle {k}")
+        d = np.hypot(*(self.starts[:, :2] - p).T)
+        if d.min() <= t.capture_distance_m:
+            raise ScenarioError(
+                self.name,
+                f"robot_{int(d.argmin()) + 1} starts {d.min():.2f} m from the target: caught before it moves "
+                f"(capture_distance_m {t.capture_distance_m:g})",
+            )
 
     def _check_goals_apart(self) -> None:
         """Refuse goal squares that overlap, or that are too close for two robots to stand one in each.

@@ -173,7 +173,7 @@ class DeployRunner:
         """The handshake, then fresh data from every robot; odometry is rebased onto the layout's starts."""
         self.layout = draw_layout(self.scenario, seed)
         self.judge.use_layout(self.layout)
-        self.builder.scenario = self.layout
+        self.builder.use_layout(self.layout)
         self.emitter.clear()
         self.handshake.request(episode, seed)
         timeout_s = self.fleet.timing.reset_timeout_s

@@ -57,6 +57,13 @@ class MultiRobotSim:
         self.episode_layout = scenario
         """The layout of the current episode (the scenario itself without random layouts)."""
 
+    def _track(self) -> None:
+        """A pursuit's goals are where its target is now."""
+        target = self.world.target_xy
+        if target is not None:
+            self.judge.track(target)
+            self.observer.track(target)
+
     def _observe(self) -> np.ndarray:
         self.raw_scan = self.world.scan()
         observed = self.observer.build(self.raw_scan, self.world.scan_geometry, self.world.odometry.pose)
@@ -74,9 +81,10 @@ class MultiRobotSim:
         if self.random_layouts and seed is not None:
             self.episode_layout = draw_layout(self.scenario, seed)
             self.world.use_layout(self.episode_layout)
-            self.observer.scenario = self.episode_layout
+            self.observer.use_layout(self.episode_layout)
             self.judge.use_layout(self.episode_layout)
         self.world.reset(seed, starts)
+        self._track()
         self.judge.reset(self.world.truth)
         self.last_cmd = np.zeros((self.n, 2))
         return self._observe().copy()
@@ -87,6 +95,7 @@ class MultiRobotSim:
         cmd[self.judge.done] = 0.0
         self.last_cmd = cmd
         self.world.step(cmd)
+        self._track()
         obs = self._observe()
         judged = self.judge.step(self.world.odometry.pose, self.world.truth, self.ranges)
         return SimStep(obs=obs.copy(), judge=judged)
