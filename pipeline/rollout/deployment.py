@@ -127,6 +127,13 @@ def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scen
         problems.append(
             f"scenario {scenario.name!r} draws a layout per episode and the policy's observation ('paper') has no goal"
         )
+    if scenario.pursuit and not fleet.timing.use_ground_truth:
+        problems.append(
+            f"scenario {scenario.name!r} is a pursuit: the policy needs the target's pose from motion capture "
+            f"({T.TARGET_TRUTH.name}), and the fleet has none (timing.use_ground_truth is false)"
+        )
+    if scenario.pursuit and runtime.layout.name == "paper":
+        problems.append(f"scenario {scenario.name!r} is a pursuit and the policy's observation ('paper') has no goal")
     if scenario.layouts is not None and fleet.target == "robots":
         problems.append(
             f"scenario {scenario.name!r} draws a layout per episode: on real robots someone would have to move the "

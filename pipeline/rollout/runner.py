@@ -84,7 +84,8 @@ class DeployRunner:
             self._check_alive,
             confirm_reset,
         )
-        self.link = FleetLink(fleet, transport, clock, log, self.handshake.confirmed)
+        self.pursuit = scenario.pursuit
+        self.link = FleetLink(fleet, transport, clock, log, self.handshake.confirmed, target=self.pursuit)
         self.receiver = self.link.receiver
         self.emitter = self.link.emitter
         self.staleness = StalenessWatch(round(fleet.timing.abort_after_s * NS_PER_S))
@@ -112,6 +113,8 @@ class DeployRunner:
                     missing.append(f"{robot.name} ({spec.name})")
                     break
             self._check_alive()
+        if self.pursuit and not self.transport.wait_for_match(T.TARGET_TRUTH, 1, max(0.0, deadline - time.monotonic())):
+            missing.append(f"the pursuit's target ({T.TARGET_TRUTH.name})")
         if self.fleet.target == "twin" and not self.transport.wait_for_match(
             T.FLEET_TOPICS["reset"], 1, max(0.0, deadline - time.monotonic())
         ):
@@ -182,14 +185,20 @@ class DeployRunner:
         deadline = time.monotonic() + timeout_s
         while True:
             state = self.receiver.joint_state(self.clock.now_ns())
-            if state.complete and all(
-                s.odom is not None and s.odom.receive_ns >= reset_ns for s in state.robots.values()
+            target = self.link.target() if self.pursuit else None
+            target_fresh = not self.pursuit or (target is not None and target[1] >= reset_ns)
+            if (
+                state.complete
+                and target_fresh
+                and all(s.odom is not None and s.odom.receive_ns >= reset_ns for s in state.robots.values())
             ):
                 break
             if time.monotonic() > deadline:
+                stale = [f"{r}: {why}" for r, why in state.stale.items()]
+                if not target_fresh:
+                    stale.append(f"no pose of the target on {T.TARGET_TRUTH.name}")
                 raise FleetNotReady(
-                    f"no fresh data after the reset of episode {episode} within {timeout_s:g} s: "
-                    + "; ".join(f"{r}: {why}" for r, why in state.stale.items())
+                    f"no fresh data after the reset of episode {episode} within {timeout_s:g} s: " + "; ".join(stale)
                 )
             self._check_alive()
             time.sleep(0.005)
@@ -197,6 +206,13 @@ class DeployRunner:
         self.staleness.reset()
         odom = np.stack([state.robots[ns].odom.pose for ns in self.namespaces])  # type: ignore[union-attr]
         self.odometry.rebase(self.layout.starts, odom)
+
+    def _track(self) -> None:
+        """A pursuit's goals are where motion capture last saw its target."""
+        target = self.link.target() if self.pursuit else None
+        if target is not None:
+            self.judge.track(target[0])
+            self.builder.track(target[0])
 
     def next_control_time(self, now_ns: int) -> int:
         """The first control time at or after `now_ns` on the grid half an emitter tick before the ticks.
@@ -218,6 +234,7 @@ class DeployRunner:
         self.log.map(t_start, self.layout)
         _, _, odom_raw, truth = self.samples.arrays(self.receiver.joint_state(t_start))
         odom = self.odometry.to_map(odom_raw)
+        self._track()
         self.judge.reset(truth if truth is not None else odom)
         tally = EpisodeTally(episode, seed, self.namespaces, self.mdp.definition.control_period_s)
         tally.start(truth if truth is not None else odom)
@@ -252,6 +269,7 @@ class DeployRunner:
                 break
             scans, geoms, odom_raw, truth = self.samples.arrays(state)
             odom = self.odometry.to_map(odom_raw)
+            self._track()
             observed = self.builder.build(scans, geoms, odom)
             if step > 0:
                 judged = self.judge.step(odom, truth, observed.ranges)

@@ -13,6 +13,8 @@ from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.mappings import to_mapping
 from pipeline.mdp import MdpDefinition
+from pipeline.messages import convert as C
+from pipeline.messages import topics as T
 from pipeline.params import EvalSimConfig, WorldConfig
 from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
@@ -38,6 +40,10 @@ def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
         log.scan(t_ns, ns, sim.raw_scan[i], world.scan_geometry)
         log.odom(t_ns, ns, world.odometry.pose[i], (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1])))
         log.ground_truth(t_ns, ns, world.truth[i])
+    target = world.target_xy
+    if target is not None:  # a pursuit's target, as motion capture on a fleet shows it
+        pose = np.array([target[0], target[1], world.evader.heading_rad if world.evader is not None else 0.0])
+        log.message(T.TARGET_TRUTH, C.pose_stamped(t_ns, "map", pose, store=log.store), t_ns, t_ns)
     log.tf(t_ns, world.odometry.pose, world.truth)
 
 

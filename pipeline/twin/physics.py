@@ -102,6 +102,13 @@ def _model_xml(scenario: Scenario, base: BaseParams, offsets: np.ndarray, wall_o
         parts.append(
             _box_xml(f"box_{k}", box.x_m + dx, box.y_m + dy, box.yaw_rad, box.size_x_m, box.size_y_m, box.height_m)
         )
+    if scenario.target is not None:  # a pursuit's target: moved by the twin's evader, seen and bumped into
+        tg = scenario.target
+        parts.append(
+            f'<body name="target" mocap="true" pos="{tg.start.x_m} {tg.start.y_m} {tg.height_m / 2}">'
+            f'<geom name="target" type="cylinder" size="{tg.radius_m} {tg.height_m / 2}" contype="2" conaffinity="2" '
+            'rgba="0.55 0.35 0.2 1"/></body>'
+        )
     r_nom = max(base.wheel_radius_left_m, base.wheel_radius_right_m)
     radius, height = shape.radius_m, shape.height_m
     m = base.mass_kg
@@ -292,6 +299,10 @@ class FleetPhysics:
                 if g in index:
                     hit[index[g]] = True
         return hit
+
+    def set_target(self, xy: np.ndarray) -> None:
+        """Move a pursuit's target body to `xy` (2,)."""
+        self.data.mocap_pos[0, :2] = np.asarray(xy, dtype=float)[:2]
 
     # -- lidar -----------------------------------------------------------------------------
 
