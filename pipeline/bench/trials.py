@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -168,6 +169,8 @@ class TrialRow:
     robot_success: float
     team_success: float
     collision_rate: float
+    time_to_goal_s: float | None = None
+    """Mean time of the robots that reached their goals (in a pursuit: time to capture); None if none did."""
     params_digest: str = ""
     fixed_layout_robot_success: float | None = None
     """With random layouts: robot success over the same number of episodes in the scenario's own layout."""
@@ -244,6 +247,7 @@ def run_trial(
         robot_success=summary["eval/robot_success"],
         team_success=summary["eval/team_success"],
         collision_rate=summary["eval/collision_rate"],
+        time_to_goal_s=None if math.isnan(summary["eval/mean_time_to_goal_s"]) else summary["eval/mean_time_to_goal_s"],
         params_digest=trial.digest(base),
         fixed_layout_robot_success=fixed.get("f/robot_success"),
         fixed_layout_team_success=fixed.get("f/team_success"),

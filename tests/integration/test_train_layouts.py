@@ -118,6 +118,7 @@ def test_a_sweep_trial_on_random_layouts_also_scores_the_scenarios_own_layout(tm
     base = merge(base_mapping(load_params()), tiny)
     row = run_trial(Trial("sac", "shared", "obstacles_random", 0), base, tmp_path / "trial", 3, say=lambda _: None)
     assert row["eval_episodes"] == 3 and 0.0 <= row["robot_success"] <= 1.0
+    assert (row["time_to_goal_s"] is None) == (row["robot_success"] == 0.0)
     assert row["fixed_layout_robot_success"] is not None and 0.0 <= row["fixed_layout_robot_success"] <= 1.0
     plain = run_trial(Trial("sac", "shared", "obstacles", 0), base, tmp_path / "plain", 2, say=lambda _: None)
     assert plain["fixed_layout_robot_success"] is None
