@@ -19,7 +19,7 @@ from typing import Any
 
 import polars as pl
 
-from pipeline.bench.trials import Trial, read_row, run_trial
+from pipeline.bench.trials import Trial, read_row, run_trial, write_row
 from pipeline.errors import MrlError
 
 RESULTS = "results"
@@ -115,6 +115,11 @@ def _run_on_ray(
             done += 1
             try:
                 row = ray.get(ready[0])
+                # the row comes back to the driver: on a cluster the trial's node may not share its disk
+                folder = trial_folder(out, trial)
+                if read_row(folder) != row:
+                    folder.mkdir(parents=True, exist_ok=True)
+                    write_row(folder, row)
                 what = f"robot success {row['robot_success']:.3f}"
             except Exception as exc:  # a failed trial is reported, the sweep goes on
                 failed[trial.name] = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
