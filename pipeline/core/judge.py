@@ -87,7 +87,7 @@ class EpisodeJudge:
         self.goals = scenario.goals
         self.capture_m = scenario.target.capture_distance_m if scenario.target is not None else None
         self.half_goal_m = scenario.goal_size_m / 2
-        self.radius_m = scenario.robot.radius_m
+        self.radius_m = scenario.radii  # (n_robots,) each robot's body
 
     def track(self, target_xy: np.ndarray) -> None:
         """A pursuit's target is now at `target_xy` (2,): every robot's goal from the next judgement on."""
@@ -149,7 +149,7 @@ class EpisodeJudge:
             gap = np.minimum(gap, box_clearance(box, xy) - self.radius_m)
         if len(xy) > 1:
             diff = xy[:, None, :] - xy[None, :, :]
-            dist = np.hypot(diff[..., 0], diff[..., 1]) - 2 * self.radius_m
+            dist = np.hypot(diff[..., 0], diff[..., 1]) - (self.radius_m[:, None] + self.radius_m[None, :])
             np.fill_diagonal(dist, np.inf)
             gap = np.minimum(gap, dist.min(axis=1))
         return np.asarray(gap)
@@ -221,4 +221,9 @@ class EpisodeJudge:
 def goal_fields(scenario: Scenario) -> GoalFields:
     """The free-path distance fields of every robot's goal (cached: scenarios are immutable; the last few
     layouts, so that an episode's layout drawn and checked for reachability is not computed again)."""
-    return GoalFields([DistanceField(scenario, goal) for goal in scenario.goals])
+    return GoalFields(
+        [
+            DistanceField(scenario, goal, radius_m=float(r))
+            for goal, r in zip(scenario.goals, scenario.radii, strict=True)
+        ]
+    )

@@ -80,7 +80,7 @@ def _wall_gap(scenario: Scenario, xy: np.ndarray) -> float:
 
 def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generator) -> tuple[Scenario | None, str]:
     room = scenario.room
-    r = scenario.robot.radius_m
+    r = float(scenario.radii.max())  # every body kept as clear as the largest
     c = ranges.clearance_m
     half = scenario.goal_size_m / 2
     boxes = list(scenario.obstacles)

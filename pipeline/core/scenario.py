@@ -73,6 +73,11 @@ class RobotSpec:
 
     start: Pose2D = setting()
     goal: Point2D | None = setting(None, optional=True)
+    shape: RobotShape | None = setting(None, optional=True)
+    """This robot's body when it differs from the scenario's `robot` (a mixed fleet)."""
+    v_max_mps: float | None = setting(None, gt=0.0, le=10.0, optional=True)
+    """This robot's speed limit when it differs from params.yaml's world.actions (a mixed fleet)."""
+    w_max_radps: float | None = setting(None, gt=0.0, le=50.0, optional=True)
 
 
 @dataclass(frozen=True)
@@ -163,6 +168,33 @@ class Scenario:
     def n_robots(self) -> int:
         return len(self.robots)
 
+    @cached_property
+    def shapes(self) -> tuple[RobotShape, ...]:
+        """Each robot's body (its own `shape`, else the scenario's `robot`)."""
+        return tuple(r.shape if r.shape is not None else self.robot for r in self.robots)
+
+    @cached_property
+    def radii(self) -> np.ndarray:
+        """(n_robots,) body radii (m)."""
+        return np.array([s.radius_m for s in self.shapes])
+
+    @property
+    def mixed(self) -> bool:
+        """Robots with bodies or speed limits of their own."""
+        return any(r.shape is not None or r.v_max_mps is not None or r.w_max_radps is not None for r in self.robots)
+
+    def speed_limits(self, v_max_mps: float, w_max_radps: float) -> np.ndarray:
+        """(n_robots, 2) each robot's (v_max m/s, w_max rad/s): its own, else the given ones."""
+        return np.array(
+            [
+                [
+                    r.v_max_mps if r.v_max_mps is not None else v_max_mps,
+                    r.w_max_radps if r.w_max_radps is not None else w_max_radps,
+                ]
+                for r in self.robots
+            ]
+        )
+
     @property
     def robot_names(self) -> tuple[str, ...]:
         return tuple(f"robot_{i + 1}" for i in range(self.n_robots))
@@ -202,7 +234,6 @@ class Scenario:
             raise
 
     def _check_geometry(self) -> None:
-        r = self.robot.radius_m
         room = self.room
         half = self.goal_size_m / 2
         missing = [n for n, spec in zip(self.robot_names, self.robots, strict=True) if spec.goal is None]
@@ -214,7 +245,7 @@ class Scenario:
             if self.layouts is not None:
                 raise ScenarioError(self.name, "a pursuit scenario cannot draw random layouts (yet)")
             self._check_target()
-        for name, spec in zip(self.robot_names, self.robots, strict=True):
+        for name, spec, r in zip(self.robot_names, self.robots, self.radii, strict=True):
             s, g = spec.start, spec.goal if spec.goal is not None else Point2D(*self.goals[0])
             if not (room.x_min_m + r <= s.x_m <= room.x_max_m - r and room.y_min_m + r <= s.y_m <= room.y_max_m - r):
                 raise ScenarioError(
@@ -245,11 +276,12 @@ class Scenario:
         for i in range(self.n_robots):
             for j in range(i + 1, self.n_robots):
                 d = float(np.hypot(*(starts[i] - starts[j])))
-                if d < 2 * r:
+                reach = float(self.radii[i] + self.radii[j])
+                if d < reach:
                     raise ScenarioError(
                         self.name,
                         f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
-                        f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap",
+                        f"closer than their two radii ({reach:.3f} m): their bodies overlap",
                     )
         if self.target is None:
             self._check_goals_apart()
@@ -294,10 +326,10 @@ class Scenario:
         cannot hold both robots at once.
         """
         size = self.goal_size_m
-        reach = 2 * self.robot.radius_m
         goals = self.goals
         for i in range(self.n_robots):
             for j in range(i + 1, self.n_robots):
+                reach = float(self.radii[i] + self.radii[j])
                 dx, dy = (float(v) for v in np.abs(goals[i] - goals[j]))
                 both = (
                     f"the goal squares of robot_{i + 1} at ({goals[i][0]:g}, {goals[i][1]:g}) and "
@@ -405,10 +437,11 @@ def perturbed_starts(
     starts = scenario.starts.copy()
     if xy_m <= 0 and yaw_rad <= 0:
         return starts
-    r = scenario.robot.radius_m
     room = scenario.room
     half = scenario.goal_size_m / 2
+    radii = scenario.radii
     for i in range(scenario.n_robots):
+        r = float(radii[i])
         for _ in range(tries):
             cand = scenario.starts[i] + rng.uniform([-xy_m, -xy_m, -yaw_rad], [xy_m, xy_m, yaw_rad])
             x, y = cand[0], cand[1]
@@ -417,7 +450,8 @@ def perturbed_starts(
                 gap = min(gap, float(box_clearance(box, cand[None, :2])[0]) - r)
             others = np.delete(starts[:, :2], i, axis=0)
             if len(others):
-                gap = min(gap, float(np.hypot(*(others - cand[:2]).T).min()) - 2 * r)
+                reach = r + np.delete(radii, i)
+                gap = min(gap, float((np.hypot(*(others - cand[:2]).T) - reach).min()))
             gx, gy = scenario.goals[i]
             in_goal = abs(x - gx) <= half + r and abs(y - gy) <= half + r
             if gap >= clearance_m and not in_goal:

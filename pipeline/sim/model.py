@@ -43,7 +43,7 @@ class ModelIndex:
 
 def robot_mjcf(i: int, name: str, scenario: Scenario, world: WorldConfig) -> tuple[str, str]:
     """MJCF of one robot: its body and its three actuators."""
-    shape = scenario.robot
+    shape = scenario.shapes[i]
     r, h = shape.radius_m, shape.height_m
     tau = world.actuation.time_constant_s
     inertia_z = 0.5 * shape.mass_kg * r * r

@@ -79,7 +79,6 @@ def _box_xml(name: str, x: float, y: float, yaw: float, sx: float, sy: float, h:
 
 def _model_xml(scenario: Scenario, base: BaseParams, offsets: np.ndarray, wall_offset_m: float, dt: float) -> str:
     room = scenario.room
-    shape = scenario.robot
     parts = [
         f'<mujoco model="twin"><option timestep="{dt}" integrator="Euler" cone="elliptic"/>',
         '<default><geom solref="0.004 1" solimp="0.95 0.99 0.001"/></default>',
@@ -110,15 +109,16 @@ def _model_xml(scenario: Scenario, base: BaseParams, offsets: np.ndarray, wall_o
             'rgba="0.55 0.35 0.2 1"/></body>'
         )
     r_nom = max(base.wheel_radius_left_m, base.wheel_radius_right_m)
-    radius, height = shape.radius_m, shape.height_m
     m = base.mass_kg
-    ixx = m * (3 * radius**2 + height**2) / 12
-    izz = m * radius**2 / 2
-    chassis_z = CHASSIS_CLEARANCE_M + height / 2 - r_nom
     caster_z = CASTER_RADIUS_M - r_nom
-    caster_x = radius - CASTER_RADIUS_M - 0.01
     half = base.wheel_separation_m / 2
     for i, start in enumerate(scenario.starts):
+        shape = scenario.shapes[i]  # a mixed fleet's bodies differ; the wheels are the profile's
+        radius, height = shape.radius_m, shape.height_m
+        ixx = m * (3 * radius**2 + height**2) / 12
+        izz = m * radius**2 / 2
+        chassis_z = CHASSIS_CLEARANCE_M + height / 2 - r_nom
+        caster_x = radius - CASTER_RADIUS_M - 0.01
         parts.append(f'<body name="robot_{i}" pos="{start[0]} {start[1]} {r_nom}" euler="0 0 {start[2]}">')
         parts.append(f'<freejoint name="free_{i}"/>')
         parts.append(
