@@ -52,5 +52,5 @@ def test_a_mixed_fleet_deploys_with_its_limits_and_a_mismatch_is_refused_by_name
     faster = [dict(r) for r in ROBOTS]
     faster[2]["w_max_radps"] = 0.5
     quick = write_fleet(tmp_path / "quick.yaml", scenario="mixed", robots=faster)
-    with pytest.raises(PolicyMismatch, match="robot_3 was trained with limits 0.3 m/s and 0.4 rad/s"):
+    with pytest.raises(PolicyMismatch, match=r"robot_3 was trained with limits 0\.3 m/s and 0\.4 rad/s"):
         deploy_policy(runtime, load_fleet(quick), str(quick), request)
