@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import numpy as np
+
 from pipeline.core.actions import ActionCodec
 from pipeline.core.judge import EpisodeJudge, ProgressDistance, RewardWeights
 from pipeline.core.observation import LayoutName, ObservationBuilder, ObservationLayout
@@ -122,10 +124,13 @@ def mdp_parts(scenario: Scenario, world: WorldConfig) -> MdpParts:
     """The observation builder, action codec and judge of `world` in `scenario`."""
     d = MdpDefinition.of(world)
     layout = ObservationLayout(d.observation, d.beams)
+    codec = d.actions.codec().for_scenario(scenario)
+    observer = ObservationBuilder(scenario, layout, d.range_min_m, d.range_max_m, d.reduction)
+    observer.limits = np.column_stack([codec.limits(scenario.n_robots), scenario.radii])
     return MdpParts(
         definition=d,
         layout=layout,
-        observer=ObservationBuilder(scenario, layout, d.range_min_m, d.range_max_m, d.reduction),
-        codec=d.actions.codec(),
+        observer=observer,
+        codec=codec,
         judge=EpisodeJudge(scenario, d.reward, d.max_steps, d.collision_margin_m, d.progress_distance),
     )

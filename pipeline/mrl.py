@@ -495,7 +495,10 @@ def _eval(args: argparse.Namespace) -> int:
     options = {"episodes": args.episodes, "seed": args.seed, "out_dir": args.out}
     cfg = from_mapping(EvalSimConfig, merge(to_mapping(EvalSimConfig()), options), "command-line options")
     runtime = PolicyRuntime(args.policy)
-    scenario, world = make_world(world=runtime.spec.world)
+    world = runtime.spec.world
+    if args.layouts:
+        world = replace(world, layouts=args.layouts)
+    scenario, world = make_world(world=world)
     out = Path(cfg.out_dir)
     with live_view(args.live, args.live_port, "eval") as live:
         results, metrics = evaluate_session(scenario, world, runtime, cfg, out, live=live)
@@ -711,6 +714,12 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--episodes", type=int, default=20, metavar="N", help="(default: 20)")
     evaluate.add_argument("--seed", type=int, default=10_000, metavar="N", help="(default: 10000)")
     evaluate.add_argument("--out", default="evaluation", metavar="DIR", help="the output folder (default: evaluation)")
+    evaluate.add_argument(
+        "--layouts",
+        choices=("random", "fixed"),
+        default="",
+        help="a scenario with layouts ranges: a layout per episode (random) or its own (fixed); default: as trained",
+    )
     _live_options(evaluate)
 
     sweep = _verb(

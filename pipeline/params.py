@@ -164,6 +164,8 @@ class WorldConfig:
     progress_distance: ProgressDistance = setting("geodesic")
     """Progress toward the goal is measured along the free path (geodesic) or in a straight line."""
     observation: LayoutName = setting("paper")
+    layouts: Literal["random", "fixed"] = setting("random", optional=True)
+    """random: a scenario with layouts ranges draws each episode's layout from them; fixed: its own layout."""
     lidar: LidarConfig = setting(LidarConfig())
     odometry: OdometryConfig = setting(OdometryConfig())
     actuation: ActuationConfig = setting(ActuationConfig())

@@ -13,10 +13,11 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -168,7 +169,12 @@ class TrialRow:
     robot_success: float
     team_success: float
     collision_rate: float
+    time_to_goal_s: float | None = None
+    """Mean time of the robots that reached their goals (in a pursuit: time to capture); None if none did."""
     params_digest: str = ""
+    fixed_layout_robot_success: float | None = None
+    """With random layouts: robot success over the same number of episodes in the scenario's own layout."""
+    fixed_layout_team_success: float | None = None
     robot_success_by_robot: dict[str, float] = field(default_factory=dict)
 
     def as_flat(self) -> dict[str, Any]:
@@ -215,6 +221,10 @@ def run_trial(
     summary = summarize(results, prefix="eval")
     finished = [r for r in results if not r.aborted]
     per_robot = np.stack([r.success for r in finished]).mean(axis=0)
+    fixed: dict[str, float] = {}
+    if scenario.layouts is not None and world.layouts == "random":  # held-out layouts above; the own one too
+        own = MultiRobotSim(scenario, replace(world, layouts="fixed"))
+        fixed = summarize(evaluate(own, runtime.actions, eval_episodes, seed=EVAL_SEED, progress=False), prefix="f")
     converged_wall = (
         wall * result.converged_at_steps / max(result.world_steps, 1) if result.converged_at_steps is not None else None
     )
@@ -237,7 +247,10 @@ def run_trial(
         robot_success=summary["eval/robot_success"],
         team_success=summary["eval/team_success"],
         collision_rate=summary["eval/collision_rate"],
+        time_to_goal_s=None if math.isnan(summary["eval/mean_time_to_goal_s"]) else summary["eval/mean_time_to_goal_s"],
         params_digest=trial.digest(base),
+        fixed_layout_robot_success=fixed.get("f/robot_success"),
+        fixed_layout_team_success=fixed.get("f/team_success"),
         robot_success_by_robot={name: float(v) for name, v in zip(scenario.robot_names, per_robot, strict=True)},
     )
     record = row.as_flat()

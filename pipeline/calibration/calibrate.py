@@ -387,7 +387,7 @@ def _velocity_tracks(
     settings: CalibrationSettings,
 ) -> list[VelocityTrack]:
     out: list[VelocityTrack] = []
-    radius = data.scenario.robot.radius_m
+    radius = float(data.scenario.radii.max())
     margin = settings.actuation_contact_margin_m
     for robot in data.robots:
         cmd = robot.commands
@@ -543,7 +543,7 @@ def calibrate(
         pose_sources.append(source)
     assert scenario is not None
     geometry = (
-        floor.geometry(scenario.robot.radius_m)
+        floor.geometry(float(scenario.radii.max()))
         if floor is not None and scenario is fallback
         else MapGeometry.from_scenario(scenario)
     )

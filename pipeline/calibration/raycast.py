@@ -60,7 +60,7 @@ class MapGeometry:
         b = np.array(b_list, dtype=np.float64)
         e = b - a
         normal = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.hypot(e[:, 0], e[:, 1])[:, None]
-        return MapGeometry(a, b, normal, tuple(names), scenario.robot.radius_m)
+        return MapGeometry(a, b, normal, tuple(names), float(scenario.radii.max()))
 
     def cast(self, origin: np.ndarray, angle_rad: np.ndarray) -> RayHits:
         """Rays from `origin` (..., 2) (m) at map-frame angles `angle_rad` (..., m) (rad) against the static map.

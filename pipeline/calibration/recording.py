@@ -211,6 +211,12 @@ def recorded_scenario(
                 where, "the recording names no scenario (no 'scenario' metadata); pass the scenario it was made in"
             )
         return wanted
+    if recorded.layouts is not None:
+        raise CalibrationError(
+            where,
+            f"scenario {recorded.name!r} draws a layout per episode; calibration fits the lidar and the map against "
+            "one layout and cannot use this recording yet (record a scenario without layouts ranges)",
+        )
     if wanted is not None:
         if recorded.name != wanted.name:
             raise ScenarioMismatchError(where, recorded.name, wanted.name)

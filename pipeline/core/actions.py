@@ -8,12 +8,15 @@ backward (-0.15 m/s) and stop.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from pipeline.core.errors import ActionError
+
+if TYPE_CHECKING:
+    from pipeline.core.scenario import Scenario
 
 ActionKind = Literal["continuous", "discrete"]
 DiscreteName = Literal["forward", "left", "right", "backward", "stop"]
@@ -35,6 +38,24 @@ class ActionCodec:
     v_max_mps: float
     w_max_radps: float
     discrete_set: tuple[str, ...] = ("forward", "left", "right")
+    robot_limits: tuple[tuple[float, float], ...] = ()
+    """Per robot (v_max, w_max) of a mixed fleet: continuous actions scale to each robot's own, discrete
+    commands are cut to them; empty: every robot has `v_max_mps`, `w_max_radps`."""
+
+    def limits(self, n: int) -> np.ndarray:
+        """(n, 2) each robot's (v_max m/s, w_max rad/s)."""
+        if self.robot_limits:
+            if len(self.robot_limits) != n:
+                raise ActionError(f"actions for {n} robots, the codec has limits for {len(self.robot_limits)}")
+            return np.asarray(self.robot_limits, dtype=np.float64)
+        return np.tile([self.v_max_mps, self.w_max_radps], (n, 1))
+
+    def for_scenario(self, scenario: Scenario) -> ActionCodec:
+        """This codec with the robots' own limits of a mixed `scenario` (itself otherwise)."""
+        if not scenario.mixed:
+            return self
+        limits = scenario.speed_limits(self.v_max_mps, self.w_max_radps)
+        return replace(self, robot_limits=tuple((float(v), float(w)) for v, w in limits))
 
     def __post_init__(self) -> None:
         unknown = [n for n in self.discrete_set if n not in DISCRETE_COMMANDS]
@@ -50,6 +71,8 @@ class ActionCodec:
             a, b = getattr(self, key), getattr(other, key)
             if abs(a - b) > 1e-9:
                 out.append(f"actions.{key} {a:g} vs {b:g}")
+        if self.robot_limits != other.robot_limits:
+            out.append(f"the robots' own limits {list(self.robot_limits)} vs {list(other.robot_limits)}")
         if self.kind == other.kind == "discrete" and self.discrete_set != other.discrete_set:
             out.append(f"actions.discrete_set {list(self.discrete_set)} vs {list(other.discrete_set)}")
         return out
@@ -90,6 +113,8 @@ class ActionCodec:
             if not np.isfinite(a).all():
                 raise ActionError(f"continuous actions must be finite, got {a.tolist()}")
             a = np.clip(a, -1.0, 1.0)
+            if self.robot_limits:
+                return np.asarray(a * self.limits(len(a)))
             return np.stack([a[:, 0] * self.v_max_mps, a[:, 1] * self.w_max_radps], axis=1)
         idx = a.reshape(-1)
         if not np.issubdtype(idx.dtype, np.integer):
@@ -101,11 +126,18 @@ class ActionCodec:
                 f"discrete actions must lie in [0, {self.n_discrete - 1}] "
                 f"({', '.join(self.discrete_set)}), got {idx.tolist()}"
             )
-        return np.asarray(self.table[idx])
+        table = np.asarray(self.table[idx])
+        if self.robot_limits:
+            lim = self.limits(len(table))
+            table = np.clip(table, -lim, lim)
+        return table
 
     def encode(self, cmd: np.ndarray) -> np.ndarray:
         """Inverse of decode for continuous actions: (n, 2) (v, w) -> (n, 2) in [-1, 1]."""
         if self.kind != "continuous":
             raise ActionError("encode is defined for continuous actions only")
+        if self.robot_limits:
+            lim = self.limits(len(cmd))
+            return np.asarray(np.clip(np.asarray(cmd, dtype=np.float64), -lim, lim) / lim)
         c = self.clamp(cmd)
         return np.stack([c[:, 0] / self.v_max_mps, c[:, 1] / self.w_max_radps], axis=1)

@@ -23,7 +23,10 @@ from pipeline.core.scenario import Scenario, box_clearance
 class DistanceField:
     """Shortest free-path distance (m) from any point of the room to one goal point."""
 
-    def __init__(self, scenario: Scenario, goal_xy: np.ndarray, resolution_m: float = 0.05) -> None:
+    def __init__(
+        self, scenario: Scenario, goal_xy: np.ndarray, resolution_m: float = 0.05, radius_m: float | None = None
+    ) -> None:
+        """`radius_m`: the body kept clear of walls and boxes (default: the scenario's robot)."""
         room = scenario.room
         self.resolution_m = resolution_m
         self.x0, self.y0 = room.x_min_m, room.y_min_m
@@ -33,7 +36,7 @@ class DistanceField:
         ys = self.y0 + resolution_m * np.arange(ny)
         gx, gy = np.meshgrid(xs, ys, indexing="ij")
         points = np.stack([gx.ravel(), gy.ravel()], axis=1)
-        radius = scenario.robot.radius_m
+        radius = scenario.robot.radius_m if radius_m is None else radius_m
         clear = np.minimum.reduce(
             [
                 points[:, 0] - room.x_min_m,

@@ -66,15 +66,11 @@ class EpisodeJudge:
         distance: ProgressDistance = "euclidean",
     ) -> None:
         """`distance` measures progress toward the goal: straight-line, or along the free path ("geodesic")."""
-        self.scenario = scenario
         self.distance = distance
-        self._fields = _goal_fields(scenario) if distance == "geodesic" else None
         self.weights = weights
         self.max_steps = max_steps
         self.margin_m = collision_margin_m
-        self.goals = scenario.goals
-        self.half_goal_m = scenario.goal_size_m / 2
-        self.radius_m = scenario.robot.radius_m
+        self.use_layout(scenario)
         n = scenario.n_robots
         self.reached = np.zeros(n, dtype=bool)
         self.collided = np.zeros(n, dtype=bool)
@@ -82,6 +78,20 @@ class EpisodeJudge:
         self.team_success = False
         self._prev_dist = np.zeros(n)
         self._prev_heading_err = np.zeros(n)
+
+    def use_layout(self, scenario: Scenario) -> None:
+        """Judge against `scenario`'s goals and map from the next episode on (the same robots; another layout)."""
+        self.scenario = scenario
+        # a moving target's free-path field would change every step: a pursuit measures progress straight
+        self._fields = goal_fields(scenario) if self.distance == "geodesic" and not scenario.pursuit else None
+        self.goals = scenario.goals
+        self.capture_m = scenario.target.capture_distance_m if scenario.target is not None else None
+        self.half_goal_m = scenario.goal_size_m / 2
+        self.radius_m = scenario.radii  # (n_robots,) each robot's body
+
+    def track(self, target_xy: np.ndarray) -> None:
+        """A pursuit's target is now at `target_xy` (2,): every robot's goal from the next judgement on."""
+        self.goals = np.tile(np.asarray(target_xy, dtype=np.float64)[:2], (self.scenario.n_robots, 1))
 
     @property
     def done(self) -> np.ndarray:
@@ -119,7 +129,11 @@ class EpisodeJudge:
         return np.asarray(np.hypot(d[:, 0], d[:, 1]))
 
     def in_goal(self, pose: np.ndarray) -> np.ndarray:
-        """(n_robots,) robot centres inside their own goal squares."""
+        """(n_robots,) robot centres inside their own goal squares (in a pursuit: within capture distance of the
+        target)."""
+        if self.capture_m is not None:
+            d = np.asarray(pose)[:, :2] - self.goals
+            return np.asarray(np.hypot(d[:, 0], d[:, 1]) <= self.capture_m)
         d = np.abs(np.asarray(pose)[:, :2] - self.goals)
         return np.asarray((d[:, 0] <= self.half_goal_m) & (d[:, 1] <= self.half_goal_m))
 
@@ -135,7 +149,7 @@ class EpisodeJudge:
             gap = np.minimum(gap, box_clearance(box, xy) - self.radius_m)
         if len(xy) > 1:
             diff = xy[:, None, :] - xy[None, :, :]
-            dist = np.hypot(diff[..., 0], diff[..., 1]) - 2 * self.radius_m
+            dist = np.hypot(diff[..., 0], diff[..., 1]) - (self.radius_m[:, None] + self.radius_m[None, :])
             np.fill_diagonal(dist, np.inf)
             gap = np.minimum(gap, dist.min(axis=1))
         return np.asarray(gap)
@@ -160,6 +174,8 @@ class EpisodeJudge:
         arrived = self.in_goal(pose)
         new_collided = active & hit
         new_reached = active & arrived & ~hit
+        if self.capture_m is not None and new_reached.any():  # one robot's capture is the whole team's
+            new_reached = active & ~hit
         dist = self.goal_distance(pose)
         w = self.weights
         zeros = np.zeros(len(active))
@@ -202,6 +218,12 @@ class EpisodeJudge:
 
 
 @lru_cache(maxsize=16)
-def _goal_fields(scenario: Scenario) -> GoalFields:
-    """The free-path distance fields of every robot's goal (cached: scenarios are immutable)."""
-    return GoalFields([DistanceField(scenario, goal) for goal in scenario.goals])
+def goal_fields(scenario: Scenario) -> GoalFields:
+    """The free-path distance fields of every robot's goal (cached: scenarios are immutable; the last few
+    layouts, so that an episode's layout drawn and checked for reachability is not computed again)."""
+    return GoalFields(
+        [
+            DistanceField(scenario, goal, radius_m=float(r))
+            for goal, r in zip(scenario.goals, scenario.radii, strict=True)
+        ]
+    )

@@ -3,6 +3,8 @@
 ``paper``: x, y (odometry, m) then N ranges (m): 17 values for 15 beams, as the original.
 ``rich``: x, y, cos(yaw), sin(yaw) (odometry), the own goal's centre in the robot frame
 (forward, left, m), then N ranges (m). Shared networks need it: it tells robots apart.
+``rich_limits``: ``rich`` with the robot's own speed limits and body radius (v_max m/s, w_max rad/s,
+radius m) before the ranges: one shared network for a mixed fleet.
 
 The builder (:class:`ObservationBuilder`) is the one path from raw sensor data to observations, used by
 sim, twin and robots. A world hands over each robot's LaserScan-shaped ranges with their geometry and its odometry
@@ -21,13 +23,16 @@ import numpy as np
 from pipeline.core.scan import Reduction, ScanGeometry, reduce_scan
 from pipeline.core.scenario import Scenario
 
-LayoutName = Literal["paper", "rich"]
-LAYOUTS: tuple[LayoutName, ...] = ("paper", "rich")
+LayoutName = Literal["paper", "rich", "rich_limits"]
+LAYOUTS: tuple[LayoutName, ...] = ("paper", "rich", "rich_limits")
 
 _FIELDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": (("position", 2),),
     "rich": (("position", 2), ("heading", 2), ("goal_in_robot", 2)),
+    "rich_limits": (("position", 2), ("heading", 2), ("goal_in_robot", 2), ("limits", 3)),
 }
+LIMITS_HIGH = (10.0, 50.0, 2.0)
+"""Upper bounds of the limits field (v_max m/s, w_max rad/s, radius m), as the scenario's keys allow."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,7 @@ class ObservationLayout:
             "position": ("x_m", "y_m"),
             "heading": ("cos_yaw", "sin_yaw"),
             "goal_in_robot": ("goal_forward_m", "goal_left_m"),
+            "limits": ("v_max_mps", "w_max_radps", "radius_m"),
             "ranges": tuple(f"range_{k}_m" for k in range(self.n_beams)),
         }
         return tuple(n for name, _ in self.fields for n in per_field[name])
@@ -87,31 +93,44 @@ class ObservationLayout:
             ),
             "heading": ([-1.0, -1.0], [1.0, 1.0]),
             "goal_in_robot": ([-span, -span], [span, span]),
+            "limits": ([0.0, 0.0, 0.0], list(LIMITS_HIGH)),
             "ranges": ([range_min_m] * self.n_beams, [range_max_m] * self.n_beams),
         }
         low = np.concatenate([per_field[n][0] for n, _ in self.fields]).astype(np.float32)
         high = np.concatenate([per_field[n][1] for n, _ in self.fields]).astype(np.float32)
         return low, high
 
-    def build(self, odom_pose: np.ndarray, ranges: np.ndarray, goals: np.ndarray) -> np.ndarray:
+    @property
+    def has_goal(self) -> bool:
+        """Whether the robot's goal is in it (every layout but the paper's)."""
+        return self.name != "paper"
+
+    def build(
+        self, odom_pose: np.ndarray, ranges: np.ndarray, goals: np.ndarray, limits: np.ndarray | None = None
+    ) -> np.ndarray:
         """Observations (n_robots, size) float32.
 
         odom_pose: (n_robots, 3) x, y (m), yaw (rad) from odometry.
         ranges: (n_robots, n_beams) reduced lidar ranges (m).
         goals: (n_robots, 2) goal centres (m).
+        limits: (n_robots, 3) v_max (m/s), w_max (rad/s), body radius (m) (``rich_limits`` only).
         """
         pose = np.asarray(odom_pose, dtype=np.float64)
         r = np.asarray(ranges, dtype=np.float64)
         if r.shape != (pose.shape[0], self.n_beams):
             raise ValueError(f"ranges have shape {r.shape}, the layout needs ({pose.shape[0]}, {self.n_beams})")
         parts = [pose[:, :2]]
-        if self.name == "rich":
+        if self.name in ("rich", "rich_limits"):
             c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
             d = np.asarray(goals, dtype=np.float64) - pose[:, :2]
             parts += [
                 np.stack([c, s], axis=1),
                 np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1),
             ]
+        if self.name == "rich_limits":
+            if limits is None or np.shape(limits) != (pose.shape[0], 3):
+                raise ValueError(f"the rich_limits layout needs limits of shape ({pose.shape[0]}, 3)")
+            parts.append(np.asarray(limits, dtype=np.float64))
         parts.append(r)
         return np.concatenate(parts, axis=1).astype(np.float32)
 
@@ -136,6 +155,10 @@ class ObservationBuilder:
         reduction: Reduction = "sector_min",
     ) -> None:
         self.scenario = scenario
+        self.goals = scenario.goals
+        self.limits: np.ndarray | None = None
+        """(n_robots, 3) v_max, w_max, radius of each robot, for the ``rich_limits`` layout (set by the MDP)."""
+        """(n_robots, 2) the goals the observation points at: the layout's, or a pursuit's moving target."""
         self.layout = layout
         self.range_min_m = range_min_m
         self.range_max_m = range_max_m
@@ -144,6 +167,15 @@ class ObservationBuilder:
         self.low, self.high = layout.bounds(
             (room.x_min_m, room.x_max_m), (room.y_min_m, room.y_max_m), range_min_m, range_max_m
         )
+
+    def use_layout(self, scenario: Scenario) -> None:
+        """Observe against `scenario`'s goals (another layout of the same room and robots)."""
+        self.scenario = scenario
+        self.goals = scenario.goals
+
+    def track(self, target_xy: np.ndarray) -> None:
+        """A pursuit's target is now at `target_xy` (2,): every robot's goal in its observation."""
+        self.goals = np.tile(np.asarray(target_xy, dtype=np.float64)[:2], (self.scenario.n_robots, 1))
 
     def reduce(
         self, scans: np.ndarray | Sequence[np.ndarray], geometry: ScanGeometry | Sequence[ScanGeometry]
@@ -169,5 +201,5 @@ class ObservationBuilder:
     ) -> Observed:
         """Observations from scans and odometry poses (n_robots, 3) x, y (m), yaw (rad)."""
         ranges = self.reduce(scans, geometry)
-        obs = self.layout.build(odom_pose, ranges, self.scenario.goals)
+        obs = self.layout.build(odom_pose, ranges, self.goals, self.limits)
         return Observed(ranges=ranges, obs=np.clip(obs, self.low, self.high))

@@ -69,10 +69,31 @@ class Point2D:
 
 @dataclass(frozen=True)
 class RobotSpec:
-    """Where a robot starts and the centre of its goal square."""
+    """Where a robot starts and the centre of its goal square (none in a pursuit: the target is the goal)."""
 
     start: Pose2D = setting()
-    goal: Point2D = setting()
+    goal: Point2D | None = setting(None, optional=True)
+    shape: RobotShape | None = setting(None, optional=True)
+    """This robot's body when it differs from the scenario's `robot` (a mixed fleet)."""
+    v_max_mps: float | None = setting(None, gt=0.0, le=10.0, optional=True)
+    """This robot's speed limit when it differs from params.yaml's world.actions (a mixed fleet)."""
+    w_max_radps: float | None = setting(None, gt=0.0, le=50.0, optional=True)
+
+
+@dataclass(frozen=True)
+class Target:
+    """The pursuit task's moving target (a quadruped in the reference paper), driven by the scripted evader of
+    :mod:`pipeline.core.evader`: it flees the nearest pursuer closer than `flee_distance_m` at up to
+    `speed_mps`, stays `radius_m` plus `clearance_m` off walls and boxes, and is caught when any robot's centre
+    comes within `capture_distance_m` of its own."""
+
+    start: Point2D = setting()
+    radius_m: float = setting(0.25, gt=0.0, le=2.0, optional=True)
+    height_m: float = setting(0.4, gt=0.0, optional=True)
+    speed_mps: float = setting(0.2, ge=0.0, le=5.0, optional=True)
+    flee_distance_m: float = setting(2.0, gt=0.0, optional=True)
+    capture_distance_m: float = setting(0.6, gt=0.0, optional=True)
+    clearance_m: float = setting(0.1, ge=0.0, optional=True)
 
 
 @dataclass(frozen=True)
@@ -88,9 +109,45 @@ class Box:
     yaw_rad: float = setting(0.0)
 
 
+Range = tuple[float, ...]
+"""[low, high] of a uniform draw."""
+
+
+@dataclass(frozen=True)
+class LayoutRanges:
+    """Per-episode layouts (:mod:`pipeline.core.layouts`): each episode draws every robot's start pose and goal
+    and every box's centre (and yaw) uniformly from these ranges (metres, radians), seeded by the episode's
+    seed; boxes keep their sizes. A draw keeps `clearance_m` of free space between bodies, walls and goal
+    squares and each goal at least `min_goal_distance_m` from its robot's start; a scenario whose ranges give
+    no such layout in `tries` draws is refused with the reason."""
+
+    start_x_m: Range = setting(min_len=2, max_len=2)
+    start_y_m: Range = setting(min_len=2, max_len=2)
+    goal_x_m: Range = setting(min_len=2, max_len=2)
+    goal_y_m: Range = setting(min_len=2, max_len=2)
+    start_yaw_rad: Range = setting((-math.pi, math.pi), min_len=2, max_len=2, optional=True)
+    box_x_m: Range = setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
+    box_y_m: Range = setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
+    box_yaw_rad: Range = setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
+    move_boxes: bool = setting(True, optional=True)
+    """False: the boxes stay where `obstacles` puts them (box ranges unused)."""
+    min_goal_distance_m: float = setting(1.0, ge=0.0, optional=True)
+    clearance_m: float = setting(0.1, ge=0.0, optional=True)
+    tries: int = setting(1000, ge=1, le=1_000_000, optional=True)
+
+    def check(self) -> list[tuple[str, object, str]]:
+        bad: list[tuple[str, object, str]] = []
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, tuple) and len(value) == 2 and not value[0] <= value[1]:
+                bad.append((f.name, list(value), "[low, high] with low <= high"))
+        return bad
+
+
 @dataclass(frozen=True)
 class Scenario:
-    """A room, its robots (named robot_1..N in order) and obstacles."""
+    """A room, its robots (named robot_1..N in order) and obstacles (and, optionally, ranges that draw another
+    layout of them per episode)."""
 
     name: str = setting()
     room: Room = setting()
@@ -98,10 +155,45 @@ class Scenario:
     robots: tuple[RobotSpec, ...] = setting(min_len=1)
     goal_size_m: float = setting(0.4, gt=0.0)
     obstacles: tuple[Box, ...] = setting(())
+    layouts: LayoutRanges | None = setting(None, optional=True)
+    """Ranges for a layout per episode; None: every episode uses the layout above."""
+    target: Target | None = setting(None, optional=True)
+    """The pursuit task: the robots chase this target instead of driving to goals."""
+
+    @property
+    def pursuit(self) -> bool:
+        return self.target is not None
 
     @property
     def n_robots(self) -> int:
         return len(self.robots)
+
+    @cached_property
+    def shapes(self) -> tuple[RobotShape, ...]:
+        """Each robot's body (its own `shape`, else the scenario's `robot`)."""
+        return tuple(r.shape if r.shape is not None else self.robot for r in self.robots)
+
+    @cached_property
+    def radii(self) -> np.ndarray:
+        """(n_robots,) body radii (m)."""
+        return np.array([s.radius_m for s in self.shapes])
+
+    @property
+    def mixed(self) -> bool:
+        """Robots with bodies or speed limits of their own."""
+        return any(r.shape is not None or r.v_max_mps is not None or r.w_max_radps is not None for r in self.robots)
+
+    def speed_limits(self, v_max_mps: float, w_max_radps: float) -> np.ndarray:
+        """(n_robots, 2) each robot's (v_max m/s, w_max rad/s): its own, else the given ones."""
+        return np.array(
+            [
+                [
+                    r.v_max_mps if r.v_max_mps is not None else v_max_mps,
+                    r.w_max_radps if r.w_max_radps is not None else w_max_radps,
+                ]
+                for r in self.robots
+            ]
+        )
 
     @property
     def robot_names(self) -> tuple[str, ...]:
@@ -114,8 +206,10 @@ class Scenario:
 
     @cached_property
     def goals(self) -> np.ndarray:
-        """(n_robots, 2) goal square centres (m)."""
-        return np.array([[r.goal.x_m, r.goal.y_m] for r in self.robots])
+        """(n_robots, 2) goal square centres (m); in a pursuit, the target's start for every robot."""
+        if self.target is not None:
+            return np.tile([self.target.start.x_m, self.target.start.y_m], (self.n_robots, 1))
+        return np.array([[r.goal.x_m, r.goal.y_m] for r in self.robots])  # type: ignore[union-attr]
 
     @property
     def diagonal_m(self) -> float:
@@ -140,11 +234,19 @@ class Scenario:
             raise
 
     def _check_geometry(self) -> None:
-        r = self.robot.radius_m
         room = self.room
         half = self.goal_size_m / 2
-        for name, spec in zip(self.robot_names, self.robots, strict=True):
-            s, g = spec.start, spec.goal
+        missing = [n for n, spec in zip(self.robot_names, self.robots, strict=True) if spec.goal is None]
+        if self.target is None and missing:
+            raise ScenarioError(
+                self.name, f"{', '.join(missing)} has no goal (only a pursuit scenario, with a target, leaves them out)"
+            )
+        if self.target is not None:
+            if self.layouts is not None:
+                raise ScenarioError(self.name, "a pursuit scenario cannot draw random layouts (yet)")
+            self._check_target()
+        for name, spec, r in zip(self.robot_names, self.robots, self.radii, strict=True):
+            s, g = spec.start, spec.goal if spec.goal is not None else Point2D(*self.goals[0])
             if not (room.x_min_m + r <= s.x_m <= room.x_max_m - r and room.y_min_m + r <= s.y_m <= room.y_max_m - r):
                 raise ScenarioError(
                     self.name,
@@ -174,13 +276,15 @@ class Scenario:
         for i in range(self.n_robots):
             for j in range(i + 1, self.n_robots):
                 d = float(np.hypot(*(starts[i] - starts[j])))
-                if d < 2 * r:
+                reach = float(self.radii[i] + self.radii[j])
+                if d < reach:
                     raise ScenarioError(
                         self.name,
                         f"robot_{i + 1} and robot_{j + 1} start {d:.3f} m apart, "
-                        f"closer than two robot radii ({2 * r:.3f} m): their bodies overlap",
+                        f"closer than their two radii ({reach:.3f} m): their bodies overlap",
                     )
-        self._check_goals_apart()
+        if self.target is None:
+            self._check_goals_apart()
         for k, box in enumerate(self.obstacles):
             corners = box_corners(box)
             if (
@@ -191,6 +295,28 @@ class Scenario:
             ):
                 raise ScenarioError(self.name, f"obstacle {k} at ({box.x_m}, {box.y_m}) reaches outside the room")
 
+    def _check_target(self) -> None:
+        t = self.target
+        if t is None:
+            return
+        room, p = self.room, np.array([[t.start.x_m, t.start.y_m]])
+        keep = t.radius_m + t.clearance_m
+        if not (
+            room.x_min_m + keep <= p[0, 0] <= room.x_max_m - keep
+            and room.y_min_m + keep <= p[0, 1] <= room.y_max_m - keep
+        ):
+            raise ScenarioError(self.name, f"the target starts at ({p[0, 0]}, {p[0, 1]}), within {keep:g} m of a wall")
+        for k, box in enumerate(self.obstacles):
+            if box_clearance(box, p)[0] < keep:
+                raise ScenarioError(self.name, f"the target starts within {keep:g} m of obstacle {k}")
+        d = np.hypot(*(self.starts[:, :2] - p).T)
+        if d.min() <= t.capture_distance_m:
+            raise ScenarioError(
+                self.name,
+                f"robot_{int(d.argmin()) + 1} starts {d.min():.2f} m from the target: caught before it moves "
+                f"(capture_distance_m {t.capture_distance_m:g})",
+            )
+
     def _check_goals_apart(self) -> None:
         """Refuse goal squares that overlap, or that are too close for two robots to stand one in each.
 
@@ -200,10 +326,10 @@ class Scenario:
         cannot hold both robots at once.
         """
         size = self.goal_size_m
-        reach = 2 * self.robot.radius_m
         goals = self.goals
         for i in range(self.n_robots):
             for j in range(i + 1, self.n_robots):
+                reach = float(self.radii[i] + self.radii[j])
                 dx, dy = (float(v) for v in np.abs(goals[i] - goals[j]))
                 both = (
                     f"the goal squares of robot_{i + 1} at ({goals[i][0]:g}, {goals[i][1]:g}) and "
@@ -283,6 +409,15 @@ def load_scenario(spec: str | Path | Scenario | dict[str, Any], n_robots: int | 
     if n_robots is not None:
         scenario = scenario.with_robots(n_robots)
     scenario.validate(source)
+    if scenario.layouts is not None:
+        from pipeline.core.layouts import draw_layout  # (it builds on this module)
+
+        try:
+            draw_layout(scenario, 0)  # a scenario whose ranges hold no valid layout is refused now
+        except ScenarioError as exc:
+            raise ScenarioError(
+                exc.scenario, f"{exc.problem}" + (f" (scenario file {source})" if source else "")
+            ) from None
     return scenario
 
 
@@ -302,10 +437,11 @@ def perturbed_starts(
     starts = scenario.starts.copy()
     if xy_m <= 0 and yaw_rad <= 0:
         return starts
-    r = scenario.robot.radius_m
     room = scenario.room
     half = scenario.goal_size_m / 2
+    radii = scenario.radii
     for i in range(scenario.n_robots):
+        r = float(radii[i])
         for _ in range(tries):
             cand = scenario.starts[i] + rng.uniform([-xy_m, -xy_m, -yaw_rad], [xy_m, xy_m, yaw_rad])
             x, y = cand[0], cand[1]
@@ -314,7 +450,8 @@ def perturbed_starts(
                 gap = min(gap, float(box_clearance(box, cand[None, :2])[0]) - r)
             others = np.delete(starts[:, :2], i, axis=0)
             if len(others):
-                gap = min(gap, float(np.hypot(*(others - cand[:2]).T).min()) - 2 * r)
+                reach = r + np.delete(radii, i)
+                gap = min(gap, float((np.hypot(*(others - cand[:2]).T) - reach).min()))
             gx, gy = scenario.goals[i]
             in_goal = abs(x - gx) <= half + r and abs(y - gy) <= half + r
             if gap >= clearance_m and not in_goal:

@@ -54,6 +54,10 @@ class WorldsStep:
     finished: list[EpisodeRecord]
 
 
+TRAIN_SEED_MIN = 2**30
+"""Training episodes' seeds start here; evaluation, selection and deployment seeds lie below."""
+
+
 class VecWorlds:
     """`n_worlds` copies of one scenario, stepped together."""
 
@@ -85,12 +89,17 @@ class VecWorlds:
         self._obs = np.zeros((n_worlds, self.n_robots, self.obs_size), dtype=np.float32)
 
     def _next_seed(self) -> int:
-        return int(self._seeds.integers(0, 2**31 - 1))
+        # training seeds are >= TRAIN_SEED_MIN, evaluation seeds below it: random layouts drawn from the seeds
+        # of evaluation episodes are never among those trained on
+        return int(self._seeds.integers(TRAIN_SEED_MIN, 2**31 - 1))
 
     def _reset_world(self, j: int) -> np.ndarray:
         self._episode_seed[j] = self._next_seed()
+        sim = self.sims[j]
+        if sim.random_layouts:  # the layout's own starts are already a draw
+            return sim.reset(int(self._episode_seed[j]))
         starts = perturbed_starts(self.scenario, self._starts, self.start_xy_m, self.start_yaw_rad)
-        return self.sims[j].reset(int(self._episode_seed[j]), starts)
+        return sim.reset(int(self._episode_seed[j]), starts)
 
     def reset(self) -> np.ndarray:
         """Start every world's first episode; returns observations (n_worlds, n_robots, obs_size)."""

@@ -367,8 +367,9 @@ def map_markers(t_ns: int, scenario: Any, truth_frames: Sequence[str] = (), stor
     for i, (gx, gy) in enumerate(scenario.goals):
         r, gg, b, _ = ROBOT_RGBA[i % len(ROBOT_RGBA)]
         marker("goals", 1, "map", np.array([gx, gy, 0.0]), (g, g, 0.01), 0.005, (r, gg, b, 0.4))
-    radius, height = scenario.robot.radius_m, scenario.robot.height_m
     for i, frame in enumerate(truth_frames):
+        shape = scenario.shapes[i] if i < scenario.n_robots else scenario.robot
+        radius, height = shape.radius_m, shape.height_m
         marker(
             "robots",
             3,

@@ -89,6 +89,9 @@ def robot_topics(ns: str) -> dict[str, TopicSpec]:
     }
 
 
+TARGET_TRUTH = TopicSpec("/target/ground_truth", POSE_STAMPED, QOS_SENSOR, "target")
+"""A pursuit's target pose from motion capture (the twin publishes it as a robot of its own would)."""
+
 FLEET_TOPICS: dict[str, TopicSpec] = {
     "tf": TopicSpec("/tf", TF_MESSAGE, QOS_EVENT),
     "clock": TopicSpec("/clock", CLOCK, QOS_SENSOR),

@@ -60,7 +60,7 @@ class PolicyRuntime:
         self._input = self.spec.onnx.input
         self.robots: tuple[str, ...] = self.spec.robots
         self.layout = self.spec.world.layout()
-        self.codec = self.spec.world.codec()
+        self.codec = self.spec.world.codec().for_scenario(self.spec.scenario)
         self._check_output_kind(onnx_path)
         if verify:
             self.verify_golden()

@@ -21,7 +21,7 @@ class GoToGoalController:
     def __init__(
         self, layout: ObservationLayout, codec: ActionCodec, influence_m: float = 0.7, heading_gain: float = 1.5
     ) -> None:
-        if layout.name != "rich":
+        if not layout.has_goal:
             raise ValueError(
                 f"the scripted controller needs the 'rich' observation layout (heading and goal), got {layout.name!r}"
             )

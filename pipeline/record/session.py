@@ -27,6 +27,7 @@ import numpy as np
 from pipeline.core.scan import ScanGeometry
 from pipeline.messages import convert as C
 from pipeline.messages import fleet_topics, message_store
+from pipeline.messages.topics import TopicSpec
 from pipeline.record.writer import DEFAULT_CHUNK_SIZE, McapRecorder, versions_metadata
 
 World = Literal["sim", "real"]
@@ -125,8 +126,8 @@ class SessionLog:
         """A message exactly as it arrived (CDR), logged at local time `t_ns`."""
         self.recorder.write_cdr(topic, data, t_ns, stamp_ns)
 
-    def message(self, topic: str, msg: Any, t_ns: int, stamp_ns: int | None = None) -> None:
-        """A received message object, logged at local time `t_ns`."""
+    def message(self, topic: str | TopicSpec, msg: Any, t_ns: int, stamp_ns: int | None = None) -> None:
+        """A received message object, logged at local time `t_ns` (a TopicSpec for a topic beyond the fleet's)."""
         self.recorder.write(topic, msg, t_ns, stamp_ns)
 
     def tf(

@@ -123,14 +123,41 @@ def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scen
     trained = runtime.spec.scenario.name
     if trained != scenario.name:
         problems.append(f"it was trained in scenario {trained!r}, the fleet drives in {scenario.name!r}")
+    if scenario.layouts is not None and runtime.layout.name == "paper":
+        problems.append(
+            f"scenario {scenario.name!r} draws a layout per episode and the policy's observation ('paper') has no goal"
+        )
+    if scenario.pursuit and not fleet.timing.use_ground_truth:
+        problems.append(
+            f"scenario {scenario.name!r} is a pursuit: the policy needs the target's pose from motion capture "
+            f"({T.TARGET_TRUTH.name}), and the fleet has none (timing.use_ground_truth is false)"
+        )
+    if scenario.pursuit and runtime.layout.name == "paper":
+        problems.append(f"scenario {scenario.name!r} is a pursuit and the policy's observation ('paper') has no goal")
+    if scenario.layouts is not None and fleet.target == "robots":
+        problems.append(
+            f"scenario {scenario.name!r} draws a layout per episode: on real robots someone would have to move the "
+            "boxes before every episode (deploy its fixed layout with a scenario without layouts ranges)"
+        )
     codec = runtime.codec
-    for robot in fleet.robots:
-        if codec.v_max_mps > robot.v_max_mps + 1e-9 or codec.w_max_radps > robot.w_max_radps + 1e-9:
+    limits = codec.limits(len(fleet.robots)) if len(codec.robot_limits) in (0, len(fleet.robots)) else None
+    for i, robot in enumerate(fleet.robots):
+        v, w = (codec.v_max_mps, codec.w_max_radps) if limits is None else (float(limits[i, 0]), float(limits[i, 1]))
+        where = "world.actions.v_max_mps, w_max_radps" if not codec.robot_limits else f"its scenario's {robot.name}"
+        if v > robot.v_max_mps + 1e-9 or w > robot.w_max_radps + 1e-9:
             problems.append(
-                f"it commands up to {codec.v_max_mps:g} m/s and {codec.w_max_radps:g} rad/s (policy.json "
-                f"world.actions.v_max_mps, w_max_radps), the fleet limits {robot.name} to {robot.v_max_mps:g} m/s "
+                f"it commands {robot.name} up to {v:g} m/s and {w:g} rad/s (policy.json "
+                f"{where}), the fleet limits {robot.name} to {robot.v_max_mps:g} m/s "
                 f"and {robot.w_max_radps:g} rad/s (fleet file robots[{robot.name}].v_max_mps, w_max_radps): its "
                 "commands would be clamped; retrain with world.actions within the fleet's limits"
+            )
+        elif runtime.layout.name == "rich_limits" and (
+            abs(v - robot.v_max_mps) > 1e-9 or abs(w - robot.w_max_radps) > 1e-9
+        ):
+            problems.append(
+                f"{robot.name} was trained with limits {v:g} m/s and {w:g} rad/s, which its observation carries; "
+                f"the fleet gives it {robot.v_max_mps:g} m/s and {robot.w_max_radps:g} rad/s (fleet file "
+                f"robots[{robot.name}]): its observation would be wrong"
             )
     if problems:
         raise PolicyMismatch(runtime.name, problems)

@@ -10,6 +10,7 @@ clock than the rest of the recording); their count goes to the ``unrecorded`` me
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -59,7 +60,9 @@ class FleetLink:
         clock: Clock,
         log: SessionLog,
         on_reset_done: Callable[[int, int], None],
+        target: bool = False,
     ) -> None:
+        """`target`: a pursuit; its target's motion-capture pose is heard and recorded too."""
         self.fleet = fleet
         self.clock = clock
         self.log = log
@@ -96,6 +99,10 @@ class FleetLink:
             self._subs.append(transport.subscribe(topics["odom"], self._on_odom(robot.namespace)))
             if self.use_truth:
                 self._subs.append(transport.subscribe(topics["ground_truth"], self._on_truth(robot.namespace)))
+        self._target: tuple[np.ndarray, int] | None = None
+        self._target_lock = threading.Lock()
+        if target:
+            self._subs.append(transport.subscribe(T.TARGET_TRUTH, self._on_target))
         self._subs.append(transport.subscribe(T.FLEET_TOPICS["reset_done"], self._on_reset_done))
         if isinstance(clock, ScaledClock):
             self._subs.append(transport.subscribe(T.FLEET_TOPICS["clock"], self._on_clock))
@@ -161,6 +168,19 @@ class FleetLink:
             self.receiver.add_truth(ns, PoseSample(stamp, now, C.planar_pose(msg.pose)), spec.name)
 
         return callback
+
+    def _on_target(self, spec: Any, msg: Any, receive_ns: int) -> None:
+        if not self._on_timeline():
+            return
+        now = self.clock.now_ns()
+        self.log.message(T.TARGET_TRUTH, msg, now, C.time_ns(msg.header.stamp))
+        with self._target_lock:
+            self._target = (C.planar_pose(msg.pose)[:2].copy(), now)
+
+    def target(self) -> tuple[np.ndarray, int] | None:
+        """A pursuit's target: its latest position (2,) and when it was heard (session ns); None before any."""
+        with self._target_lock:
+            return None if self._target is None else (self._target[0].copy(), self._target[1])
 
     def _on_clock(self, spec: Any, msg: Any, receive_ns: int) -> None:
         t = C.time_ns(msg.clock)

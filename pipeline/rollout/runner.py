@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.core.episode import EpisodeResult
+from pipeline.core.layouts import draw_layout
 from pipeline.core.scan import uncovered_beams
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
@@ -72,6 +73,9 @@ class DeployRunner:
         self.mdp = mdp_parts(scenario, runtime.spec.world)  # the MDP the policy was trained in
         self.builder = self.mdp.observer
         self.judge = self.mdp.judge
+        self.layout = scenario
+        """The current episode's layout: drawn from its seed when the fleet's scenario has layouts ranges, as the
+        twin draws it (:mod:`pipeline.core.layouts`)."""
         self.period_ns = self.mdp.period_ns
         self.use_truth = fleet.timing.use_ground_truth
         self.handshake = ResetHandshake(
@@ -80,7 +84,8 @@ class DeployRunner:
             self._check_alive,
             confirm_reset,
         )
-        self.link = FleetLink(fleet, transport, clock, log, self.handshake.confirmed)
+        self.pursuit = scenario.pursuit
+        self.link = FleetLink(fleet, transport, clock, log, self.handshake.confirmed, target=self.pursuit)
         self.receiver = self.link.receiver
         self.emitter = self.link.emitter
         self.staleness = StalenessWatch(round(fleet.timing.abort_after_s * NS_PER_S))
@@ -108,6 +113,8 @@ class DeployRunner:
                     missing.append(f"{robot.name} ({spec.name})")
                     break
             self._check_alive()
+        if self.pursuit and not self.transport.wait_for_match(T.TARGET_TRUTH, 1, max(0.0, deadline - time.monotonic())):
+            missing.append(f"the pursuit's target ({T.TARGET_TRUTH.name})")
         if self.fleet.target == "twin" and not self.transport.wait_for_match(
             T.FLEET_TOPICS["reset"], 1, max(0.0, deadline - time.monotonic())
         ):
@@ -166,7 +173,10 @@ class DeployRunner:
     # -- episodes --------------------------------------------------------------------------
 
     def _reset(self, episode: int, seed: int) -> None:
-        """The handshake, then fresh data from every robot; odometry is rebased onto the scenario's starts."""
+        """The handshake, then fresh data from every robot; odometry is rebased onto the layout's starts."""
+        self.layout = draw_layout(self.scenario, seed)
+        self.judge.use_layout(self.layout)
+        self.builder.use_layout(self.layout)
         self.emitter.clear()
         self.handshake.request(episode, seed)
         timeout_s = self.fleet.timing.reset_timeout_s
@@ -175,21 +185,34 @@ class DeployRunner:
         deadline = time.monotonic() + timeout_s
         while True:
             state = self.receiver.joint_state(self.clock.now_ns())
-            if state.complete and all(
-                s.odom is not None and s.odom.receive_ns >= reset_ns for s in state.robots.values()
+            target = self.link.target() if self.pursuit else None
+            target_fresh = not self.pursuit or (target is not None and target[1] >= reset_ns)
+            if (
+                state.complete
+                and target_fresh
+                and all(s.odom is not None and s.odom.receive_ns >= reset_ns for s in state.robots.values())
             ):
                 break
             if time.monotonic() > deadline:
+                stale = [f"{r}: {why}" for r, why in state.stale.items()]
+                if not target_fresh:
+                    stale.append(f"no pose of the target on {T.TARGET_TRUTH.name}")
                 raise FleetNotReady(
-                    f"no fresh data after the reset of episode {episode} within {timeout_s:g} s: "
-                    + "; ".join(f"{r}: {why}" for r, why in state.stale.items())
+                    f"no fresh data after the reset of episode {episode} within {timeout_s:g} s: " + "; ".join(stale)
                 )
             self._check_alive()
             time.sleep(0.005)
         self.samples.clear()
         self.staleness.reset()
         odom = np.stack([state.robots[ns].odom.pose for ns in self.namespaces])  # type: ignore[union-attr]
-        self.odometry.rebase(self.scenario.starts, odom)
+        self.odometry.rebase(self.layout.starts, odom)
+
+    def _track(self) -> None:
+        """A pursuit's goals are where motion capture last saw its target."""
+        target = self.link.target() if self.pursuit else None
+        if target is not None:
+            self.judge.track(target[0])
+            self.builder.track(target[0])
 
     def next_control_time(self, now_ns: int) -> int:
         """The first control time at or after `now_ns` on the grid half an emitter tick before the ticks.
@@ -208,9 +231,10 @@ class DeployRunner:
         t_start = self.next_control_time(self.clock.now_ns())
         self.clock.sleep_until(t_start)
         self.log.start_episode(t_start, episode, seed)
-        self.log.map(t_start, self.scenario)
+        self.log.map(t_start, self.layout)
         _, _, odom_raw, truth = self.samples.arrays(self.receiver.joint_state(t_start))
         odom = self.odometry.to_map(odom_raw)
+        self._track()
         self.judge.reset(truth if truth is not None else odom)
         tally = EpisodeTally(episode, seed, self.namespaces, self.mdp.definition.control_period_s)
         tally.start(truth if truth is not None else odom)
@@ -245,6 +269,7 @@ class DeployRunner:
                 break
             scans, geoms, odom_raw, truth = self.samples.arrays(state)
             odom = self.odometry.to_map(odom_raw)
+            self._track()
             observed = self.builder.build(scans, geoms, odom)
             if step > 0:
                 judged = self.judge.step(odom, truth, observed.ranges)

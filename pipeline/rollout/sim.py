@@ -13,6 +13,8 @@ from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.mappings import to_mapping
 from pipeline.mdp import MdpDefinition
+from pipeline.messages import convert as C
+from pipeline.messages import topics as T
 from pipeline.params import EvalSimConfig, WorldConfig
 from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
@@ -38,6 +40,10 @@ def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
         log.scan(t_ns, ns, sim.raw_scan[i], world.scan_geometry)
         log.odom(t_ns, ns, world.odometry.pose[i], (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1])))
         log.ground_truth(t_ns, ns, world.truth[i])
+    target = world.target_xy
+    if target is not None:  # a pursuit's target, as motion capture on a fleet shows it
+        pose = np.array([target[0], target[1], world.evader.heading_rad if world.evader is not None else 0.0])
+        log.message(T.TARGET_TRUTH, C.pose_stamped(t_ns, "map", pose, store=log.store), t_ns, t_ns)
     log.tf(t_ns, world.odometry.pose, world.truth)
 
 
@@ -62,7 +68,7 @@ def run_episode(
     step = 0
     if log is not None:
         log.start_episode(t0_ns, episode, seed)
-        log.map(t0_ns, sim.scenario)
+        log.map(t0_ns, sim.episode_layout)
         _record_state(log, sim, t0_ns)
     while True:
         t_ns = t0_ns + step * period_ns
@@ -217,7 +223,8 @@ def evaluate_session(
         raise
     write_metrics(folder.staged("metrics.json"), metrics)
     write_episodes(folder.staged("episodes.csv"), results)
-    write_paths_picture(folder.staged("paths.png"), scenario, results)
+    random_layouts = scenario.layouts is not None and world.layouts == "random"
+    write_paths_picture(folder.staged("paths.png"), scenario, results, random_layouts=random_layouts)
     if cfg.record:
         write_rosbag2_metadata(recording)
     folder.publish()

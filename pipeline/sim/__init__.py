@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.params import WorldConfig, world_config
 from pipeline.sim.env import MultiRobotEnv, MultiRobotSim
 from pipeline.sim.views import JointEnv, RobotEnv, TeammatePolicy
@@ -25,6 +26,18 @@ def make_world(
     resolved = scenario if isinstance(scenario, Scenario) else load_scenario(cfg.scenario)
     if cfg.n_robots:
         resolved = load_scenario(resolved, cfg.n_robots)
+    if resolved.layouts is not None and cfg.layouts == "random" and cfg.observation == "paper":
+        raise ConfigError(
+            "world",
+            [
+                ConfigProblem(
+                    "observation",
+                    "paper",
+                    f"rich: scenario {resolved.name!r} draws a layout per episode and the paper's observation "
+                    "has no goal in it (or world.layouts: fixed)",
+                )
+            ],
+        )
     return resolved, cfg
 
 

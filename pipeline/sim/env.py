@@ -18,6 +18,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from pipeline.core.judge import JudgeStep
+from pipeline.core.layouts import draw_layout
 from pipeline.core.scenario import Scenario
 from pipeline.mdp import mdp_parts
 from pipeline.params import WorldConfig
@@ -51,6 +52,17 @@ class MultiRobotSim:
         self.obs = np.zeros((self.n, self.layout.size), dtype=np.float32)
         self.last_cmd = np.zeros((self.n, 2))
         self._seeded = False
+        self.random_layouts = scenario.layouts is not None and world.layouts == "random"
+        """Each episode draws its layout from the scenario's ranges, by its seed (:mod:`pipeline.core.layouts`)."""
+        self.episode_layout = scenario
+        """The layout of the current episode (the scenario itself without random layouts)."""
+
+    def _track(self) -> None:
+        """A pursuit's goals are where its target is now."""
+        target = self.world.target_xy
+        if target is not None:
+            self.judge.track(target)
+            self.observer.track(target)
 
     def _observe(self) -> np.ndarray:
         self.raw_scan = self.world.scan()
@@ -59,12 +71,20 @@ class MultiRobotSim:
         return self.obs
 
     def reset(self, seed: int | None = None, starts: np.ndarray | None = None) -> np.ndarray:
-        """Start an episode (at the scenario's starts, or at `starts` (n_robots, 3)); returns observations."""
-        if seed is None and not self._seeded:
+        """Start an episode (at the scenario's starts, or at `starts` (n_robots, 3)); returns observations.
+
+        With random layouts the episode's layout is drawn from `seed` (its starts unless `starts` is given)."""
+        if seed is None and (not self._seeded or self.random_layouts):
             seed = int(np.random.SeedSequence().generate_state(1)[0])
         if seed is not None:
             self._seeded = True
+        if self.random_layouts and seed is not None:
+            self.episode_layout = draw_layout(self.scenario, seed)
+            self.world.use_layout(self.episode_layout)
+            self.observer.use_layout(self.episode_layout)
+            self.judge.use_layout(self.episode_layout)
         self.world.reset(seed, starts)
+        self._track()
         self.judge.reset(self.world.truth)
         self.last_cmd = np.zeros((self.n, 2))
         return self._observe().copy()
@@ -75,6 +95,7 @@ class MultiRobotSim:
         cmd[self.judge.done] = 0.0
         self.last_cmd = cmd
         self.world.step(cmd)
+        self._track()
         obs = self._observe()
         judged = self.judge.step(self.world.odometry.pose, self.world.truth, self.ranges)
         return SimStep(obs=obs.copy(), judge=judged)

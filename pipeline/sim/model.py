@@ -7,7 +7,9 @@ first-order response with the configured time constant; their force limits let w
 other robots stop a robot through real contacts. Integration is implicit in velocity, so stiff
 servos stay stable at the physics timestep.
 
-Geom groups: 0 static map (walls, boxes), 1 robot bodies, 3 the optional enlarged robot volume
+A pursuit's target is a mocap body (moved by the evader each control step) in the static group.
+
+Geom groups: 0 static map (walls, boxes, a pursuit's target), 1 robot bodies, 3 the optional enlarged robot volume
 that only the lidar sees (no contacts).
 """
 
@@ -41,7 +43,7 @@ class ModelIndex:
 
 def robot_mjcf(i: int, name: str, scenario: Scenario, world: WorldConfig) -> tuple[str, str]:
     """MJCF of one robot: its body and its three actuators."""
-    shape = scenario.robot
+    shape = scenario.shapes[i]
     r, h = shape.radius_m, shape.height_m
     tau = world.actuation.time_constant_s
     inertia_z = 0.5 * shape.mass_kg * r * r
@@ -97,6 +99,13 @@ def scenario_mjcf(scenario: Scenario, world: WorldConfig) -> str:
             f'<geom name="box_{k}" type="box" pos="{box.x_m} {box.y_m} {box.height_m / 2}" '
             f'euler="0 0 {box.yaw_rad}" size="{box.size_x_m / 2} {box.size_y_m / 2} {box.height_m / 2}" '
             f'group="{GROUP_STATIC}" rgba="0.9 0.5 0.1 1"/>'
+        )
+    if scenario.target is not None:  # a mocap body the evader moves; lidars see it, robots bump into it
+        tg = scenario.target
+        static.append(
+            f'<body name="target" mocap="true" pos="{tg.start.x_m} {tg.start.y_m} {tg.height_m / 2}">'
+            f'<geom name="target" type="cylinder" size="{tg.radius_m} {tg.height_m / 2}" group="{GROUP_STATIC}" '
+            f'rgba="0.55 0.35 0.2 1"/></body>'
         )
     bodies, actuators = zip(
         *(robot_mjcf(i, n, scenario, world) for i, n in enumerate(scenario.robot_names)), strict=True

@@ -80,7 +80,7 @@ class TopDownRenderer:
     def render(self, truth: np.ndarray, ranges: np.ndarray | None = None) -> np.ndarray:
         """(height, width, 3) uint8 picture of robots at `truth` (n, 3) with lidar `ranges` (n, beams) m."""
         img = self.background.copy()
-        r = self.scenario.robot.radius_m
+        radii = self.scenario.radii
         centres = self.to_pixels(truth[:, :2])
         if ranges is not None:
             beams = ranges.shape[1]
@@ -93,6 +93,7 @@ class TopDownRenderer:
                     self._line(img, centres[i], end, RAY)
         for i, pose in enumerate(truth):
             colour = ROBOT_COLOURS[i % len(ROBOT_COLOURS)]
+            r = float(radii[i])
             disc = np.hypot(self._world_x - pose[0], self._world_y - pose[1]) <= r
             img[disc] = colour
             nose = pose[:2] + r * np.array([math.cos(pose[2]), math.sin(pose[2])])

@@ -8,6 +8,7 @@ from collections import deque
 import mujoco
 import numpy as np
 
+from pipeline.core.evader import Evader
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
 from pipeline.params import WorldConfig
@@ -73,10 +74,21 @@ class SimWorld:
         self._pending: deque[tuple[int, np.ndarray]] = deque()
         self._substep = 0
         self.truth = scenario.starts.copy()
+        self.evader = Evader(scenario) if scenario.target is not None else None
+        """A pursuit's target, stepped once per control period after the robots."""
 
     @property
     def time_s(self) -> float:
         return float(self.data.time)
+
+    def use_layout(self, layout: Scenario) -> None:
+        """Move the boxes to `layout`'s and start the robots at its starts from the next reset (the same room,
+        robots and box sizes: a layout drawn from this world's scenario)."""
+        for k, box in enumerate(layout.obstacles):
+            gid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"box_{k}")
+            self.model.geom_pos[gid, :2] = (box.x_m, box.y_m)
+            self.model.geom_quat[gid] = (math.cos(box.yaw_rad / 2), 0.0, 0.0, math.sin(box.yaw_rad / 2))
+        self.scenario = layout
 
     def _use(self, world: WorldConfig) -> None:
         """Take the dynamics and sensor settings of `world` (the episode's draw)."""
@@ -113,6 +125,9 @@ class SimWorld:
         self._substep = 0
         self.truth = self.read_truth()
         self.odometry.reset(self.truth, self.rng)
+        if self.evader is not None:
+            self.evader.reset()
+            self._place_target()
 
     def read_truth(self) -> np.ndarray:
         """(n_robots, 3) ground-truth x, y (m), yaw (rad) in [-pi, pi)."""
@@ -160,6 +175,20 @@ class SimWorld:
         prev = self.truth
         self.truth = self.read_truth()
         self.odometry.update(prev, self.truth)
+        if self.evader is not None:
+            self.evader.step(self.world.control_period_s, self.truth)
+            self._place_target()
+
+    def _place_target(self) -> None:
+        if self.evader is None:
+            return
+        self.data.mocap_pos[0, :2] = self.evader.xy
+        mujoco.mj_kinematics(self.model, self.data)
+
+    @property
+    def target_xy(self) -> np.ndarray | None:
+        """A pursuit's target position (2,), None otherwise."""
+        return None if self.evader is None else self.evader.xy.copy()
 
     def body_velocity(self) -> np.ndarray:
         """(n_robots, 2) true forward speed (m/s) and yaw rate (rad/s) in each robot's frame."""

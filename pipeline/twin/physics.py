@@ -79,7 +79,6 @@ def _box_xml(name: str, x: float, y: float, yaw: float, sx: float, sy: float, h:
 
 def _model_xml(scenario: Scenario, base: BaseParams, offsets: np.ndarray, wall_offset_m: float, dt: float) -> str:
     room = scenario.room
-    shape = scenario.robot
     parts = [
         f'<mujoco model="twin"><option timestep="{dt}" integrator="Euler" cone="elliptic"/>',
         '<default><geom solref="0.004 1" solimp="0.95 0.99 0.001"/></default>',
@@ -102,16 +101,24 @@ def _model_xml(scenario: Scenario, base: BaseParams, offsets: np.ndarray, wall_o
         parts.append(
             _box_xml(f"box_{k}", box.x_m + dx, box.y_m + dy, box.yaw_rad, box.size_x_m, box.size_y_m, box.height_m)
         )
+    if scenario.target is not None:  # a pursuit's target: moved by the twin's evader, seen and bumped into
+        tg = scenario.target
+        parts.append(
+            f'<body name="target" mocap="true" pos="{tg.start.x_m} {tg.start.y_m} {tg.height_m / 2}">'
+            f'<geom name="target" type="cylinder" size="{tg.radius_m} {tg.height_m / 2}" contype="2" conaffinity="2" '
+            'rgba="0.55 0.35 0.2 1"/></body>'
+        )
     r_nom = max(base.wheel_radius_left_m, base.wheel_radius_right_m)
-    radius, height = shape.radius_m, shape.height_m
     m = base.mass_kg
-    ixx = m * (3 * radius**2 + height**2) / 12
-    izz = m * radius**2 / 2
-    chassis_z = CHASSIS_CLEARANCE_M + height / 2 - r_nom
     caster_z = CASTER_RADIUS_M - r_nom
-    caster_x = radius - CASTER_RADIUS_M - 0.01
     half = base.wheel_separation_m / 2
     for i, start in enumerate(scenario.starts):
+        shape = scenario.shapes[i]  # a mixed fleet's bodies differ; the wheels are the profile's
+        radius, height = shape.radius_m, shape.height_m
+        ixx = m * (3 * radius**2 + height**2) / 12
+        izz = m * radius**2 / 2
+        chassis_z = CHASSIS_CLEARANCE_M + height / 2 - r_nom
+        caster_x = radius - CASTER_RADIUS_M - 0.01
         parts.append(f'<body name="robot_{i}" pos="{start[0]} {start[1]} {r_nom}" euler="0 0 {start[2]}">')
         parts.append(f'<freejoint name="free_{i}"/>')
         parts.append(
@@ -176,6 +183,8 @@ class FleetPhysics:
         self.scenario = scenario
         self.base = base
         self.n = scenario.n_robots
+        self._offsets = np.zeros((len(scenario.obstacles), 2))
+        self._offsets[: len(offsets)] = offsets
         self.model = mujoco.MjModel.from_xml_string(_model_xml(scenario, base, offsets, wall_offset_m, timestep_s))
         self.data = mujoco.MjData(self.model)
         self.timestep_s = float(self.model.opt.timestep)
@@ -208,6 +217,13 @@ class FleetPhysics:
         self.reset(scenario.starts)
 
     # -- state -----------------------------------------------------------------------------
+
+    def use_layout(self, layout: Scenario) -> None:
+        """Boxes where `layout` puts them (plus the profile's offsets): the episode's layout of this scenario."""
+        for k, box in enumerate(layout.obstacles):
+            gid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"box_{k}")
+            self.model.geom_pos[gid, :2] = (box.x_m + self._offsets[k, 0], box.y_m + self._offsets[k, 1])
+            self.model.geom_quat[gid] = (math.cos(box.yaw_rad / 2), 0.0, 0.0, math.sin(box.yaw_rad / 2))
 
     def reset(self, poses: np.ndarray) -> None:
         """Bases at `poses` (n, 3) at rest, settled on their wheels; motors stopped; wheel angles count from 0."""
@@ -283,6 +299,10 @@ class FleetPhysics:
                 if g in index:
                     hit[index[g]] = True
         return hit
+
+    def set_target(self, xy: np.ndarray) -> None:
+        """Move a pursuit's target body to `xy` (2,)."""
+        self.data.mocap_pos[0, :2] = np.asarray(xy, dtype=float)[:2]
 
     # -- lidar -----------------------------------------------------------------------------
 

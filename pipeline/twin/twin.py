@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.core.evader import Evader
+from pipeline.core.layouts import draw_layout
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
@@ -213,6 +215,8 @@ class HardwareTwin:
             timestep_s=PHYSICS_STEP_S,
         )
         self.step_ns = round(self.physics.timestep_s * NS_PER_S)
+        self.evader = Evader(scenario) if scenario.target is not None else None
+        """A pursuit's target, stepped with the motion capture's rate and published on /target/ground_truth."""
         self.namespaces = [r.namespace for r in fleet.robots]
         n = len(self.namespaces)
         self.driver = BaseDriver(n, profile.actuation)
@@ -244,6 +248,7 @@ class HardwareTwin:
         for robot in fleet.robots:
             topics = robot.topics()
             self.pubs[robot.namespace] = {k: transport.publisher(topics[k]) for k in ("scan", "odom", "ground_truth")}
+        self.target_pub = transport.publisher(T.TARGET_TRUTH) if self.evader is not None else None
         self.clock_pub = transport.publisher(T.FLEET_TOPICS["clock"]) if publish_clock else None
         self.reset_pub = transport.publisher(T.FLEET_TOPICS["reset_done"])
         self.subs = [
@@ -254,11 +259,17 @@ class HardwareTwin:
     def _begin_episode(self, now_ns: int, episode_seed: int) -> None:
         """Robots at their starts, sensors restarted, with random streams of their own for this episode."""
         streams = np.random.SeedSequence([self.seed, episode_seed]).spawn(len(self.namespaces) + 1)
-        self.physics.reset(self.scenario.starts)
+        layout = draw_layout(self.scenario, episode_seed)  # the runner draws the same one from the same seed
+        self.physics.use_layout(layout)
+        self.physics.reset(layout.starts)
+        if self.evader is not None:
+            self.evader.reset()
+            self.physics.set_target(self.evader.xy)
+            self.last_evader_ns = now_ns
         self.driver.reset()
         self.physics_ns = now_ns
         self.odometry = EncoderOdometry(len(self.namespaces), self.profile.odometry, np.random.default_rng(streams[-1]))
-        self.odometry.reset(self.scenario.starts, self.physics.wheel_angles())
+        self.odometry.reset(layout.starts, self.physics.wheel_angles())
         self.lidars = [
             LidarSweep(self.profile.lidar, np.random.default_rng(streams[i]), now_ns) for i in range(len(streams) - 1)
         ]
@@ -371,6 +382,12 @@ class HardwareTwin:
                 if not self._silenced(ns, t):
                     msg = C.pose_stamped(t, "map", truth[i], store=self.store)
                     self.link.send(self.pubs[ns]["ground_truth"], msg)
+            if self.evader is not None and self.target_pub is not None:
+                xy = self.evader.step((t - self.last_evader_ns) / NS_PER_S, truth[:, :2])
+                self.last_evader_ns = t
+                self.physics.set_target(xy)
+                pose = np.array([xy[0], xy[1], self.evader.heading_rad])
+                self.link.send(self.target_pub, C.pose_stamped(t, "map", pose, store=self.store))
             self.next_truth_ns += self.truth_period_ns * max(1, (t - self.next_truth_ns) // self.truth_period_ns + 1)
         if t >= self.next_odom_ns:
             self.odometry.update(self.physics.wheel_angles(), (t - self.last_odom_ns) / NS_PER_S)
@@ -412,3 +429,5 @@ class HardwareTwin:
                 pub.close()
         if self.clock_pub is not None:
             self.clock_pub.close()
+        if self.target_pub is not None:
+            self.target_pub.close()

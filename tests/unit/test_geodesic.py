@@ -42,7 +42,7 @@ def test_path_direction_points_at_the_goal_in_open_space_and_around_boxes(obstac
     assert -math.pi / 2 < behind_box < -0.2  # away from the straight line, down and around the box
 
 
-def test_goal_fields_equal_each_robots_own_field(obstacles):
+def testgoal_fields_equal_each_robots_own_field(obstacles):
     fields = [DistanceField(obstacles, g) for g in obstacles.goals]
     joint = GoalFields(fields)
     rng = np.random.default_rng(0)
