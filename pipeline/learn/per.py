@@ -96,8 +96,11 @@ class SumTree:
         self._sum[nodes] = values
         self._min[nodes] = values
         self._max[nodes] = values
+        nodes = np.unique(nodes)  # sorted once: each level's parents stay sorted, so duplicates are neighbours
         for _ in range(self._depth):
-            nodes = np.unique(nodes // 2)
+            nodes = nodes // 2
+            if len(nodes) > 1:
+                nodes = nodes[np.concatenate(([True], nodes[1:] != nodes[:-1]))]
             left, right = 2 * nodes, 2 * nodes + 1
             self._sum[nodes] = self._sum[left] + self._sum[right]
             self._min[nodes] = np.minimum(self._min[left], self._min[right])
