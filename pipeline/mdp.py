@@ -119,6 +119,16 @@ class MdpParts:
     def period_ns(self) -> int:
         return round(self.definition.control_period_s * NS_PER_S)
 
+    def use_layout(self, layout: Scenario) -> None:
+        """Observe and judge against `layout` (another layout of the same room and robots) from the next episode."""
+        self.judge.use_layout(layout)
+        self.observer.use_layout(layout)
+
+    def track(self, target_xy: np.ndarray) -> None:
+        """A pursuit's target is now at `target_xy` (2,): every robot's goal in the judge and the observation."""
+        self.judge.track(target_xy)
+        self.observer.goals = self.judge.goals
+
 
 def mdp_parts(scenario: Scenario, world: WorldConfig) -> MdpParts:
     """The observation builder, action codec and judge of `world` in `scenario`."""

@@ -156,9 +156,9 @@ class ObservationBuilder:
     ) -> None:
         self.scenario = scenario
         self.goals = scenario.goals
+        """(n_robots, 2) the goals the observation points at: the layout's, or a pursuit's moving target."""
         self.limits: np.ndarray | None = None
         """(n_robots, 3) v_max, w_max, radius of each robot, for the ``rich_limits`` layout (set by the MDP)."""
-        """(n_robots, 2) the goals the observation points at: the layout's, or a pursuit's moving target."""
         self.layout = layout
         self.range_min_m = range_min_m
         self.range_max_m = range_max_m
@@ -172,10 +172,6 @@ class ObservationBuilder:
         """Observe against `scenario`'s goals (another layout of the same room and robots)."""
         self.scenario = scenario
         self.goals = scenario.goals
-
-    def track(self, target_xy: np.ndarray) -> None:
-        """A pursuit's target is now at `target_xy` (2,): every robot's goal in its observation."""
-        self.goals = np.tile(np.asarray(target_xy, dtype=np.float64)[:2], (self.scenario.n_robots, 1))
 
     def reduce(
         self, scans: np.ndarray | Sequence[np.ndarray], geometry: ScanGeometry | Sequence[ScanGeometry]

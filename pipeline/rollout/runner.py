@@ -175,8 +175,7 @@ class DeployRunner:
     def _reset(self, episode: int, seed: int) -> None:
         """The handshake, then fresh data from every robot; odometry is rebased onto the layout's starts."""
         self.layout = draw_layout(self.scenario, seed)
-        self.judge.use_layout(self.layout)
-        self.builder.use_layout(self.layout)
+        self.mdp.use_layout(self.layout)
         self.emitter.clear()
         self.handshake.request(episode, seed)
         timeout_s = self.fleet.timing.reset_timeout_s
@@ -211,8 +210,7 @@ class DeployRunner:
         """A pursuit's goals are where motion capture last saw its target."""
         target = self.link.target() if self.pursuit else None
         if target is not None:
-            self.judge.track(target[0])
-            self.builder.track(target[0])
+            self.mdp.track(target[0])
 
     def next_control_time(self, now_ns: int) -> int:
         """The first control time at or after `now_ns` on the grid half an emitter tick before the ticks.

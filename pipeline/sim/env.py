@@ -61,8 +61,7 @@ class MultiRobotSim:
         """A pursuit's goals are where its target is now."""
         target = self.world.target_xy
         if target is not None:
-            self.judge.track(target)
-            self.observer.track(target)
+            self.mdp.track(target)
 
     def _observe(self) -> np.ndarray:
         self.raw_scan = self.world.scan()
@@ -81,8 +80,7 @@ class MultiRobotSim:
         if self.random_layouts and seed is not None:
             self.episode_layout = draw_layout(self.scenario, seed)
             self.world.use_layout(self.episode_layout)
-            self.observer.use_layout(self.episode_layout)
-            self.judge.use_layout(self.episode_layout)
+            self.mdp.use_layout(self.episode_layout)
         self.world.reset(seed, starts)
         self._track()
         self.judge.reset(self.world.truth)

@@ -120,14 +120,14 @@ class SimWorld:
             self._draw()
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self._qpos] = self.scenario.starts if starts is None else starts
+        if self.evader is not None:
+            self.evader.reset()
+            self._place_target()
         mujoco.mj_forward(self.model, self.data)
         self._pending.clear()
         self._substep = 0
         self.truth = self.read_truth()
         self.odometry.reset(self.truth, self.rng)
-        if self.evader is not None:
-            self.evader.reset()
-            self._place_target()
 
     def read_truth(self) -> np.ndarray:
         """(n_robots, 3) ground-truth x, y (m), yaw (rad) in [-pi, pi)."""
@@ -171,19 +171,18 @@ class SimWorld:
                 mujoco.mj_step(self.model, self.data, nstep=nxt - now)
                 now = nxt
         self._substep += substeps
-        mujoco.mj_kinematics(self.model, self.data)
         prev = self.truth
-        self.truth = self.read_truth()
-        self.odometry.update(prev, self.truth)
-        if self.evader is not None:
+        self.truth = self.read_truth()  # from qpos: no kinematics needed
+        if self.evader is not None:  # the target moves before the one kinematics pass the scans read
             self.evader.step(self.world.control_period_s, self.truth)
             self._place_target()
+        mujoco.mj_kinematics(self.model, self.data)
+        self.odometry.update(prev, self.truth)
 
     def _place_target(self) -> None:
-        if self.evader is None:
-            return
-        self.data.mocap_pos[0, :2] = self.evader.xy
-        mujoco.mj_kinematics(self.model, self.data)
+        """Move the target's mocap body to the evader (positions follow at the next kinematics pass)."""
+        if self.evader is not None:
+            self.data.mocap_pos[0, :2] = self.evader.xy
 
     @property
     def target_xy(self) -> np.ndarray | None:
