@@ -141,3 +141,15 @@ def test_a_setting_for_every_trial_is_checked_before_anything_runs(tiny_params, 
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert f"--readme: 1 invalid setting(s): {readme} = 'without the markers'" in proc.stderr
     assert "<!-- sweep results: start -->" in proc.stderr and not (tmp_path / "sweep").exists()
+
+    # a section name that cannot name a marker or a figure file is refused the same way
+    proc = subprocess.run(
+        [
+            str(MRL), "sweep", "--algorithms", "sac", "--scenarios", "empty", "--seeds", "1",
+            "--params", str(tiny_params), "--out", str(tmp_path / "sweep"), "--readme", str(readme),
+            "--readme-section", "a b",
+        ],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "--readme-section: 1 invalid setting(s): name = 'a b': letters, digits, _ and -" in proc.stderr
