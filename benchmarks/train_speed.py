@@ -7,8 +7,11 @@ them) is set against the env-only limit measured in the same run: the same paral
 random actions and nothing else. Where the ratio is far below 1 the learner (action inference and
 gradient steps) is the bottleneck, not the simulator. Printed per row: steps/s, seconds per 100k steps,
 ratio to the limit, and where the time goes (the worlds' step, the learners' action inference, storing
-transitions, gradient updates; measured by timing those calls). Last line:
-``env_only=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
+transitions, gradient updates; measured by timing those calls; with world workers "worlds" is the
+trainer's wait for them). The worlds are stepped by `--world-workers` processes (params.yaml's
+`train.world_workers` by default); the env-only rate is also measured in the trainer's own process,
+and their ratio is the workers' speed-up. Last line:
+``env_only=<steps/s> env_only_1=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
 """
 
 from __future__ import annotations
@@ -32,24 +35,24 @@ from pipeline.params import TrainConfig, load_params, world_config
 from pipeline.sim import make_world
 
 
-def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: int) -> float:
-    """World steps per second of `n_envs` worlds stepped together with random actions."""
+def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: int, workers: int = 1) -> float:
+    """World steps per second of `n_envs` worlds stepped together (by `workers` processes) with random actions."""
     params = load_params()
     world_map = merge(to_mapping(params.world), {"scenario": scenario_name, "actions": {"kind": kind}})
     scenario, world = make_world(world=world_config(world_map))
-    worlds = VecWorlds(scenario, world, n_envs, seed)
-    rng = np.random.default_rng(seed)
-    worlds.reset()
-    n = scenario.n_robots
-    rounds = max(1, steps // n_envs)
-    if kind == "discrete":
-        actions = rng.integers(0, worlds.codec.n_discrete, size=(rounds, n_envs, n))
-    else:
-        actions = rng.uniform(-1.0, 1.0, size=(rounds, n_envs, n, 2)).astype(np.float32)
-    t0 = time.perf_counter()
-    for k in range(rounds):
-        worlds.step(actions[k])
-    return rounds * n_envs / (time.perf_counter() - t0)
+    with VecWorlds(scenario, world, n_envs, seed, workers=workers) as worlds:
+        rng = np.random.default_rng(seed)
+        worlds.reset()
+        n = scenario.n_robots
+        rounds = max(1, steps // n_envs)
+        if kind == "discrete":
+            actions = rng.integers(0, worlds.codec.n_discrete, size=(rounds, n_envs, n))
+        else:
+            actions = rng.uniform(-1.0, 1.0, size=(rounds, n_envs, n, 2)).astype(np.float32)
+        t0 = time.perf_counter()
+        for k in range(rounds):
+            worlds.step(actions[k])
+        return rounds * n_envs / (time.perf_counter() - t0)
 
 
 SPENT: dict[str, float] = defaultdict(float)
@@ -75,7 +78,7 @@ def instrument() -> None:
 
 
 def train_rate(
-    algorithm: str, mode: str, scenario_name: str, steps: int, learning_starts: int, out: Path
+    algorithm: str, mode: str, scenario_name: str, steps: int, learning_starts: int, workers: int, out: Path
 ) -> tuple[float, dict[str, float]]:
     params = load_params()
     kind = action_kind(algorithm)
@@ -87,6 +90,7 @@ def train_rate(
         "total_steps": steps,
         "learning_starts": learning_starts,
         "torch_threads": 1,
+        "world_workers": workers,
         "checkpoint_every_episodes": 1_000_000,
         "selection": {"keep": "last", "every_steps": 0, "stop_at_success": None},
         "convergence": {"stop": False},
@@ -105,12 +109,22 @@ def main() -> None:
     parser.add_argument("--scenario", default="obstacles")
     parser.add_argument("--steps", type=int, default=12_000, help="world steps per training run")
     parser.add_argument("--learning-starts", type=int, default=1_000, help="transitions before updates (sac, dqn)")
+    parser.add_argument("--world-workers", type=int, default=None, help="(default: params.yaml's)")
     args = parser.parse_args()
     n_envs = load_params().train.n_envs
-    limits = {kind: env_only_rate(args.scenario, kind, n_envs, args.steps, 0) for kind in ("continuous", "discrete")}
+    workers = args.world_workers or load_params().train.world_workers
+    single = env_only_rate(args.scenario, "continuous", n_envs, args.steps, 0)
+    print(f"env only (continuous actions, {n_envs} worlds, 1 process): {single:.0f} steps/s")
+    limits = {
+        kind: env_only_rate(args.scenario, kind, n_envs, args.steps, 0, workers) for kind in ("continuous", "discrete")
+    }
     for kind, rate in limits.items():
-        print(f"env only ({kind} actions, {n_envs} worlds): {rate:.0f} steps/s, {1e5 / rate:.0f} s per 100k steps")
-    figures = [f"env_only={limits['continuous']:.0f}"]
+        print(
+            f"env only ({kind} actions, {n_envs} worlds, {workers} world workers): {rate:.0f} steps/s, "
+            f"{1e5 / rate:.0f} s per 100k steps"
+        )
+    print(f"world workers' speed-up (continuous): {limits['continuous'] / single:.2f}")
+    figures = [f"env_only={limits['continuous']:.0f}", f"env_only_1={single:.0f}"]
     instrument()
     print(f"{'algorithm/mode':<20} {'steps/s':>8} {'s/100k':>8} {'ratio':>6}   time in: worlds inference store updates")
     with tempfile.TemporaryDirectory() as tmp:
@@ -118,7 +132,13 @@ def main() -> None:
             for mode in args.modes:
                 limit = limits[action_kind(algorithm)]
                 rate, shares = train_rate(
-                    algorithm, mode, args.scenario, args.steps, args.learning_starts, Path(tmp) / f"{algorithm}-{mode}"
+                    algorithm,
+                    mode,
+                    args.scenario,
+                    args.steps,
+                    args.learning_starts,
+                    workers,
+                    Path(tmp) / f"{algorithm}-{mode}",
                 )
                 parts = " ".join(f"{shares[k]:>6.0%}" for k in ("worlds", "inference", "store", "updates"))
                 print(

@@ -794,7 +794,10 @@ def _sweep(args: argparse.Namespace) -> int:
     axes = [parse_axis(text) for text in args.axis]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     trials = expand(args.algorithms, args.modes, args.scenarios, seeds, axes)
-    base = with_settings(base_mapping(params), [parse_setting(text) for text in args.set])
+    settings = [parse_setting(text) for text in args.set]
+    if not any(key == "train.world_workers" for key, _ in settings):  # a trial's worlds use the CPUs it holds
+        settings.append(("train.world_workers", max(1, int(args.cpus_per_trial))))
+    base = with_settings(base_mapping(params), settings)
     out = Path(args.out)
     command = "mrl sweep " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["sweep"] else "mrl sweep"
     if args.report_only:

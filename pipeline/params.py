@@ -63,7 +63,8 @@ class ActuationConfig:
     linear_gain: float = setting(1.0, gt=0.0, le=5.0)
     angular_gain: float = setting(1.0, gt=0.0, le=5.0)
     yaw_rate_per_mps: float = setting(0.0, ge=-2.0, le=2.0, optional=True)
-    """Yaw rate (rad/s) per m/s of forward speed: unequal wheels turn a straight command into an arc."""
+    """Yaw rate (rad/s) per m/s of forward speed: unequal wheels turn a straight command into an arc, which the
+    odometry (wheel encoders read with the nominal radii) does not see."""
     deadband_radps: float = setting(0.0, ge=0.0, le=50.0, optional=True)
     """Wheel speeds (rad/s, from the command by the nominal wheel geometry below) under this stay at 0."""
     wheel_radius_m: float = setting(0.034, gt=0.0, le=0.5, optional=True)
@@ -311,6 +312,8 @@ class TrainConfig:
     """World control steps summed over the parallel worlds."""
     n_envs: int = setting(4, ge=1, le=256)
     """Parallel worlds stepped in lockstep."""
+    world_workers: int = setting(1, ge=1, le=256)
+    """Processes that step the worlds (1: the trainer's own); the transitions are the same whatever the number."""
     start_xy_m: float = setting(0.3, ge=0.0, le=5.0)
     """Training episodes start each robot up to this far (uniformly, in x and y) from its start."""
     start_yaw_rad: float = setting(0.6, ge=0.0, le=3.1416)

@@ -66,8 +66,12 @@ class Trial:
         return f"{base}-{digest}"
 
     def digest(self, base: Mapping[str, Any]) -> str:
-        """A short digest of every setting the trial trains and evaluates with (a row of other settings is stale)."""
-        text = json.dumps(to_mapping(self.params(base)), sort_keys=True, default=str)
+        """A short digest of every setting the trial trains and evaluates with (a row of other settings is stale).
+
+        Not of `train.world_workers`: how many processes step the worlds changes no transition."""
+        settings = to_mapping(self.params(base))
+        settings["train"].pop("world_workers", None)
+        text = json.dumps(settings, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def params(self, base: Mapping[str, Any], source: str = "params.yaml") -> Params:

@@ -624,14 +624,15 @@ def calibrate(
             values[f"actuation.{key}"] = getattr(actuation, key)
     if "odometry" in parts:
         values["odometry.rate_hz"] = rate_estimate(odom_stamps)
-        odometry = estimate_odometry(episodes, settings)
-        inferred = tuple(note for d in sessions for note in d.notes)
-        odometry = replace(odometry, notes=inferred + odometry.notes)
-        values["odometry.drift_per_m"] = odometry.drift_per_m
         wheels = estimate_wheels(episodes, settings)
         values["base.wheel_radius_left_m"] = wheels.radius_left_m
         values["base.wheel_radius_right_m"] = wheels.radius_right_m
         values["base.wheel_separation_m"] = wheels.separation_m
+        # the simulator's odometry misses the unequal wheels' arc by itself: the drift is what it must still draw
+        odometry = estimate_odometry(episodes, settings, arc_per_m(values) or 0.0)
+        inferred = tuple(note for d in sessions for note in d.notes)
+        odometry = replace(odometry, notes=inferred + odometry.notes)
+        values["odometry.drift_per_m"] = odometry.drift_per_m
     if "odometry" in parts and "actuation" in parts:
         wheel_episodes = [e for tag, data in tagged for e in _wheel_episodes(tag, data, tracks)]
         motors = estimate_motors(wheel_episodes, _odometry_period_s(odom_stamps), settings, rng)

@@ -178,8 +178,14 @@ def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> Ep
     return EpisodeDrift(episode.robot, episode.label, distance, turn, scale, k, h, k_se, h_se, curve)
 
 
-def estimate_odometry(episodes: Sequence[OdometryEpisode], settings: CalibrationSettings) -> OdometryFit:
-    """drift_per_m (per metre; the spread of the per-episode scale, yaw-scale and heading-drift errors)."""
+def estimate_odometry(
+    episodes: Sequence[OdometryEpisode], settings: CalibrationSettings, unseen_yaw_per_m: float = 0.0
+) -> OdometryFit:
+    """drift_per_m (per metre; the spread of the per-episode scale, yaw-scale and heading-drift errors).
+
+    `unseen_yaw_per_m`: the arc per metre of unequal wheels (see :func:`pipeline.calibration.calibrate.arc_per_m`),
+    which the simulator's odometry leaves out of its turn by itself (-arc per metre driven forward); the heading
+    drifts are taken about it, so the spread is what the simulator must still draw."""
     drifts = tuple(episode_drift(e, settings) for e in episodes if len(e.odom) >= 3)
     draws: list[float] = []
     variances: list[float] = []
@@ -194,9 +200,10 @@ def estimate_odometry(episodes: Sequence[OdometryEpisode], settings: Calibration
             variances.append(d.yaw_scale_se**2)
             components["yaw_scale_error"].append(d.yaw_scale_error)
         if d.heading_drift_per_m is not None:
-            draws.append(d.heading_drift_per_m)
+            h = d.heading_drift_per_m + unseen_yaw_per_m
+            draws.append(h)
             variances.append(d.heading_drift_se**2)
-            components["heading_drift_per_m"].append(d.heading_drift_per_m)
+            components["heading_drift_per_m"].append(h)
     rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in components.items() if v}
     n = len(draws)
     notes = (f"{len(drifts)} robot-episodes, {n} draws",)

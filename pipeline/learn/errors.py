@@ -1,4 +1,4 @@
-"""Errors of training: checkpoints, interruptions, replay-buffer arguments."""
+"""Errors of training: checkpoints, interruptions, replay-buffer arguments, world worker processes."""
 
 from __future__ import annotations
 
@@ -33,3 +33,12 @@ class PrioritizedReplayError(MrlError, ValueError):
         self.value = value
         self.allowed = allowed
         super().__init__(f"{argument} = {value!r}: {allowed}")
+
+
+class WorldWorkerError(MrlError):
+    """A process that steps some of the training worlds failed or vanished; carries its traceback or exit code."""
+
+    def __init__(self, pid: int | None, problem: str) -> None:
+        self.pid = pid
+        self.problem = problem
+        super().__init__(f"training world worker (pid {pid}) failed: {problem}")

@@ -42,8 +42,7 @@ class StreamMap:
         self.n_robots = worlds.n_robots
         self.obs_size = worlds.obs_size
         self.codec = worlds.codec
-        sim = worlds.sims[0]
-        low, high = sim.obs_low, sim.obs_high
+        low, high = worlds.obs_low, worlds.obs_high
         discrete = self.codec.kind == "discrete"
         robot_action: gymnasium.Space[Any] = (
             gymnasium.spaces.Discrete(self.codec.n_discrete)

@@ -94,7 +94,26 @@ def train(
     """
     th.set_num_threads(cfg.torch_threads)
     start = time.perf_counter()
-    worlds = VecWorlds(scenario, world, cfg.n_envs, cfg.seed, cfg.start_xy_m, cfg.start_yaw_rad)
+    worlds = VecWorlds(
+        scenario, world, cfg.n_envs, cfg.seed, cfg.start_xy_m, cfg.start_yaw_rad, workers=cfg.world_workers
+    )
+    try:
+        return _train(scenario, world, cfg, out_dir, worlds, start, progress, extra_meta, report)
+    finally:
+        worlds.close()
+
+
+def _train(
+    scenario: Scenario,
+    world: WorldConfig,
+    cfg: TrainConfig,
+    out_dir: Path,
+    worlds: VecWorlds,
+    start: float,
+    progress: bool,
+    extra_meta: dict[str, Any] | None,
+    report: Callable[[int, int, float], None] | None,
+) -> TrainResult:
     streams = StreamMap(cfg.mode, worlds)
     learners: list[OffPolicyLearner | OnPolicyLearner] = [
         build_learner(cfg, streams.observation_space, streams.action_space, streams.n_streams, cfg.seed + 7919 * i)

@@ -4,15 +4,27 @@ Each world is one :class:`~pipeline.sim.env.MultiRobotSim`. A world's episode en
 robot is done (goal or collision) or at the step limit; the world then starts its next episode
 with a seed drawn from the trainer's seed, so a training run is fixed by its seed. Robots that are
 done before their world's episode ends are *inactive*: their transitions are not training data.
+
+The worlds may be stepped by worker processes (`workers` > 1: each holds a contiguous share of the
+worlds and steps them while the others step theirs). Seeds and perturbed starts are always drawn
+here, in world order, and a world's episode depends on its seed and starts alone, so the transitions
+are the same to the bit whatever the number of workers.
 """
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import multiprocessing as mp
+import traceback
 from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
 
 import numpy as np
 
 from pipeline.core.scenario import Scenario, perturbed_starts
+from pipeline.learn.errors import WorldWorkerError
 from pipeline.params import WorldConfig
 from pipeline.sim.env import MultiRobotSim
 
@@ -58,8 +70,106 @@ TRAIN_SEED_MIN = 2**30
 """Training episodes' seeds start here; evaluation, selection and deployment seeds lie below."""
 
 
+@dataclass(frozen=True)
+class _Stepped:
+    """What stepping a share of the worlds gives back; leading axis: the share's worlds."""
+
+    obs: np.ndarray
+    reward: np.ndarray
+    active: np.ndarray
+    done: np.ndarray
+    reached: np.ndarray
+    collided: np.ndarray
+    truncated: np.ndarray
+    team_success: np.ndarray
+    steps: np.ndarray
+
+
+class _Share:
+    """Some of the worlds, stepped together in one process."""
+
+    def __init__(self, sims: list[MultiRobotSim]) -> None:
+        self.sims = sims
+
+    def reset(self, requests: list[tuple[int, int, np.ndarray | None]]) -> list[np.ndarray]:
+        """Reset world k (index in the share) with (k, seed, starts or None); the first observations."""
+        return [self.sims[k].reset(seed, starts) for k, seed, starts in requests]
+
+    def step(self, actions: np.ndarray) -> _Stepped:
+        results = [sim.step(a) for sim, a in zip(self.sims, actions, strict=True)]
+        judged = [r.judge for r in results]
+        return _Stepped(
+            obs=np.stack([r.obs for r in results]),
+            reward=np.stack([j.reward for j in judged]),
+            active=np.stack([j.active for j in judged]),
+            done=np.stack([j.done for j in judged]),
+            reached=np.stack([j.reached for j in judged]),
+            collided=np.stack([j.collided for j in judged]),
+            truncated=np.array([j.truncated for j in judged]),
+            team_success=np.array([j.team_success for j in judged]),
+            steps=np.array([sim.judge.steps for sim in self.sims]),
+        )
+
+
+def _serve(conn: Connection, scenario: Scenario, world: WorldConfig, n_worlds: int) -> None:
+    """A worker process: builds its share of the worlds, then answers step and reset requests until closed."""
+    try:
+        share = _Share([MultiRobotSim(scenario, world) for _ in range(n_worlds)])
+        conn.send(("ready", None))
+    except Exception:
+        conn.send(("error", traceback.format_exc()))
+        return
+    while True:
+        try:
+            verb, arg = conn.recv()
+        except EOFError:
+            return
+        if verb == "close":
+            return
+        try:
+            conn.send(("ok", share.step(arg) if verb == "step" else share.reset(arg)))
+        except Exception:
+            conn.send(("error", traceback.format_exc()))
+
+
+class _Worker:
+    """A share of the worlds in a process of its own (spawned: no state of the trainer is inherited)."""
+
+    def __init__(self, scenario: Scenario, world: WorldConfig, n_worlds: int) -> None:
+        ctx = mp.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_serve, args=(child, scenario, world, n_worlds), daemon=True)
+        self.process.start()
+        child.close()
+
+    def send(self, verb: str, arg: Any) -> None:
+        try:
+            self.conn.send((verb, arg))
+        except (BrokenPipeError, OSError) as e:
+            raise WorldWorkerError(self.process.pid, f"the process is gone (exit code {self.process.exitcode})") from e
+
+    def receive(self) -> Any:
+        try:
+            status, value = self.conn.recv()
+        except (EOFError, OSError) as e:
+            raise WorldWorkerError(self.process.pid, f"the process is gone (exit code {self.process.exitcode})") from e
+        if status == "error":
+            raise WorldWorkerError(self.process.pid, value)
+        return value
+
+    def close(self) -> None:
+        if self.process.is_alive():
+            with contextlib.suppress(BrokenPipeError, OSError):
+                self.conn.send(("close", None))
+            self.process.join(timeout=5)
+            if self.process.is_alive():
+                self.process.kill()
+                self.process.join()
+        self.conn.close()
+
+
 class VecWorlds:
-    """`n_worlds` copies of one scenario, stepped together."""
+    """`n_worlds` copies of one scenario, stepped together (by `workers` processes when more than 1)."""
 
     def __init__(
         self,
@@ -69,17 +179,34 @@ class VecWorlds:
         seed: int,
         start_xy_m: float = 0.0,
         start_yaw_rad: float = 0.0,
+        workers: int = 1,
     ) -> None:
-        """`start_xy_m`, `start_yaw_rad`: each episode starts every robot this far (uniformly) from its start pose."""
+        """`start_xy_m`, `start_yaw_rad`: each episode starts every robot this far (uniformly) from its start pose.
+        `workers`: processes that step the worlds (1: this process; at most `n_worlds` are used)."""
         if n_worlds < 1:
             raise ValueError(f"n_worlds must be >= 1, got {n_worlds}")
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
         self.scenario = scenario
         self.config = world
-        self.sims = [MultiRobotSim(scenario, world) for _ in range(n_worlds)]
         self.n_worlds = n_worlds
         self.n_robots = scenario.n_robots
-        self.obs_size = self.sims[0].layout.size
-        self.codec = self.sims[0].codec
+        probe = MultiRobotSim(scenario, world)
+        self.obs_size = probe.layout.size
+        self.codec = probe.codec
+        self.obs_low, self.obs_high = probe.obs_low, probe.obs_high
+        self.random_layouts = probe.random_layouts
+        n_workers = min(workers, n_worlds)
+        bounds = np.linspace(0, n_worlds, n_workers + 1).round().astype(int)
+        self._shares = [(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
+        self._workers: list[_Worker] = []
+        self._local: _Share | None = None
+        if n_workers == 1:
+            self._local = _Share([probe] + [MultiRobotSim(scenario, world) for _ in range(n_worlds - 1)])
+        else:
+            self._workers = [_Worker(scenario, world, b - a) for a, b in self._shares]
+            for w in self._workers:
+                w.receive()
         self._seeds = np.random.default_rng(seed)
         self._starts = np.random.default_rng([seed, 1])
         self.start_xy_m = start_xy_m
@@ -88,70 +215,100 @@ class VecWorlds:
         self._returns = np.zeros((n_worlds, self.n_robots))
         self._obs = np.zeros((n_worlds, self.n_robots, self.obs_size), dtype=np.float32)
 
+    @property
+    def sims(self) -> list[MultiRobotSim]:
+        """The worlds themselves, where they live in this process (`workers` == 1)."""
+        if self._local is None:
+            raise RuntimeError("the worlds live in worker processes")
+        return self._local.sims
+
+    def close(self) -> None:
+        """Stop the worker processes (nothing to do without them)."""
+        for w in self._workers:
+            w.close()
+        self._workers = []
+
+    def __enter__(self) -> VecWorlds:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def _next_seed(self) -> int:
         # training seeds are >= TRAIN_SEED_MIN, evaluation seeds below it: random layouts drawn from the seeds
         # of evaluation episodes are never among those trained on
         return int(self._seeds.integers(TRAIN_SEED_MIN, 2**31 - 1))
 
-    def _reset_world(self, j: int) -> np.ndarray:
-        self._episode_seed[j] = self._next_seed()
-        sim = self.sims[j]
-        if sim.random_layouts:  # the layout's own starts are already a draw
-            return sim.reset(int(self._episode_seed[j]))
-        starts = perturbed_starts(self.scenario, self._starts, self.start_xy_m, self.start_yaw_rad)
-        return sim.reset(int(self._episode_seed[j]), starts)
+    def _reset_worlds(self, worlds: list[int]) -> None:
+        """Start the next episode of `worlds` (in this order: seeds and starts are drawn in it)."""
+        requests: list[list[tuple[int, int, np.ndarray | None]]] = [[] for _ in self._shares]
+        for j in worlds:
+            self._episode_seed[j] = self._next_seed()
+            starts = (
+                None
+                if self.random_layouts  # the layout's own starts are already a draw
+                else perturbed_starts(self.scenario, self._starts, self.start_xy_m, self.start_yaw_rad)
+            )
+            s = next(i for i, (a, b) in enumerate(self._shares) if a <= j < b)
+            requests[s].append((j - self._shares[s][0], int(self._episode_seed[j]), starts))
+        if self._local is not None:
+            answers = [self._local.reset(requests[0])]
+        else:
+            busy = [s for s, r in enumerate(requests) if r]
+            for s in busy:
+                self._workers[s].send("reset", requests[s])
+            answers = [self._workers[s].receive() if s in busy else [] for s in range(len(self._shares))]
+        for (a, _), share_requests, obs in zip(self._shares, requests, answers, strict=True):
+            for (k, _, _), o in zip(share_requests, obs, strict=True):
+                self._obs[a + k] = o
 
     def reset(self) -> np.ndarray:
         """Start every world's first episode; returns observations (n_worlds, n_robots, obs_size)."""
-        for j in range(self.n_worlds):
-            self._obs[j] = self._reset_world(j)
+        self._reset_worlds(list(range(self.n_worlds)))
         self._returns[:] = 0.0
         return self._obs.copy()
 
+    def _step_all(self, actions: np.ndarray) -> _Stepped:
+        if self._local is not None:
+            return self._local.step(actions)
+        for w, (a, b) in zip(self._workers, self._shares, strict=True):
+            w.send("step", np.asarray(actions[a:b]))
+        parts = [w.receive() for w in self._workers]
+        return _Stepped(*(np.concatenate([getattr(p, f) for p in parts]) for f in _Stepped.__dataclass_fields__))
+
     def step(self, actions: np.ndarray) -> WorldsStep:
         """Advance every world one control period; `actions` is (n_worlds, n_robots, 2) or (n_worlds, n_robots)."""
-        k, n = self.n_worlds, self.n_robots
-        next_obs = np.empty((k, n, self.obs_size), dtype=np.float32)
-        reward = np.zeros((k, n))
-        active = np.zeros((k, n), dtype=bool)
-        terminated = np.zeros((k, n), dtype=bool)
-        truncated = np.zeros((k, n), dtype=bool)
-        ended = np.zeros(k, dtype=bool)
+        s = self._step_all(actions)
+        next_obs = np.asarray(s.obs, dtype=np.float32)
+        act = s.active
+        reward = np.where(act, s.reward, 0.0)
+        self._returns += reward
+        terminated = act & s.done
+        truncated = act & ~terminated & s.truncated[:, None]
+        ended = s.truncated | s.done.all(axis=1)
         finished: list[EpisodeRecord] = []
-        for j, sim in enumerate(self.sims):
-            result = sim.step(actions[j])
-            judged = result.judge
-            next_obs[j] = result.obs
-            act = judged.active
-            active[j] = act
-            reward[j] = np.where(act, judged.reward, 0.0)
-            self._returns[j] += reward[j]
-            newly_done = act & judged.done
-            terminated[j] = newly_done
-            if judged.truncated:
-                truncated[j] = act & ~newly_done
-            if judged.truncated or judged.done.all():
-                ended[j] = True
-                finished.append(
-                    EpisodeRecord(
-                        world=j,
-                        seed=int(self._episode_seed[j]),
-                        steps=sim.judge.steps,
-                        returns=self._returns[j].copy(),
-                        reached=judged.reached.copy(),
-                        collided=judged.collided.copy(),
-                        team_success=judged.team_success,
-                    )
+        for j in np.flatnonzero(ended):
+            finished.append(
+                EpisodeRecord(
+                    world=int(j),
+                    seed=int(self._episode_seed[j]),
+                    steps=int(s.steps[j]),
+                    returns=self._returns[j].copy(),
+                    reached=s.reached[j].copy(),
+                    collided=s.collided[j].copy(),
+                    team_success=bool(s.team_success[j]),
                 )
-                self._obs[j] = self._reset_world(j)
-                self._returns[j] = 0.0
-            else:
-                self._obs[j] = result.obs
+            )
+            self._returns[j] = 0.0
+        running = ~ended
+        self._obs[running] = next_obs[running]
+        if finished:
+            self._reset_worlds([int(j) for j in np.flatnonzero(ended)])
         return WorldsStep(
             obs=self._obs.copy(),
             next_obs=next_obs,
             reward=reward,
-            active=active,
+            active=np.array(act, dtype=bool),
             terminated=terminated,
             truncated=truncated,
             world_ended=ended,

@@ -36,10 +36,15 @@ class OdometryDrift:
     metre, each drawn from N(0, drift_per_m). Over 1 m of straight driving this gives a position
     error of about drift_per_m metres (along-track from the scale error, cross-track from the
     heading drift). Poses are (n_robots, 3): x, y (m), yaw (rad).
+
+    `unseen_yaw_per_m` is the turn (rad per metre driven forward, signed) that the odometry does
+    not see: wheel encoders read with the nominal radii count the arc that unequal wheels put into
+    a straight command as straight driving, so the base turns and its odometry does not.
     """
 
-    def __init__(self, drift_per_m: float) -> None:
+    def __init__(self, drift_per_m: float, unseen_yaw_per_m: float = 0.0) -> None:
         self.drift_per_m = drift_per_m
+        self.unseen_yaw_per_m = unseen_yaw_per_m
         self.pose = np.zeros((0, 3))
         self._scale = np.zeros(0)
         self._yaw_scale = np.zeros(0)
@@ -58,6 +63,11 @@ class OdometryDrift:
         forward = c * d[:, 0] + s * d[:, 1]
         left = -s * d[:, 0] + c * d[:, 1]
         dyaw = np.angle(np.exp(1j * (truth[:, 2] - prev_truth[:, 2])))
+        if self.unseen_yaw_per_m != 0.0:  # take the arc out of the turn and of the chord's direction
+            unseen = self.unseen_yaw_per_m * forward
+            dyaw = dyaw - unseen
+            cu, su = np.cos(unseen / 2), np.sin(unseen / 2)
+            forward, left = cu * forward + su * left, -su * forward + cu * left
         dist = np.hypot(forward, left)
         forward = forward * (1 + self._scale)
         left = left * (1 + self._scale)

@@ -68,7 +68,7 @@ class SimWorld:
             self.model.actuator_gainprm[self._ctrl_v, 0].copy(),
             self.model.actuator_gainprm[self._ctrl_w, 0].copy(),
         )
-        self.odometry = OdometryDrift(world.odometry.drift_per_m)
+        self.odometry = OdometryDrift(world.odometry.drift_per_m, world.actuation.yaw_rate_per_mps)
         self._use(world)
         self.rng = np.random.default_rng(0)
         self._pending: deque[tuple[int, np.ndarray]] = deque()
@@ -98,6 +98,7 @@ class SimWorld:
         self._gain = np.array([act.linear_gain, act.angular_gain])
         self._wheels = act.deadband_radps > 0
         self.odometry.drift_per_m = world.odometry.drift_per_m
+        self.odometry.unseen_yaw_per_m = act.yaw_rate_per_mps  # the encoders count the wheels' arc as straight
         if world.actuation.time_constant_s != self.base_world.actuation.time_constant_s or self._ranges:
             scale = self.base_world.actuation.time_constant_s / act.time_constant_s
             for ids, kv in zip((self._ctrl_v, self._ctrl_w), self._kv, strict=True):

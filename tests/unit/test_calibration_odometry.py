@@ -13,10 +13,10 @@ NS = 1_000_000_000
 SETTINGS = CalibrationSettings()
 
 
-def drive(seed: int, drift: float, seconds: float = 12.0) -> tuple[OdometryEpisode, np.ndarray]:
+def drive(seed: int, drift: float, seconds: float = 12.0, unseen: float = 0.0) -> tuple[OdometryEpisode, np.ndarray]:
     """One robot-episode of random arcs at 50 Hz; the episode and its draws (scale, yaw scale, heading drift)."""
     rng = np.random.default_rng(seed + 1000)
-    odometry = OdometryDrift(drift)
+    odometry = OdometryDrift(drift, unseen)
     start = np.array([[1.0, 1.0, 0.3]])
     odometry.reset(start, np.random.default_rng(seed))
     draws = np.random.default_rng(seed).normal(0.0, drift, size=(3, 1))[:, 0]
@@ -54,6 +54,18 @@ def test_drift_per_m_is_the_spread_of_the_draws_with_a_chi_interval():
     assert est.interval is not None and est.interval[0] < 0.05 < est.interval[1]
     assert "chi distribution of 120 zero-mean draws" in est.method
     assert set(fit.component_rms) == {"scale_error", "yaw_scale_error", "heading_drift_per_m"}
+
+
+def test_the_drift_is_taken_about_the_arc_of_unequal_wheels_that_the_simulator_reproduces():
+    # the odometry misses a 0.08 rad/m arc on every episode: a systematic heading drift, not a spread
+    episodes = [drive(seed, 0.02, unseen=0.08)[0] for seed in range(30)]
+    heading = [episode_drift(e, SETTINGS).heading_drift_per_m for e in episodes]
+    assert float(np.mean(heading)) == pytest.approx(-0.08, abs=0.01)
+    about_zero = estimate_odometry(episodes, SETTINGS).drift_per_m
+    about_arc = estimate_odometry(episodes, SETTINGS, unseen_yaw_per_m=0.08).drift_per_m
+    assert about_zero.value is not None and about_zero.value > 0.04
+    assert about_arc.value == pytest.approx(0.02, rel=0.25)
+    assert about_arc.interval is not None and about_arc.interval[0] < 0.02 < about_arc.interval[1]
 
 
 def test_exact_odometry_gives_zero_drift():

@@ -142,3 +142,20 @@ def test_a_speed_limit_cuts_the_achieved_speed_not_the_slower_commands():
     assert limited.body_velocity()[0, 0] == pytest.approx(plain.body_velocity()[0, 0], abs=1e-3)
     assert limited.body_velocity()[0, 1] == pytest.approx(0.1, abs=1e-3)
     assert plain.body_velocity()[0, 1] == pytest.approx(0.3, abs=1e-3)
+
+
+def test_the_arc_of_unequal_wheels_turns_the_base_and_not_its_odometry():
+    # encoders read with the nominal radii count a straight command's arc as straight driving
+    sim = world(n_robots=1, actuation={"yaw_rate_per_mps": -0.1})
+    drive(sim, [[0.3, 0.0]], 30)  # about 0.85 m forward
+    x, y, yaw = sim.truth[0]
+    distance = float(np.hypot(x - 1.0, y - 1.0))
+    assert distance > 0.7
+    assert yaw == pytest.approx(-0.1 * distance, rel=0.1)  # the base curved to the right
+    assert y < 1.0 - 0.02
+    odom = sim.odometry.pose[0]
+    assert abs(odom[2]) < 1e-4 and abs(odom[1] - 1.0) < 1e-3  # the odometry drove straight east (up to the lag)
+    assert odom[0] - 1.0 == pytest.approx(distance, rel=0.02)
+    sim = world(n_robots=1)
+    drive(sim, [[0.3, 0.0]], 30)
+    assert np.allclose(sim.odometry.pose[0], sim.truth[0], atol=1e-9)  # equal wheels: odometry is the truth
