@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import multiprocessing as mp
+import signal
 import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -112,7 +113,10 @@ class _Share:
 
 
 def _serve(conn: Connection, scenario: Scenario, world: WorldConfig, n_worlds: int) -> None:
-    """A worker process: builds its share of the worlds, then answers step and reset requests until closed."""
+    """A worker process: builds its share of the worlds, then answers step and reset requests until closed.
+
+    Ctrl-C reaches the whole process group: the trainer handles it (checkpoint, then closes its workers)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         share = _Share([MultiRobotSim(scenario, world) for _ in range(n_worlds)])
         conn.send(("ready", None))

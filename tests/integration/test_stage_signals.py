@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
@@ -73,6 +74,38 @@ def test_ctrl_c_during_training_keeps_the_last_checkpoint(tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
+    ckpt = load_checkpoint(meta.parent)
+    assert ckpt.meta["interrupted"] is True and ckpt.meta["world_steps"] > 0
+
+
+def test_ctrl_c_in_a_terminal_reaches_the_world_workers_too_and_training_still_keeps_its_checkpoint(tmp_path):
+    # a terminal's Ctrl-C goes to the whole process group: the trainer and the processes stepping its worlds
+    params_in(
+        tmp_path,
+        world={"max_steps": 30},
+        train={
+            "total_steps": 10_000_000,
+            "n_envs": 4,
+            "world_workers": 2,
+            "net_arch": [16, 16],
+            "checkpoint_every_episodes": 2,
+            "ppo": {"n_steps": 16, "minibatch_size": 32},
+        },
+    )
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "stages" / "train.py")],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    meta = tmp_path / "models" / "nominal" / "checkpoint" / "train.json"
+    wait_for(meta.exists)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err and "KeyboardInterrupt" not in err
     ckpt = load_checkpoint(meta.parent)
     assert ckpt.meta["interrupted"] is True and ckpt.meta["world_steps"] > 0
 
