@@ -11,6 +11,10 @@ Some calibrated keys are the simulator's own parameters of an effect the twin pr
 simulator's model does not contain the twin's (for example one first-order lag where the twin has
 the driver's lag and the motor's in series): it is reported, not hidden.
 
+--keep DIR keeps each profile and recording (``drawn_<seed>.yaml``, ``drawn_<seed>.mcap``);
+--recalibrate DIR deploys nothing and calibrates the recordings a --keep run left there again (to
+measure a change of the calibration on the same data).
+
 ``clock.offset_s`` is reported unidentifiable on a time-scaled twin (the recorder follows ``/clock``) and is
 not counted. Rows go to --out (CSV); progress on stderr. Last line: ``coverage_min=<lowest coverage over the
 identifiable keys> keys_at_target=<k>/<n>``.
@@ -24,6 +28,7 @@ import math
 import sys
 import tempfile
 import time
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -98,7 +103,21 @@ def main() -> int:
     parser.add_argument("--time-scale", type=float, default=3.0)
     parser.add_argument("--seed", type=int, default=100)
     parser.add_argument("--out", type=Path, default=Path("logs/benchmarks/calibration_coverage.csv"))
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--keep", type=Path, help="keep profiles and recordings in this folder")
+    where.add_argument("--recalibrate", type=Path, help="calibrate the recordings of a --keep run again")
     args = parser.parse_args()
+    if args.recalibrate is not None:
+        missing = [
+            f"drawn_{args.seed + p}.{ext}"
+            for p in range(args.profiles)
+            for ext in ("yaml", "mcap")
+            if not (args.recalibrate / f"drawn_{args.seed + p}.{ext}").is_file()
+        ]
+        if missing:
+            print(f"calibration_coverage: --recalibrate {args.recalibrate} lacks {', '.join(missing[:4])}")
+            return 2
+        return _recalibrate(args)
     if not (args.policy / "policy.json").is_file():
         print(f"calibration_coverage: no exported policy at {args.policy} (run `dvc repro` first or pass --policy)")
         return 2
@@ -107,8 +126,11 @@ def main() -> int:
     scenario = load_scenario(fleet.scenario)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, object]] = []
-    with tempfile.TemporaryDirectory() as tmp, args.out.open("w", newline="") as f:
-        writer = csv.DictWriter(f, ["profile", "key", "truth", "value", "low", "high", "covered", "rel_error"])
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+    folder = nullcontext(str(args.keep)) if args.keep is not None else tempfile.TemporaryDirectory()
+    with folder as tmp, args.out.open("w", newline="") as f:
+        writer = csv.DictWriter(f, COLUMNS)
         writer.writeheader()
         for p in range(args.profiles):
             seed = args.seed + p
@@ -126,26 +148,61 @@ def main() -> int:
                 progress=False,
             )
             deploy_policy(runtime, fleet, args.fleet, request)
-            cal = calibrate(recording, CalibrationSettings(bootstrap=200, seed=seed))
-            for key, est in cal.values.items():
-                truth = truth_of(mapping, key)
-                if truth is None:
-                    continue
-                row: dict[str, object] = {"profile": seed, "key": key, "truth": truth}
-                if est.ok and est.value is not None and est.interval is not None:
-                    lo, hi = est.interval
-                    row.update(
-                        value=est.value,
-                        low=lo,
-                        high=hi,
-                        covered=int(lo <= truth <= hi),
-                        rel_error=abs(est.value - truth) / abs(truth) if truth != 0 else math.nan,
-                    )
+            for row in _scored(recording, mapping, seed):
                 rows.append(row)
                 writer.writerow(row)
             f.flush()
             print(
                 f"profile {p + 1}/{args.profiles} (seed {seed}) done in {time.perf_counter() - start:.0f} s",
+                file=sys.stderr,
+                flush=True,
+            )
+    summary(rows)
+    return 0
+
+
+COLUMNS = ["profile", "key", "truth", "value", "low", "high", "covered", "rel_error"]
+
+
+def _scored(recording: Path, mapping: dict[str, Any], seed: int) -> list[dict[str, object]]:
+    """Calibrate one recording and score every estimated key against the profile's truth."""
+    cal = calibrate(recording, CalibrationSettings(bootstrap=200, seed=seed))
+    rows: list[dict[str, object]] = []
+    for key, est in cal.values.items():
+        truth = truth_of(mapping, key)
+        if truth is None:
+            continue
+        row: dict[str, object] = {"profile": seed, "key": key, "truth": truth}
+        if est.ok and est.value is not None and est.interval is not None:
+            lo, hi = est.interval
+            row.update(
+                value=est.value,
+                low=lo,
+                high=hi,
+                covered=int(lo <= truth <= hi),
+                rel_error=abs(est.value - truth) / abs(truth) if truth != 0 else math.nan,
+            )
+        rows.append(row)
+    return rows
+
+
+def _recalibrate(args: argparse.Namespace) -> int:
+    """Score the calibration of recordings kept by an earlier run (no deployment)."""
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, object]] = []
+    with args.out.open("w", newline="") as f:
+        writer = csv.DictWriter(f, COLUMNS)
+        writer.writeheader()
+        for p in range(args.profiles):
+            seed = args.seed + p
+            mapping = yaml.safe_load((args.recalibrate / f"drawn_{seed}.yaml").read_text(encoding="utf-8"))
+            start = time.perf_counter()
+            for row in _scored(args.recalibrate / f"drawn_{seed}.mcap", mapping, seed):
+                rows.append(row)
+                writer.writerow(row)
+            f.flush()
+            print(
+                f"profile {p + 1}/{args.profiles} (seed {seed}) calibrated in {time.perf_counter() - start:.0f} s",
                 file=sys.stderr,
                 flush=True,
             )

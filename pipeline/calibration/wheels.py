@@ -28,8 +28,17 @@ uncertainties treat those as a cluster: the standard error is the largest of the
 sandwich, the cluster bootstrap's and the leave-one-cluster-out jackknife's (the first two scaled
 by G / (G - 1)), and the 95 % interval is the t interval with G - 1 degrees of freedom, G the
 number of robot-episodes. So it shrinks with the number of robot-episodes, not of chunks, and grows
-with what the model cannot explain. Slip that biases every episode alike (the same acceleration
-profile everywhere) is indistinguishable from another geometry and is not in the interval.
+with what the model cannot explain between robot-episodes. What it cannot explain within them shows
+as estimates that depend on how the robot drove: the fit is repeated on the slower and the faster
+half of the chunks, and on the straighter and the more turning half, and where the halves disagree
+by more than their own errors allow, the excess counts as a random effect of the driving conditions:
+the between-condition variance tau^2 (DerSimonian and Laird's estimator, the largest over the two
+splits) is added to the squared standard error, se^2 + tau^2: where the truth lies among the
+conditions is not known, so the pooled estimate may be off by as much as one condition's effect (on
+the twin, slip and the encoders' ticks bias slow chunks one way and fast ones the other by about
+1 %). Slip that biases every chunk
+alike, whatever its speed or turn, is indistinguishable from another geometry and is not in the
+interval.
 
 Separating the three needs wheel travels that are not always in the same ratio: forward driving and
 turning in varying proportion (straight runs and turns on the spot, or arcs of several curvatures).
@@ -248,6 +257,69 @@ def _sandwich_se(clusters: _Moments, theta: np.ndarray, weight: float, nominal_r
     return np.array([se[0] * nominal_radius_m, se[1] * nominal_radius_m, se[2] / theta[2] ** 2])
 
 
+def _fit_with_errors(
+    chunks: Sequence[WheelChunks],
+    weights: Sequence[np.ndarray],
+    weight: float,
+    start: np.ndarray,
+    nominal_radius_m: float,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Geometry (3,) of the chunks with the given weights and its jackknife standard errors over robot-episodes
+    (None where the weighted chunks do not determine it)."""
+    clusters = _moments(chunks, weights)
+    g = len(chunks)
+    try:
+        value = _geometry(_solve(clusters.weighted(np.ones(g)), weight, start), nominal_radius_m)
+        left_out = np.array(
+            [_geometry(_solve(clusters.weighted(np.arange(g) != c), weight, start), nominal_radius_m) for c in range(g)]
+        )
+    except np.linalg.LinAlgError:
+        return None
+    return value, np.sqrt((g - 1) / g * np.sum((left_out - left_out.mean(axis=0)) ** 2, axis=0))
+
+
+def between_condition_variance(values: np.ndarray, errors: np.ndarray) -> np.ndarray:
+    """DerSimonian-Laird between-group variance (per column) of estimates `values` (k, p) with standard errors
+    `errors` (k, p): what their spread holds beyond their own errors (0 where it holds nothing more)."""
+    w = 1.0 / np.maximum(errors, 1e-300) ** 2
+    mean = np.sum(w * values, axis=0) / np.sum(w, axis=0)
+    q = np.sum(w * (values - mean) ** 2, axis=0)
+    scale = np.sum(w, axis=0) - np.sum(w * w, axis=0) / np.sum(w, axis=0)
+    return np.asarray(np.maximum(q - (len(values) - 1), 0.0) / scale)
+
+
+def _condition_variance(
+    chunks: Sequence[WheelChunks], weights: Sequence[np.ndarray], weight: float, theta: np.ndarray, r_nom: float
+) -> tuple[np.ndarray, list[str]]:
+    """The largest between-condition variance (3,) over the splits by speed and by turning, and what each split read."""
+    travel = np.concatenate([c.travel for c in chunks])
+    kept = np.concatenate(weights) > 0
+    speed = np.abs(travel.mean(axis=1))
+    turning = np.abs(travel @ _SPIN) / np.maximum(np.abs(travel).sum(axis=1), 1e-12)
+    sizes = np.cumsum([0] + [len(c.distance_m) for c in chunks])
+    worst = np.zeros(3)
+    notes: list[str] = []
+    for name, key in (("speed", speed), ("turning", turning)):
+        cut = float(np.median(key[kept & (speed > 0)])) if np.any(kept & (speed > 0)) else 0.0
+        halves = []
+        for side in (key < cut, key >= cut):
+            w = [weights[i] * side[sizes[i] : sizes[i + 1]] for i in range(len(chunks))]
+            fitted = _fit_with_errors(chunks, w, weight, theta, r_nom)
+            if fitted is not None and np.all(np.isfinite(fitted[1])) and np.all(fitted[1] > 0):
+                halves.append(fitted)
+        if len(halves) < 2:
+            notes.append(f"the {name} halves could not be fitted apart")
+            continue
+        values, errors = np.stack([h[0] for h in halves]), np.stack([h[1] for h in halves])
+        tau2 = between_condition_variance(values, errors)
+        worst = np.maximum(worst, tau2)
+        notes.append(
+            f"{name} halves read {values[0, 0] * 1e3:.2f} / {values[1, 0] * 1e3:.2f}, {values[0, 1] * 1e3:.2f} / "
+            f"{values[1, 1] * 1e3:.2f}, {values[0, 2] * 1e3:.1f} / {values[1, 2] * 1e3:.1f} mm"
+        )
+    return worst, notes
+
+
 def _problems(chunks: Sequence[WheelChunks], nominal_separation_m: float) -> list[str]:
     """Why the data cannot determine the three values (empty: they can)."""
     problems: list[str] = []
@@ -338,19 +410,27 @@ def estimate_wheels(
         f"{float(np.abs(travel @ _SPIN).sum()) / nominal_separation_m:.1f} rad; weighted rms residual per chunk "
         f"{rms[0]:.2g} m, {rms[1] / weight:.2g} rad; {int(np.sum(w == 0.0))} chunks left out as slip"
     )
+    tau2, split_notes = _condition_variance(chunks, weights, weight, theta, nominal_radius_m)
+    notes += split_notes
+    notes.append(
+        "between conditions: "
+        + ", ".join(
+            f"{name} {math.sqrt(v) * 1e3:.3f} mm" for name, v in zip(("left", "right", "separation"), tau2, strict=True)
+        )
+    )
     failed = int(np.sum(~np.all(np.isfinite(samples), axis=1)))
     if failed:
         notes.append(f"{failed} of {settings.bootstrap} bootstrap resamples could not be fitted")
     method = (
         f"least squares over {n} chunks less slip bursts; largest of the cluster-robust sandwich, "
         f"cluster bootstrap ({settings.bootstrap} resamples) and jackknife standard errors over {g} robot-episodes, "
-        f"t interval ({g - 1} dof)"
+        f"t interval ({g - 1} dof), widened by the variance between slow and fast, straight and turning chunks"
     )
     out: list[Estimate] = []
     for j in range(3):
         boot_se, _ = spread(samples[:, j])
         candidates = [float(sandwich[j]), boot_se * small, float(jackknife[j])]
-        se = max(x for x in candidates if math.isfinite(x))
+        se = math.sqrt(max(x for x in candidates if math.isfinite(x)) ** 2 + float(tau2[j]))
         x = float(value[j])
         out.append(Estimate.of(x, se, (x - t * se, x + t * se), "m", method, n))
     return WheelFit(out[0], out[1], out[2], tuple(notes))
