@@ -17,7 +17,10 @@ deadband into smaller gains and a slew limit into a longer lag:
    grid the gains are least squares over the moving samples (classified by the current gains,
    iterated); the deadband with the least total squared error wins.
 2. Transients: with those gains and deadband, a grid over delay x total lag x the motor's share of it
-   x acceleration limit (with "no limit"), simulated from rest at each episode's start.
+   x acceleration limit (with "no limit"), simulated from rest at each episode's start. Where the held
+   commands never came near the deadband (it is unidentifiable from them), the transients pick it from
+   `TRANSIENT_DEADBANDS_RADPS` within the range the held commands leave open: an arbitrary deadband
+   there biased the limit upwards by about one grid step.
 Both stages keep per-episode sums, so a bootstrap over robot-episodes gives the intervals (percentiles
 widened by half a grid step). A deadband is identifiable only where commands asked for wheel speeds
 near it, an acceleration limit only where they asked for more than it: otherwise the key is reported
@@ -50,6 +53,8 @@ ACCELS_RADPS2 = np.r_[np.geomspace(5.0, 300.0, 41), np.inf]
 DELAYS_S = np.round(np.arange(0.0, 0.241, 0.02), 3)
 LAGS_S = np.geomspace(0.03, 0.4, 24)
 """Total lags tried (driver + motor, s)."""
+TRANSIENT_DEADBANDS_RADPS = (0.0, 0.5, 1.0)
+"""Deadbands the transients try where the held commands leave the deadband open."""
 MOTOR_SHARES = np.array([0.0, 1 / 6, 1 / 3, 1 / 2, 2 / 3])
 COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
 """Limits of the first pass, which picks the delay; the second tries every limit at the delays next to it."""
@@ -258,11 +263,23 @@ def estimate_motors(
     commanded = np.abs(np.concatenate([s.a * g_lin + s.b * g_ang for s in steady]).ravel())
     deadband = _deadband(deadband_value, draws, commanded, n_steady, len(used))
 
-    args = (deadband_value, (g_lin, g_ang), odometry_period_s, timeout)
     transient = used
     if len(used) > MAX_TRANSIENT_EPISODES:
         transient = [used[k] for k in np.linspace(0, len(used) - 1, MAX_TRANSIENT_EPISODES).round().astype(int)]
-    coarse = np.sum([_transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2) for e in transient], axis=0)
+    # held commands that never came near the deadband leave a range of deadbands that fit them alike; the middle
+    # of that range is arbitrary and, put into the transients, bends the limit: the transients choose within it
+    candidates = [deadband_value]
+    if not deadband.ok:
+        candidates = [d for d in TRANSIENT_DEADBANDS_RADPS if flat_lo <= d <= flat_hi] or [flat_lo]
+    coarse_by = []
+    for candidate in candidates:
+        args = (candidate, (g_lin, g_ang), odometry_period_s, timeout)
+        coarse_by.append(
+            np.sum([_transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2) for e in transient], axis=0)
+        )
+    chosen = int(np.argmin([float(c.min()) for c in coarse_by]))
+    coarse, transient_deadband = coarse_by[chosen], candidates[chosen]
+    args = (transient_deadband, (g_lin, g_ang), odometry_period_s, timeout)
     i = int(np.unravel_index(int(np.argmin(coarse[..., ::-1])), coarse.shape)[0])
     delays = DELAYS_S[max(i - 1, 0) : i + 2]
     costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in transient])
@@ -294,7 +311,12 @@ def estimate_motors(
     notes = (
         f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
         f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples of {len(transient)} of them give "
-        f"delay {d:.2f} s, total lag {lag:.3f} s ({share:.0%} after the limit)",
+        f"delay {d:.2f} s, total lag {lag:.3f} s ({share:.0%} after the limit)"
+        + (
+            f"; deadband for them {transient_deadband:g} rad/s, the best of {', '.join(f'{c:g}' for c in candidates)}"
+            if len(candidates) > 1
+            else ""
+        ),
     )
     return MotorFit(deadband, accel, (g_lin, g_ang), notes)
 

@@ -29,12 +29,22 @@ def episode(
     motor_lag_s: float = 0.06,
     seconds: float = 12.0,
     w_max: float = 0.2,
+    policy: bool = False,
 ) -> WheelEpisode:
     """A robot-episode of excitation phases (stand, turn, arc, straight, each held 0.6-2 s, commands at 10 Hz)
     through the wheel chain (delay, driver lag, gains, deadband, slew limit, motor lag) integrated at 2.5 ms;
-    odometry from encoder ticks every 25 ms."""
+    odometry from encoder ticks every 25 ms. With `policy`, commands that change every 0.1 s as a policy's
+    do (small changes, and in three steps of ten a jump to any speed and turn rate), so none is ever held."""
     t_cmd, values = [], []
     t = 0.0
+    v, w = 0.0, 0.0
+    while policy and t < seconds:
+        jump = rng.random() < 0.3
+        v = float(rng.uniform(0.0, 0.4) if jump else np.clip(v + rng.normal(0.0, 0.03), 0.0, 0.4))
+        w = float(rng.uniform(-w_max, w_max) if jump else np.clip(w + rng.normal(0.0, 0.03), -w_max, w_max))
+        t_cmd.append(t)
+        values.append((v, w))
+        t += 0.1
     while t < seconds:
         phase = rng.choice(["stand", "turn", "arc", "straight"])
         hold = rng.uniform(0.6, 2.0)
@@ -117,6 +127,19 @@ def test_a_deadband_is_unidentifiable_without_small_commands():
         episodes.append(WheelEpisode(e.robot, e.cluster, e.start_ns, e.t_ns, e.wheels, e.free, straight))
     fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(5))
     assert not fit.deadband_radps.ok and "shows only there" in fit.deadband_radps.reason
+
+
+def test_a_limit_is_recovered_from_a_policys_commands_that_leave_the_deadband_open():
+    """A policy never holds a command: the deadband is unidentifiable and held commands leave every deadband from 0
+    to the grid's top open. The transients choose one; the limit's interval still holds the truth."""
+    rng = np.random.default_rng(8)
+    episodes = [episode(rng, f"episode {k}", deadband=0.5, accel=25.0, policy=True) for k in range(8)]
+    fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(9))
+    assert not fit.deadband_radps.ok
+    accel = fit.max_wheel_accel_radps2
+    # within two steps of the limit grid (10 % each); the arbitrary deadband the transients had before read 31.6
+    assert covers(accel, 25.0) and accel.value == pytest.approx(25.0, rel=0.2), accel
+    assert "deadband for them 0.5 rad/s" in fit.notes[0]
 
 
 def test_too_few_episodes_are_unidentifiable():
