@@ -17,6 +17,7 @@ import numpy as np
 import torch as th
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn
@@ -60,10 +61,18 @@ class SpacesVecEnv(VecEnv):
         return [False] * self.num_envs
 
 
+def _quiet(model: BaseAlgorithm) -> None:
+    """A logger that keeps SB3's records in memory: without one, every ``_setup_learn`` makes an empty
+    ``SB3-<time>`` folder in the temporary directory."""
+    if not model._custom_logger:
+        model.set_logger(Logger(folder=None, output_formats=[]))
+
+
 class _ExternalOffPolicy(OffPolicyAlgorithm):
     """Public steps of an SB3 off-policy algorithm for a loop outside ``learn()`` (one transition at a time)."""
 
     def begin(self, total_transitions: int) -> None:
+        _quiet(self)
         self._setup_learn(total_transitions, callback=None, reset_num_timesteps=True)
 
     def store(
@@ -102,6 +111,7 @@ class LoopPPO(PPO):
     """PPO whose rollouts come from the multi-robot loop; masked samples carry no gradient."""
 
     def begin(self, total_steps: int) -> None:
+        _quiet(self)
         self._setup_learn(total_steps, callback=None, reset_num_timesteps=True)
         self.rollout_buffer.reset()
 

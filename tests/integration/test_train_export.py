@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +107,19 @@ def test_train_then_export_matches_torch(tmp_path: Path, algorithm: str, mode: s
     commands = runtime.commands(golden[0])
     assert commands.shape == (scenario.n_robots, 2)
     runtime.check_fits(scenario.robot_names, world.layout(), world.actions.kind)
+
+
+@pytest.mark.parametrize("algorithm", ["ppo", "sac"])
+def test_training_leaves_nothing_in_the_temporary_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, algorithm: str
+) -> None:
+    """The training library's default logger makes an empty SB3-<time> folder per run; ours keeps none."""
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))
+    scenario, world = world_for(algorithm)
+    train(scenario, world, tiny_config(algorithm=algorithm, mode="shared"), tmp_path / "run", progress=False)
+    assert [p.name for p in temporary.iterdir() if p.name.startswith("SB3-")] == []
 
 
 def test_same_seed_same_weights_to_the_bit(tmp_path: Path) -> None:
