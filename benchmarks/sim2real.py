@@ -59,6 +59,11 @@ def main() -> int:
     parser.add_argument("--time-scale", type=float, default=3.0)
     parser.add_argument("--out", type=Path, default=Path("logs/benchmarks/sim2real"))
     parser.add_argument("--skip-done", action="store_true", help="keep rounds whose metrics exist")
+    parser.add_argument(
+        "--fleet",
+        default=None,
+        help="fleet to deploy on (default: params.yaml's); one on a domain of its own lets two runs share a host",
+    )
     args = parser.parse_args()
     base = yaml.safe_load((ROOT / "params.yaml").read_text())
     for spec in args.profiles:
@@ -82,6 +87,7 @@ def main() -> int:
             "profile": profile,
             "episodes": args.episodes,
             "time_scale": args.time_scale,
+            **({"fleet": args.fleet} if args.fleet else {}),
         }
         params["calibrate"] = {**base["calibrate"], "out_dir": str(out / "calibration"), "round": "nominal"}
         params["replay"] = {**base["replay"], "out_dir": str(out / "replay")}
