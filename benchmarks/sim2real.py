@@ -119,7 +119,8 @@ def report(spec: str, out: Path, truth: dict[str, Any]) -> None:
         real = metrics(out / "real" / round_name / "metrics.json")
         ps, pr = sim["eval/robot_success"], real["real/robot_success"]
         n_sim = int(sim["eval/episodes"]) * ROBOTS
-        n_real = int(real["real/episodes"]) * ROBOTS
+        # aborted episodes are left out of the success rate, so out of its trials too
+        n_real = (int(real["real/episodes"]) - int(real["real/aborted_episodes"])) * ROBOTS
         lo, hi = newcombe_interval(round(ps * n_sim), n_sim, round(pr * n_real), n_real)
         gap = ps - pr
         figures[round_name] = (pr, gap)
