@@ -89,8 +89,12 @@ def arc_per_m(values: dict[str, Estimate]) -> float | None:
     return (right - left) / (NOMINAL_WHEEL_RADIUS_M * sep)
 
 
-def _arc_half_width(values: dict[str, Estimate]) -> float:
-    """Half-width of the arc per metre over the corners of the wheel radii's and separation's intervals."""
+def _arc_half_width(values: dict[str, Estimate], wheels: WheelFit | None = None) -> float:
+    """Half-width of the arc per metre: its own interval from the wheel fit where there is one (the radii's
+    common errors cancel in it), else over the corners of the wheel radii's and separation's intervals."""
+    own = wheels.arc_per_m if wheels is not None else None
+    if own is not None and own.ok and own.interval is not None:
+        return (own.interval[1] - own.interval[0]) / 2
     ivs = [
         values[k].interval for k in ("base.wheel_radius_left_m", "base.wheel_radius_right_m", "base.wheel_separation_m")
     ]
@@ -287,7 +291,7 @@ class Calibration:
             out.setdefault(group, {})[name] = [_short(lo), _short(max(hi, lo))]  # an interval below the bound: [b, b]
         arc = self.arc_per_m()
         if arc is not None:
-            half = max(abs(arc) * MIN_RANDOMIZE_HALF_WIDTH, _arc_half_width(self.values))
+            half = max(abs(arc) * MIN_RANDOMIZE_HALF_WIDTH, _arc_half_width(self.values, self.wheels))
             out.setdefault("actuation", {})["yaw_rate_per_mps"] = [_short(arc - half), _short(arc + half)]
         return out
 

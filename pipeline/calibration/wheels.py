@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
@@ -89,12 +89,15 @@ _SPIN = np.array([-1.0, 1.0])
 
 @dataclass(frozen=True)
 class WheelFit:
-    """The true wheel radii and separation (m), each an Estimate, and what the data were."""
+    """The true wheel radii and separation (m), each an Estimate, what the data were, and the arc they make."""
 
     radius_left_m: Estimate
     radius_right_m: Estimate
     separation_m: Estimate
     notes: tuple[str, ...] = ()
+    arc_per_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "rad/m"))
+    """The turn per metre the unequal wheels put into a straight command, with an interval of its own: the
+    radii's errors are mostly common to both wheels and cancel in it."""
 
 
 @dataclass(frozen=True)
@@ -242,8 +245,11 @@ def _robust_fit(chunks: Sequence[WheelChunks], weight: float) -> tuple[np.ndarra
 
 
 def _geometry(theta: np.ndarray, nominal_radius_m: float) -> np.ndarray:
-    """(rL m, rR m, b m) from (kL, kR, 1/b)."""
-    return np.array([theta[0] * nominal_radius_m, theta[1] * nominal_radius_m, 1.0 / theta[2]])
+    """(rL m, rR m, b m, arc rad/m) from (kL, kR, 1/b): the arc is the turn per metre that the unequal wheels put
+    into a straight command, (rR - rL) / (r_nominal b) = (kR - kL) / b."""
+    return np.array(
+        [theta[0] * nominal_radius_m, theta[1] * nominal_radius_m, 1.0 / theta[2], (theta[1] - theta[0]) * theta[2]]
+    )
 
 
 def _sandwich_se(clusters: _Moments, theta: np.ndarray, weight: float, nominal_radius_m: float) -> np.ndarray:
@@ -297,7 +303,7 @@ def _condition_variance(
     speed = np.abs(travel.mean(axis=1))
     turning = np.abs(travel @ _SPIN) / np.maximum(np.abs(travel).sum(axis=1), 1e-12)
     sizes = np.cumsum([0] + [len(c.distance_m) for c in chunks])
-    worst = np.zeros(3)
+    worst = np.zeros(4)
     notes: list[str] = []
     for name, key in (("speed", speed), ("turning", turning)):
         cut = float(np.median(key[kept & (speed > 0)])) if np.any(kept & (speed > 0)) else 0.0
@@ -384,7 +390,7 @@ def estimate_wheels(
             problems.append("the least-squares fit found no positive radii and separation")
     if fitted is None:
         unknown = Estimate.unidentifiable("; ".join(problems), "m", n)
-        return WheelFit(unknown, unknown, unknown, tuple(notes))
+        return WheelFit(unknown, unknown, unknown, tuple(notes), Estimate.unidentifiable(unknown.reason, "rad/m", n))
     theta, weights = fitted
     clusters = _moments(chunks, weights)
     value = _geometry(theta, nominal_radius_m)
@@ -393,7 +399,7 @@ def estimate_wheels(
         try:
             return _geometry(_solve(clusters.weighted(counts), weight, theta), nominal_radius_m)
         except np.linalg.LinAlgError:
-            return np.full(3, np.nan)
+            return np.full(4, np.nan)
 
     samples = bootstrap(statistic, g, settings.bootstrap, np.random.default_rng(settings.seed))
     left_out = np.array([statistic(np.arange(g) != c) for c in range(g)])
@@ -415,8 +421,10 @@ def estimate_wheels(
     notes.append(
         "between conditions: "
         + ", ".join(
-            f"{name} {math.sqrt(v) * 1e3:.3f} mm" for name, v in zip(("left", "right", "separation"), tau2, strict=True)
+            f"{name} {math.sqrt(v) * 1e3:.3f} mm"
+            for name, v in zip(("left", "right", "separation"), tau2[:3], strict=True)
         )
+        + f", arc {math.sqrt(tau2[3]):.4f} rad/m"
     )
     failed = int(np.sum(~np.all(np.isfinite(samples), axis=1)))
     if failed:
@@ -427,10 +435,10 @@ def estimate_wheels(
         f"t interval ({g - 1} dof), widened by the variance between slow and fast, straight and turning chunks"
     )
     out: list[Estimate] = []
-    for j in range(3):
+    for j in range(4):
         boot_se, _ = spread(samples[:, j])
-        candidates = [float(sandwich[j]), boot_se * small, float(jackknife[j])]
+        candidates = [float(sandwich[j]) if j < 3 else math.nan, boot_se * small, float(jackknife[j])]
         se = math.sqrt(max(x for x in candidates if math.isfinite(x)) ** 2 + float(tau2[j]))
         x = float(value[j])
-        out.append(Estimate.of(x, se, (x - t * se, x + t * se), "m", method, n))
-    return WheelFit(out[0], out[1], out[2], tuple(notes))
+        out.append(Estimate.of(x, se, (x - t * se, x + t * se), "m" if j < 3 else "rad/m", method, n))
+    return WheelFit(out[0], out[1], out[2], tuple(notes), out[3])

@@ -222,6 +222,24 @@ def test_the_between_condition_variance_recovers_a_known_spread_and_reads_none_w
             assert abs(mean - tau**2) < 0.1, mean
 
 
+def test_the_arc_has_an_interval_of_its_own_that_covers_and_is_narrower_than_the_radii_corners():
+    """The radii's errors are mostly common to both wheels and cancel in the arc (rR - rL) / (r_nominal b): its own
+    interval covers the true arc in >= 90 % of noisy fleets and is far narrower than the corners of the radii's."""
+    truth = (TRUE["radius_right_m"] - TRUE["radius_left_m"]) / (NOMINAL_WHEEL_RADIUS_M * TRUE["separation_m"])
+    hits, ratios = 0, []
+    for fleet in range(100):
+        episodes = [kinematic_episode(1000 * fleet + k, slip=0.05, seconds=20.0, rolling=0.015) for k in range(6)]
+        fit = estimate_wheels(episodes, SETTINGS)
+        arc = fit.arc_per_m
+        assert arc.ok and arc.unit == "rad/m" and arc.interval is not None
+        hits += arc.interval[0] <= truth <= arc.interval[1]
+        (l0, l1), (r0, r1), (b0, b1) = (getattr(fit, k).interval for k in KEYS)
+        corners = [(r - left) / (NOMINAL_WHEEL_RADIUS_M * b) for left in (l0, l1) for r in (r0, r1) for b in (b0, b1)]
+        ratios.append((arc.interval[1] - arc.interval[0]) / (max(corners) - min(corners)))
+    assert hits >= 90, hits
+    assert np.median(ratios) < 0.5, np.median(ratios)
+
+
 # -- what the data cannot tell --------------------------------------------------------------------
 
 
