@@ -10,11 +10,14 @@ Per scan, the laser's pose is the one that brings the scan's endpoints onto occu
 least squares (soft-L1 on the distance, scale `MATCH_SCALE_M`) from a prior. The first scan of an
 episode gets its prior from ``initial_pose`` when given, else from global localization: every free
 cell at every `GLOBAL_YAW_STEPS`-th heading scored by the fraction of endpoints within
-`INLIER_M` of an obstacle, the best few refined, and the result refused as ambiguous when a pose
-far from it (over `AMBIGUOUS_DISTANCE_M` or `AMBIGUOUS_TURN_RAD`) matches within
-`AMBIGUOUS_MARGIN` of its score. Later scans take the previous match moved by the odometry between
-the two. A match whose inlier fraction is under `MIN_INLIERS` is not used (the odometry carries the
-pose through it); an episode whose matches fall under it more than half the time is refused.
+`INLIER_M` of an obstacle, the best few refined; a pose far from the best (over
+`AMBIGUOUS_DISTANCE_M` or `AMBIGUOUS_TURN_RAD`) that matches within `AMBIGUOUS_MARGIN` of its score
+makes it ambiguous: both are then tracked through the next `FOLLOW_SCANS` scans, and the one whose
+matches stay better by that margin wins (a nearly symmetric room seen from one spot is told apart
+as the robot drives); the result is refused as ambiguous when they stay as good. Later scans take
+the previous match moved by the odometry between the two. A match whose inlier fraction is under
+`MIN_INLIERS` is not used (the odometry carries the pose through it); an episode whose matches
+fall under it more than half the time is refused.
 
 The robot's pose at each odometry message is the odometry composed with the map<-odom correction
 the matches imply, smoothed by a local linear fit over `CORRECTION_SIGMA_S` (the odometry's
@@ -64,6 +67,8 @@ GLOBAL_REFINE = 12
 """Best candidates refined by the local match."""
 AMBIGUOUS_MARGIN = 0.03
 """A distinct pose whose inlier fraction is within this of the best makes the result ambiguous."""
+FOLLOW_SCANS = 40
+"""Scans after an ambiguous first one that each candidate start is tracked through to tell them apart."""
 AMBIGUOUS_DISTANCE_M = 0.5
 AMBIGUOUS_TURN_RAD = 0.5
 CORRELATED_BEAMS = 10.0
@@ -509,16 +514,29 @@ def track_episode(
     else:
         found = global_localize(grid, scans[first])
         start_match = found.match
-        if start_match.score >= MIN_INLIERS and found.ambiguous:
-            assert found.runner_up is not None
-            raise CalibrationError(
-                where,
-                "global localization is ambiguous: the scan fits the map at "
-                f"{_fmt(found.match.pose)} (inliers {found.match.score:.2f}) and at {_fmt(found.runner_up.pose)} "
-                f"(inliers {found.runner_up.score:.2f}); give the start with --initial-pose x,y,yaw",
-            )
         runner = found.runner_up.score if found.runner_up is not None else 0.0
         start = f"global (inliers {start_match.score:.2f}, runner-up {runner:.2f})"
+        if start_match.score >= MIN_INLIERS and found.ambiguous:
+            assert found.runner_up is not None
+            # one scan of a nearly symmetric room fits two poses; the next scans, taken as the robot moves and
+            # carried by its odometry, see what tells them apart (a box on one side only)
+            rivals = (found.match, found.runner_up)
+            followed = [_follow(grid, scans, usable, odom_at_scan, mount, m.pose) for m in rivals]
+            best = int(np.argmax(followed))
+            if followed[best] - followed[1 - best] < AMBIGUOUS_MARGIN:
+                raise CalibrationError(
+                    where,
+                    "global localization is ambiguous: the scan fits the map at "
+                    f"{_fmt(found.match.pose)} (inliers {found.match.score:.2f}) and at {_fmt(found.runner_up.pose)} "
+                    f"(inliers {found.runner_up.score:.2f}), and the next {FOLLOW_SCANS} scans do not tell them apart "
+                    f"(mean inliers {followed[0]:.2f} and {followed[1]:.2f}); "
+                    "give the start with --initial-pose x,y,yaw",
+                )
+            start_match = rivals[best]
+            start = (
+                f"global over {FOLLOW_SCANS} scans (mean inliers {followed[best]:.2f}, the first scan's rival "
+                f"{followed[1 - best]:.2f})"
+            )
     if start_match.score < MIN_INLIERS:
         raise CalibrationError(
             where,
@@ -559,6 +577,28 @@ def track_episode(
     pose = compose(corr, odom)
     pose[:, 2] = wrap(pose[:, 2])
     return Track(odom_t, pose, mt, base, np.asarray(used_score), np.asarray(used_std), start)
+
+
+def _follow(
+    grid: OccupancyMap,
+    scans: Sequence[np.ndarray],
+    usable: Sequence[int],
+    odom_at_scan: np.ndarray,
+    mount: np.ndarray,
+    laser: np.ndarray,
+) -> float:
+    """Mean inlier fraction of the first `FOLLOW_SCANS` usable scans, tracked by odometry and matching from the laser
+    pose `laser` at the first of them."""
+    scores = []
+    previous = usable[0]
+    for i in usable[1 : 1 + FOLLOW_SCANS]:
+        step = compose(inverse(odom_at_scan[previous]), odom_at_scan[i])
+        previous = i
+        prior = compose(compose(laser, inverse(mount)), compose(step, mount))
+        m = match_scan(grid, scans[i], prior)
+        scores.append(m.score)
+        laser = m.pose if m.score >= MIN_INLIERS and np.all(np.isfinite(m.covariance)) else prior
+    return float(np.mean(scores)) if scores else 0.0
 
 
 def smooth_correction(t_ns: np.ndarray, match_t_ns: np.ndarray, correction: np.ndarray, sigma_s: float) -> np.ndarray:

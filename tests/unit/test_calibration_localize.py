@@ -130,6 +130,27 @@ def test_a_symmetric_room_is_refused_as_ambiguous_without_an_initial_pose():
     assert math.hypot(*(track.pose[0, :2] - truth[:2])) < 0.02 and track.start == "initial pose"
 
 
+def test_a_first_scan_that_fits_two_poses_is_told_apart_by_the_next_scans():
+    """A first scan that sees only 60 degrees ahead fits the obstacle room at the truth and turned about the room's
+    centre; the next scans, full ones taken as the robot drives ahead, fit only the truth, which wins."""
+    rng = np.random.default_rng(5)
+    grid = OccupancyMap.from_scenario(load_scenario("obstacles"))
+    truth = np.array([1.5, 2.0, 0.0])
+    angles = -math.pi + np.arange(BEAMS) * 2 * math.pi / BEAMS
+    first = synthetic_scan("obstacles", truth, 0.01, rng)
+    first = np.where(np.abs(angles) <= math.radians(30), first, np.nan)
+    assert global_localize(grid, scan_points(first, -math.pi, 2 * math.pi / BEAMS, 180)).ambiguous
+    n = 41
+    poses = np.stack([truth[0] + 0.01 * np.arange(n), np.full(n, truth[1]), np.zeros(n)], axis=1)
+    ranges = [first] + [synthetic_scan("obstacles", poses[k], 0.01, rng) for k in range(1, n)]
+    pts = [scan_points(r, -math.pi, 2 * math.pi / BEAMS, 180) for r in ranges]
+    t = np.arange(n, dtype=np.int64) * 10**8
+    odom = poses - poses[0]
+    track = track_episode(grid, t, pts, t, odom, np.zeros(3), None, "bag")
+    assert math.hypot(*(track.pose[0, :2] - truth[:2])) < 0.03
+    assert track.start.startswith("global over")
+
+
 def corridor() -> OccupancyMap:
     """A 10 x 1.6 m corridor with pillars every 2 m: another building than the reference room."""
     occupied = np.ones((100, 520), dtype=bool)
