@@ -541,17 +541,21 @@ def _fit_geometry(
                 return np.full(size, np.nan)
 
         samples = bootstrap(stat, len(spans), settings.bootstrap, rng)
+        # few clusters: a bootstrap over G spans reads the variance (G - 1) / G short and a normal quantile is too
+        # small for an estimate of it from G values; both widen it (Student's t with G - 1 degrees of freedom)
+        inflate = math.sqrt(spans_used / (spans_used - 1))
+        few = inflate * float(stats.t.ppf(0.975, spans_used - 1)) / Z_95
         for k in range(size):
             boot_se, boot_ci = spread(samples[:, k])
             if math.isfinite(boot_se):
                 # the wider of the bootstrap over spans and the formula for independent beams
-                se[k] = max(se[k], boot_se)
+                se[k] = max(se[k], boot_se * inflate)
                 shift = p[k] - float(np.nanmedian(samples[:, k]))
                 interval[k] = (
-                    min(boot_ci[0] + shift, p[k] - Z_95 * se[k]),
-                    max(boot_ci[1] + shift, p[k] + Z_95 * se[k]),
+                    min(p[k] - few * (p[k] - boot_ci[0] - shift), p[k] - Z_95 * se[k]),
+                    max(p[k] + few * (boot_ci[1] + shift - p[k]), p[k] + Z_95 * se[k]),
                 )
-        method = f"bootstrap over {spans_used} stationary spans"
+        method = f"few-cluster t ({spans_used - 1} d.o.f.) on a bootstrap over {spans_used} stationary spans"
     return _Geometry(p, se, interval, seen, method, total)
 
 

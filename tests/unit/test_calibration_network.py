@@ -188,3 +188,46 @@ def test_stamps_on_a_physics_grid_with_losses_keep_their_rate(rate_hz):
     estimate = rate_estimate(streams)
     lo, hi = estimate.interval
     assert estimate.value == pytest.approx(rate_hz, rel=2e-4) and lo <= rate_hz <= hi
+
+
+def _shared_episodes(
+    rng: np.random.Generator, loss: float, burst_len: float, jitter_s: float, episodes: int = 10
+) -> list[StampStream]:
+    """Three robots' odometry and scans, each sensor's robots on one tick (a driver for the whole fleet), losses
+    in runs of mean `burst_len`, delays up to `jitter_s`; counted in 15 s episodes 3 s apart."""
+    windows = tuple((5 * NS + w * 18 * NS, 5 * NS + w * 18 * NS + 15 * NS) for w in range(episodes))
+    out = []
+    for rate, name in ((29.51, "odom"), (10.37, "scan")):
+        for k in range(3):
+            stamps = bursty(rng, loss, burst_len, rate, episodes * 18.0) if loss > 0 else None
+            if stamps is None:
+                stamps = np.round((5.0 + np.arange(int(episodes * 18.0 * rate)) / rate) * NS).astype(np.int64)
+            delay = 1_000_000 + rng.integers(0, int(jitter_s * NS), len(stamps))
+            out.append(StampStream(f"/robot_{k + 1}/{name}", stamps, stamps + delay, windows))
+    return out
+
+
+def test_a_message_its_jitter_carries_past_an_episodes_end_is_not_lost():
+    """Topics sharing ticks, nothing lost, delays up to 14 ms: at each episode's end a tick reaches one topic
+    inside the window and another just after it. That second topic received it all the same."""
+    fit = estimate_network(
+        _shared_episodes(np.random.default_rng(3), 0.0, 1.0, 0.014), SETTINGS, np.random.default_rng(4)
+    )
+    assert fit.loss_prob.value == 0.0
+    assert "0 missing" in fit.notes[0]
+
+
+def test_the_mean_burst_of_topics_sharing_ticks_is_unbiased_and_covered():
+    """Runs cut by an episode's end add their messages but no end (censored geometric lengths); ticks are counted
+    per topic-episode. Counting a cut run as whole, and the jitter's phantom losses at the ends, read bursts of
+    3 as 2.6 at a loss of 0.005 (a few dozen runs per recording)."""
+    values, covered = [], 0
+    for seed in range(40):
+        rng = np.random.default_rng(100 + seed)
+        fit = estimate_network(_shared_episodes(rng, 0.005, 3.0, 0.014), SETTINGS, rng)
+        assert fit.burst_len.ok
+        values.append(fit.burst_len.value)
+        lo, hi = fit.burst_len.interval
+        covered += lo <= 3.0 <= hi
+    assert np.mean(values) == pytest.approx(3.0, rel=0.06)
+    assert covered >= 34
