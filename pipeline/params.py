@@ -369,6 +369,9 @@ class EvalSimConfig:
     record: bool = setting(True)
     chunk_size_bytes: int = setting(1_048_576, ge=1024)
     out_dir: str = setting("logs/sim")
+    randomized: bool = setting(False, optional=True)
+    """false: every episode at the round world's values (for the calibrated round, the simulator's prediction of
+    the reality it was calibrated to); true: each episode under its own draw of `world.randomize`, as in training."""
     live: bool = setting(False)
     """Serve the session to the Foxglove app while it runs (a WebSocket server on `live_port`)."""
     live_port: int = setting(8765, ge=0, le=65535)
@@ -498,6 +501,14 @@ def round_world(params: Params, round_name: str, source: str = "params.yaml") ->
     if round_name == "calibrated":
         return calibrated_world(params.world, Path(params.calibrate.out_dir) / CALIBRATION_FILE)
     raise ConfigError(source, [ConfigProblem("--round", round_name, "one of 'nominal', 'calibrated'")])
+
+
+def evaluation_world(params: Params, round_name: str, source: str = "params.yaml") -> WorldConfig:
+    """The world `eval_sim` runs a round in: the round's world at its values (the calibrated round: at the
+    estimates, the simulator's prediction of the reality it was calibrated to), or under its training
+    randomization where ``eval_sim.randomized`` asks for it."""
+    world = round_world(params, round_name, source)
+    return world if params.eval_sim.randomized else replace(world, randomize=RandomizeConfig())
 
 
 CALIBRATION_FILE = "calibration.yaml"

@@ -17,9 +17,12 @@ meets its surface at a moderate angle (not grazing), its angular neighbours hit 
    origin), the range bias, how far the walls stand outward of the map and where each box really
    is (dx, dy): a wall or box face moved by D lengthens a beam that meets it at t by D . n / (u . n)
    (n its normal, u the beam's direction), so the map's terms are linear. Parameters that too few
-   beams see are unidentifiable. Uncertainties: the wider of the formula for independent beams and
-   a bootstrap over the stationary spans (clusters of scans that share a pose), so what the model
-   leaves unexplained between spans widens them.
+   beams see are unidentifiable. Uncertainties: the widest of the formula for independent beams, a
+   bootstrap over viewpoints (stationary spans whose poses lie within a few centimetres: they see the
+   same surfaces at the same angles, so what the model leaves unexplained there is shared by them;
+   single spans where fewer than five viewpoints exist) and a cluster-robust sandwich over the
+   viewpoints, each with Student's t on the viewpoints' degrees of freedom (few-cluster inference),
+   so what the model leaves unexplained between viewpoints widens them.
 3. Dropout probability: the share of usable beams without a valid return (+inf, NaN, or outside
    the scan's range limits).
 4. Noise: the spread of each beam's returns about its own mean within a span. This leaves out
@@ -503,6 +506,7 @@ def _fit_geometry(
     a = np.zeros((len(spans), size, size))
     g = np.zeros((len(spans), size))
     r = w = np.zeros(0)
+    who = np.zeros(0, dtype=np.int64)
     seen = np.zeros(size)
     ridge = np.eye(size) * 1e-9
     for _ in range(GAUSS_NEWTON_STEPS):
@@ -528,35 +532,86 @@ def _fit_geometry(
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     interval = np.stack([p - Z_95 * se, p + Z_95 * se], axis=1)
     method = "Gauss-Newton sandwich standard error (independent beams)"
-    spans_used = int(sum(1 for s in sets if s.any()))
-    if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
+    used = np.array([bool(s.any()) for s in sets])
+    view_of = _viewpoints(spans, used)
+    n_views = int(view_of.max()) + 1 if used.any() else 0
+    # spans at one pose see the same surfaces at the same angles, so what the model leaves unexplained there is
+    # shared by them: the bootstrap draws viewpoints where there are enough of them, else single spans, and its
+    # Student's t counts the viewpoints' degrees of freedom either way
+    if n_views >= MIN_SPANS_FOR_BOOTSTRAP:
+        clusters, cluster_of, what = n_views, view_of, "viewpoints"
+    else:
+        clusters, cluster_of, what = int(used.sum()), np.cumsum(used) - 1, "stationary spans"
+    dof = max(min(clusters, n_views) - 1, 1)
+    if clusters >= MIN_SPANS_FOR_BOOTSTRAP:
         base = p.copy()
+        a_c = np.zeros((clusters, size, size))
+        g_c = np.zeros((clusters, size))
+        np.add.at(a_c, cluster_of[used], a[used])
+        np.add.at(g_c, cluster_of[used], g[used])
 
         def stat(counts: np.ndarray) -> np.ndarray:
-            Ab = np.tensordot(counts, a, axes=1) + ridge
-            gb = np.tensordot(counts, g, axes=1)
+            Ab = np.tensordot(counts, a_c, axes=1) + ridge
+            gb = np.tensordot(counts, g_c, axes=1)
             try:
                 return base + np.linalg.solve(Ab, gb)
             except np.linalg.LinAlgError:
                 return np.full(size, np.nan)
 
-        samples = bootstrap(stat, len(spans), settings.bootstrap, rng)
-        # few clusters: a bootstrap over G spans reads the variance (G - 1) / G short and a normal quantile is too
+        samples = bootstrap(stat, clusters, settings.bootstrap, rng)
+        # few clusters: a bootstrap over G clusters reads the variance (G - 1) / G short and a normal quantile is too
         # small for an estimate of it from G values; both widen it (Student's t with G - 1 degrees of freedom)
-        inflate = math.sqrt(spans_used / (spans_used - 1))
-        few = inflate * float(stats.t.ppf(0.975, spans_used - 1)) / Z_95
+        inflate = math.sqrt(clusters / (clusters - 1))
+        few = inflate * float(stats.t.ppf(0.975, dof)) / Z_95
         for k in range(size):
             boot_se, boot_ci = spread(samples[:, k])
             if math.isfinite(boot_se):
-                # the wider of the bootstrap over spans and the formula for independent beams
+                # the wider of the bootstrap over clusters and the formula for independent beams
                 se[k] = max(se[k], boot_se * inflate)
                 shift = p[k] - float(np.nanmedian(samples[:, k]))
                 interval[k] = (
                     min(p[k] - few * (p[k] - boot_ci[0] - shift), p[k] - Z_95 * se[k]),
                     max(p[k] + few * (boot_ci[1] + shift - p[k]), p[k] + Z_95 * se[k]),
                 )
-        method = f"few-cluster t ({spans_used - 1} d.o.f.) on a bootstrap over {spans_used} stationary spans"
+        method = f"few-cluster t ({dof} d.o.f.) on a bootstrap over {clusters} {what}"
+    if n_views >= 2:
+        views = view_of[who]
+        # and at least a cluster-robust sandwich over the viewpoints with Student's t (V - 1 d.o.f.)
+        scores = np.zeros((n_views, size))
+        np.add.at(scores, views, wr)
+        meat_v = scores.T @ scores * (n_views / (n_views - 1)) * ((n_beams - 1) / max(n_beams - size, 1))
+        se_v = np.sqrt(np.maximum(np.diag(inv @ meat_v @ inv), 0.0))
+        t_v = float(stats.t.ppf(0.975, n_views - 1))
+        for k in range(size):
+            if t_v * se_v[k] > max(p[k] - interval[k, 0], interval[k, 1] - p[k]):
+                se[k] = max(se[k], se_v[k])
+                interval[k] = (min(interval[k, 0], p[k] - t_v * se_v[k]), max(interval[k, 1], p[k] + t_v * se_v[k]))
+        method += f"; at least a cluster-robust sandwich over {n_views} viewpoints (t, {n_views - 1} d.o.f.)"
     return _Geometry(p, se, interval, seen, method, total)
+
+
+VIEWPOINT_M = 0.05
+VIEWPOINT_RAD = 0.05
+"""Stationary spans whose poses lie this close (position, heading) share a viewpoint."""
+
+
+def _viewpoints(spans: Sequence[ScanSpan], used: np.ndarray) -> np.ndarray:
+    """(spans,) the viewpoint of each used span (-1 for the others): a span joins the first viewpoint whose first
+    span's pose lies within `VIEWPOINT_M` and `VIEWPOINT_RAD` of its own."""
+    firsts: list[np.ndarray] = []
+    out = np.full(len(spans), -1, dtype=np.int64)
+    for i, span in enumerate(spans):
+        if not used[i]:
+            continue
+        for v, pose in enumerate(firsts):
+            near = math.hypot(*(span.pose[:2] - pose[:2])) < VIEWPOINT_M
+            if near and abs(float(wrap(span.pose[2] - pose[2]))) < VIEWPOINT_RAD:
+                out[i] = v
+                break
+        else:
+            out[i] = len(firsts)
+            firsts.append(span.pose)
+    return out
 
 
 def _geometry_estimate(fit: _Geometry, k: int, unit: str, max_se: float | None = None, what: str = "") -> Estimate:

@@ -18,7 +18,7 @@ from pipeline.calibration import (
 )
 from pipeline.calibration.actuation import ActuationFit, SpeedLimit
 from pipeline.errors import ConfigError
-from pipeline.params import WorldConfig, calibrated_world
+from pipeline.params import WorldConfig, calibrated_world, evaluation_world, load_params
 
 
 def ok(value: float, se: float = 0.001, unit: str = "") -> Estimate:
@@ -198,3 +198,20 @@ def test_a_speed_limit_is_reported_and_given_to_the_simulator(tmp_path):
     assert data["world"]["actuation"]["linear_gain"] == 0.95
     world = calibrated_world(WorldConfig(), path)
     assert world.actuation.max_linear_mps == 0.31 and world.actuation.max_angular_radps is None
+
+
+def test_eval_sim_runs_a_round_at_its_values_unless_asked_for_its_randomization(tmp_path):
+    """The calibrated round's sim evaluation is the simulator's prediction of the reality it was calibrated to
+    (the estimates); its training ranges are what it was made robust to, evaluated only on request."""
+    write_calibration(calibration(), tmp_path)
+    base = load_params("params.yaml")
+    params = replace(base, calibrate=replace(base.calibrate, out_dir=str(tmp_path)))
+    assert not params.eval_sim.randomized  # params.yaml's default
+    for round_name in ("nominal", "calibrated"):
+        at_values = evaluation_world(params, round_name)
+        assert at_values.randomize.ranges() == {}
+        randomized = evaluation_world(replace(params, eval_sim=replace(params.eval_sim, randomized=True)), round_name)
+        assert randomized.randomize.ranges()  # params.yaml's ranges / the calibration's
+        assert replace(randomized, randomize=at_values.randomize) == at_values
+    calibrated = evaluation_world(params, "calibrated")
+    assert calibrated.actuation.delay_s == 0.04 and calibrated.odometry.drift_per_m == 0.041
