@@ -690,9 +690,22 @@ def _within_span_noise(
         np.sqrt(np.maximum(total[:, 2] / np.maximum(total[:, 0], 1), 0)) * correction,
     )
     n_dev = int(total[:, 0].sum())
-    method = f"within-span spread, bootstrap over {n_spans} stationary spans"
-    if n_spans >= MIN_SPANS_FOR_BOOTSTRAP:
-        samples = bootstrap(lambda c: line(np.tensordot(c, sums, axes=1)), n_spans, settings.bootstrap, rng)
+    # as in the geometry fit: what a viewpoint's spans share (the ranges they see, so the line's leverage) makes
+    # the viewpoints the clusters, and Student's t counts their degrees of freedom
+    used = sums[:, :, 0].sum(axis=1) > 0
+    view_of = _viewpoints(spans, used)
+    n_views = int(view_of.max()) + 1 if used.any() else 0
+    if n_views >= MIN_SPANS_FOR_BOOTSTRAP:
+        clusters, what = n_views, "viewpoints"
+        cluster_sums = np.zeros((n_views, *sums.shape[1:]))
+        np.add.at(cluster_sums, view_of[used], sums[used])
+    else:
+        clusters, what, cluster_sums = int(used.sum()), "stationary spans", sums[used]
+    dof = max(min(clusters, n_views) - 1, 1)
+    few = math.sqrt(clusters / max(clusters - 1, 1)) * float(stats.t.ppf(0.975, dof)) / Z_95
+    method = f"within-span spread, few-cluster t ({dof} d.o.f.) on a bootstrap over {clusters} {what}"
+    if clusters >= MIN_SPANS_FOR_BOOTSTRAP:
+        samples = bootstrap(lambda c: line(np.tensordot(c, cluster_sums, axes=1)), clusters, settings.bootstrap, rng)
     else:
         samples = np.full((2, 2), np.nan)
         method = "within-span spread, normal theory (independent returns; too few spans to resample)"
@@ -704,8 +717,11 @@ def _within_span_noise(
             reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
             ests.append(Estimate.unidentifiable(reason, unit, n_dev))
             continue
-        if n_spans >= MIN_SPANS_FOR_BOOTSTRAP:
-            se, ci = spread(samples[:, k])
+        if clusters >= MIN_SPANS_FOR_BOOTSTRAP:
+            boot_se, boot_ci = spread(samples[:, k])
+            shift = value - float(np.nanmedian(samples[:, k]))
+            se = boot_se * math.sqrt(clusters / (clusters - 1))
+            ci = (value - few * (value - boot_ci[0] - shift), value + few * (boot_ci[1] + shift - value))
         else:
             se = float(theory[k])
             ci = (value - Z_95 * se, value + Z_95 * se)

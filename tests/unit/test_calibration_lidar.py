@@ -87,10 +87,9 @@ def test_noise_dropout_bias_and_mounting_are_recovered(sigma, dropout, bias, mou
     for est in (fit.noise_sigma_m, fit.bias_m, fit.dropout_prob, fit.mount_yaw_rad):
         assert est.ok and est.std_error is not None and est.interval is not None
         assert est.interval[0] <= est.value <= est.interval[1]
-    for est in (fit.noise_sigma_m, fit.dropout_prob):
-        assert est.method.endswith("bootstrap over 6 stationary spans")
-    for est in (fit.bias_m, fit.mount_yaw_rad):  # the geometry fit's clusters: six spans at six poses
-        assert "over 6 viewpoints" in est.method
+    assert fit.dropout_prob.method.endswith("bootstrap over 6 stationary spans")
+    for est in (fit.noise_sigma_m, fit.bias_m, fit.mount_yaw_rad):  # noise and geometry: six spans at six poses
+        assert "(5 d.o.f.) on a bootstrap over 6 viewpoints" in est.method
     assert fit.spans == 6 and len(fit.residuals_m) > 5000
 
 
