@@ -532,23 +532,10 @@ def _fit_geometry(
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     interval = np.stack([p - Z_95 * se, p + Z_95 * se], axis=1)
     method = "Gauss-Newton sandwich standard error (independent beams)"
-    used = np.array([bool(s.any()) for s in sets])
-    view_of = _viewpoints(spans, used)
-    n_views = int(view_of.max()) + 1 if used.any() else 0
-    # spans at one pose see the same surfaces at the same angles, so what the model leaves unexplained there is
-    # shared by them: the bootstrap draws viewpoints where there are enough of them, else single spans, and its
-    # Student's t counts the viewpoints' degrees of freedom either way
-    if n_views >= MIN_SPANS_FOR_BOOTSTRAP:
-        clusters, cluster_of, what = n_views, view_of, "viewpoints"
-    else:
-        clusters, cluster_of, what = int(used.sum()), np.cumsum(used) - 1, "stationary spans"
-    dof = max(min(clusters, n_views) - 1, 1)
-    if clusters >= MIN_SPANS_FOR_BOOTSTRAP:
+    clusters = _Clusters.of(spans, np.array([bool(s.any()) for s in sets]))
+    if clusters.count >= MIN_SPANS_FOR_BOOTSTRAP:
         base = p.copy()
-        a_c = np.zeros((clusters, size, size))
-        g_c = np.zeros((clusters, size))
-        np.add.at(a_c, cluster_of[used], a[used])
-        np.add.at(g_c, cluster_of[used], g[used])
+        a_c, g_c = clusters.sum(a), clusters.sum(g)
 
         def stat(counts: np.ndarray) -> np.ndarray:
             Ab = np.tensordot(counts, a_c, axes=1) + ridge
@@ -558,24 +545,17 @@ def _fit_geometry(
             except np.linalg.LinAlgError:
                 return np.full(size, np.nan)
 
-        samples = bootstrap(stat, clusters, settings.bootstrap, rng)
-        # few clusters: a bootstrap over G clusters reads the variance (G - 1) / G short and a normal quantile is too
-        # small for an estimate of it from G values; both widen it (Student's t with G - 1 degrees of freedom)
-        inflate = math.sqrt(clusters / (clusters - 1))
-        few = inflate * float(stats.t.ppf(0.975, dof)) / Z_95
+        samples = bootstrap(stat, clusters.count, settings.bootstrap, rng)
         for k in range(size):
-            boot_se, boot_ci = spread(samples[:, k])
+            boot_se, (lo, hi) = clusters.widen(p[k], samples[:, k])
             if math.isfinite(boot_se):
                 # the wider of the bootstrap over clusters and the formula for independent beams
-                se[k] = max(se[k], boot_se * inflate)
-                shift = p[k] - float(np.nanmedian(samples[:, k]))
-                interval[k] = (
-                    min(p[k] - few * (p[k] - boot_ci[0] - shift), p[k] - Z_95 * se[k]),
-                    max(p[k] + few * (boot_ci[1] + shift - p[k]), p[k] + Z_95 * se[k]),
-                )
-        method = f"few-cluster t ({dof} d.o.f.) on a bootstrap over {clusters} {what}"
+                se[k] = max(se[k], boot_se)
+                interval[k] = (min(lo, p[k] - Z_95 * se[k]), max(hi, p[k] + Z_95 * se[k]))
+        method = clusters.method
+    n_views = clusters.views
     if n_views >= 2:
-        views = view_of[who]
+        views = clusters.view_of[who]
         # and at least a cluster-robust sandwich over the viewpoints with Student's t (V - 1 d.o.f.)
         scores = np.zeros((n_views, size))
         np.add.at(scores, views, wr)
@@ -593,6 +573,56 @@ def _fit_geometry(
 VIEWPOINT_M = 0.05
 VIEWPOINT_RAD = 0.05
 """Stationary spans whose poses lie this close (position, heading) share a viewpoint."""
+
+
+@dataclass(frozen=True)
+class _Clusters:
+    """What the bootstraps over stationary spans draw. Spans at one pose see the same surfaces at the same angles,
+    so what the model leaves unexplained there is shared by them: the clusters are viewpoints where there are at
+    least `MIN_SPANS_FOR_BOOTSTRAP` of them, else single spans, and Student's t counts the viewpoints' degrees of
+    freedom either way (few-cluster inference)."""
+
+    view_of: np.ndarray
+    """(spans,) each used span's viewpoint, -1 for the others (`_viewpoints`)."""
+    cluster_of: np.ndarray
+    """(spans,) each used span's cluster (a viewpoint or the span itself), -1 for the others."""
+    count: int
+    views: int
+    what: str
+
+    @staticmethod
+    def of(spans: Sequence[ScanSpan], used: np.ndarray) -> _Clusters:
+        view_of = _viewpoints(spans, used)
+        views = int(view_of.max()) + 1 if used.any() else 0
+        if views >= MIN_SPANS_FOR_BOOTSTRAP:
+            return _Clusters(view_of, view_of, views, views, "viewpoints")
+        cluster_of = np.where(used, np.cumsum(used) - 1, -1)
+        return _Clusters(view_of, cluster_of, int(used.sum()), views, "stationary spans")
+
+    @property
+    def dof(self) -> int:
+        return max(min(self.count, self.views) - 1, 1)
+
+    @property
+    def method(self) -> str:
+        return f"few-cluster t ({self.dof} d.o.f.) on a bootstrap over {self.count} {self.what}"
+
+    def sum(self, per_span: np.ndarray) -> np.ndarray:
+        """(count, ...) `per_span` (spans, ...) summed over each cluster's spans."""
+        out = np.zeros((self.count, *per_span.shape[1:]))
+        used = self.cluster_of >= 0
+        np.add.at(out, self.cluster_of[used], per_span[used])
+        return out
+
+    def widen(self, value: float, samples: np.ndarray) -> tuple[float, tuple[float, float]]:
+        """Standard error and 95 % interval about `value` from bootstrap `samples` over the clusters: a bootstrap over
+        G clusters reads the variance (G - 1) / G short, and a normal quantile is too small for a variance estimated
+        from few values; both widen it (NaN where too few samples are finite)."""
+        boot_se, (lo, hi) = spread(samples)
+        inflate = math.sqrt(self.count / (self.count - 1))
+        few = inflate * float(stats.t.ppf(0.975, self.dof)) / Z_95
+        shift = value - float(np.nanmedian(samples)) if math.isfinite(boot_se) else 0.0
+        return boot_se * inflate, (value - few * (value - lo - shift), value + few * (hi + shift - value))
 
 
 def _viewpoints(spans: Sequence[ScanSpan], used: np.ndarray) -> np.ndarray:
@@ -690,22 +720,13 @@ def _within_span_noise(
         np.sqrt(np.maximum(total[:, 2] / np.maximum(total[:, 0], 1), 0)) * correction,
     )
     n_dev = int(total[:, 0].sum())
-    # as in the geometry fit: what a viewpoint's spans share (the ranges they see, so the line's leverage) makes
-    # the viewpoints the clusters, and Student's t counts their degrees of freedom
-    used = sums[:, :, 0].sum(axis=1) > 0
-    view_of = _viewpoints(spans, used)
-    n_views = int(view_of.max()) + 1 if used.any() else 0
-    if n_views >= MIN_SPANS_FOR_BOOTSTRAP:
-        clusters, what = n_views, "viewpoints"
-        cluster_sums = np.zeros((n_views, *sums.shape[1:]))
-        np.add.at(cluster_sums, view_of[used], sums[used])
-    else:
-        clusters, what, cluster_sums = int(used.sum()), "stationary spans", sums[used]
-    dof = max(min(clusters, n_views) - 1, 1)
-    few = math.sqrt(clusters / max(clusters - 1, 1)) * float(stats.t.ppf(0.975, dof)) / Z_95
-    method = f"within-span spread, few-cluster t ({dof} d.o.f.) on a bootstrap over {clusters} {what}"
-    if clusters >= MIN_SPANS_FOR_BOOTSTRAP:
-        samples = bootstrap(lambda c: line(np.tensordot(c, cluster_sums, axes=1)), clusters, settings.bootstrap, rng)
+    clusters = _Clusters.of(spans, sums[:, :, 0].sum(axis=1) > 0)
+    method = f"within-span spread, {clusters.method}"
+    if clusters.count >= MIN_SPANS_FOR_BOOTSTRAP:
+        cluster_sums = clusters.sum(sums)
+        samples = bootstrap(
+            lambda c: line(np.tensordot(c, cluster_sums, axes=1)), clusters.count, settings.bootstrap, rng
+        )
     else:
         samples = np.full((2, 2), np.nan)
         method = "within-span spread, normal theory (independent returns; too few spans to resample)"
@@ -717,11 +738,8 @@ def _within_span_noise(
             reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
             ests.append(Estimate.unidentifiable(reason, unit, n_dev))
             continue
-        if clusters >= MIN_SPANS_FOR_BOOTSTRAP:
-            boot_se, boot_ci = spread(samples[:, k])
-            shift = value - float(np.nanmedian(samples[:, k]))
-            se = boot_se * math.sqrt(clusters / (clusters - 1))
-            ci = (value - few * (value - boot_ci[0] - shift), value + few * (boot_ci[1] + shift - value))
+        if clusters.count >= MIN_SPANS_FOR_BOOTSTRAP:
+            se, ci = clusters.widen(value, samples[:, k])
         else:
             se = float(theory[k])
             ci = (value - Z_95 * se, value + Z_95 * se)
