@@ -1,0 +1,119 @@
+"""A trained policy of any scenario in sim and on the hardware twin: success with 95 % intervals, and timing.
+
+For an exported policy (`--policy`, trained with `python stages/train.py` on the scenario) it runs:
+
+- the simulator at the policy's world values, `--sim-episodes` episodes from evaluation seeds (held out
+  from training); for a scenario with `layouts` ranges once on random layouts and once on its own layout;
+- a twin deployment over DDS on loopback (`--fleet`, a fleet file of the same scenario, `--profile`,
+  `--time-scale`), `--twin-episodes` episodes; for random layouts the twin places robots and boxes at the
+  layout drawn from each episode's seed;
+- the emitter/receiver timing of that deployment from its recorded /mrl/timing (tick jitter p99 and
+  cross-robot send skew p99; targets 1 ms and 0.5 ms, meaningful at time scale 1).
+
+It prints one line per world with robot and team success and their Wilson 95 % intervals, the mean time to
+goal (to capture, for a pursuit), the training wall-clock from the policy's train_metrics.json, and ends with
+``scenario=<name> sim_robot_success=<..> twin_robot_success=<..> jitter_p99_ms=<..> skew_p99_ms=<..>``.
+Everything is written under `--out` (session.mcap, episodes.csv and metrics.json per world).
+
+    python benchmarks/scenarios.py --policy /tmp/rl/models/nominal/policy --fleet /tmp/fleets/rl.yaml \
+        --profile lab --time-scale 3 --out /tmp/rl/bench
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Literal
+
+from pipeline.analysis.timing import timing_figures
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import EvalSimConfig
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.rollout.deployment import DeployRequest, deploy_session
+from pipeline.rollout.sim import evaluate_session
+from pipeline.ros.fleet import load_fleet
+from pipeline.sim import make_world
+
+
+def _line(label: str, metrics: dict[str, float], prefix: str) -> str:
+    def figure(key: str) -> str:
+        low, high = metrics[f"{prefix}/{key}_ci_low"], metrics[f"{prefix}/{key}_ci_high"]
+        return f"{100 * metrics[f'{prefix}/{key}']:.1f} % [{100 * low:.1f}, {100 * high:.1f}]"
+
+    robots = sorted(k.split("/")[1] for k in metrics if k.startswith(f"{prefix}/robot_") and k.endswith("_success"))
+    per_robot = " ".join(f"{r.removesuffix('_success')}={100 * metrics[f'{prefix}/{r}']:.0f}%" for r in robots)
+    return (
+        f"{label}: robot success {figure('robot_success')}, team {figure('team_success')}, "
+        f"{metrics[f'{prefix}/episodes']:.0f} episodes ({metrics.get(f'{prefix}/aborted_episodes', 0):.0f} aborted), "
+        f"mean time to goal {metrics.get(f'{prefix}/mean_time_to_goal_s', float('nan')):.1f} s; {per_robot}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--policy", type=Path, required=True, help="an exported policy folder (policy.json)")
+    parser.add_argument("--fleet", required=True, help="a fleet file (target: twin) of the policy's scenario")
+    parser.add_argument("--sim-episodes", type=int, default=200)
+    parser.add_argument("--twin-episodes", type=int, default=50)
+    parser.add_argument("--sim-seed", type=int, default=10000)
+    parser.add_argument("--twin-seed", type=int, default=20000)
+    parser.add_argument("--profile", default="lab", help="the twin's reality profile")
+    parser.add_argument("--time-scale", type=float, default=3.0, help="1 for the timing targets")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+
+    runtime = PolicyRuntime(args.policy)
+    scenario, world = make_world(world=runtime.spec.world)
+    train_file = args.policy.parent / "train_metrics.json"
+    if train_file.exists():
+        trained = json.loads(train_file.read_text())
+        print(
+            f"training: {trained['train/world_steps']:.0f} world steps in {trained['train/wall_s']:.0f} s, "
+            f"weights of step {trained.get('train/selected_at_steps', float('nan')):.0f}"
+        )
+
+    lines = []
+    layouts: list[Literal["random", "fixed"]] = [world.layouts]
+    if scenario.layouts is not None and world.layouts == "random":
+        layouts = ["random", "fixed"]
+    sim_success = float("nan")
+    for kind in layouts:
+        cfg = from_mapping(
+            EvalSimConfig,
+            merge(to_mapping(EvalSimConfig()), {"episodes": args.sim_episodes, "seed": args.sim_seed}),
+            "command-line options",
+        )
+        scen, wld = make_world(world=replace(world, layouts=kind))
+        _, metrics = evaluate_session(scen, wld, runtime, cfg, args.out / f"sim_{kind}")
+        lines.append(_line(f"{scenario.name} sim ({kind} layouts)", metrics, "eval"))
+        print(lines[-1], flush=True)
+        if kind == layouts[0]:
+            sim_success = metrics["eval/robot_success"]
+
+    fleet = load_fleet(args.fleet)
+    request = DeployRequest(
+        episodes=args.twin_episodes,
+        seed=args.twin_seed,
+        recording=args.out / "twin" / "session.mcap",
+        time_scale=args.time_scale,
+        profile=args.profile,
+    )
+    outcome = deploy_session(runtime, fleet, args.fleet, request, args.out / "twin")
+    lines.append(_line(f"{scenario.name} twin ({args.profile}, {args.time_scale:g}x)", outcome.metrics, "real"))
+    timing = timing_figures(args.out / "twin" / "session.mcap")
+    lines.append(
+        f"twin timing at {args.time_scale:g}x: tick jitter p99 {timing.tick_jitter_p99_ms:.3f} ms (target 1), "
+        f"send skew p99 {timing.skew_p99_ms:.3f} ms (target 0.5), state age p99 {timing.age_p99_ms:.1f} ms"
+    )
+    print("\n".join(lines))
+    print(
+        f"scenario={scenario.name} sim_robot_success={sim_success:.4f} "
+        f"twin_robot_success={outcome.metrics['real/robot_success']:.4f} "
+        f"jitter_p99_ms={timing.tick_jitter_p99_ms:.3f} skew_p99_ms={timing.skew_p99_ms:.3f}"
+    )
+
+
+if __name__ == "__main__":
+    main()
