@@ -2,21 +2,22 @@
 
 For an exported policy (`--policy`, trained with `python stages/train.py` on the scenario) it runs:
 
-- the simulator at the policy's world values, `--sim-episodes` episodes from evaluation seeds (held out
-  from training); for a scenario with `layouts` ranges once on random layouts and once on its own layout;
+- the simulator, `--sim-episodes` episodes from evaluation seeds (held out from training), at the policy's
+  world values and under its training randomization; for a scenario with `layouts` ranges on held-out
+  random layouts and on its own fixed layout;
 - a twin deployment over DDS on loopback (`--fleet`, a fleet file of the same scenario, `--profile`,
   `--time-scale`), `--twin-episodes` episodes; for random layouts the twin places robots and boxes at the
   layout drawn from each episode's seed;
 - the emitter/receiver timing of that deployment from its recorded /mrl/timing (tick jitter p99 and
   cross-robot send skew p99; targets 1 ms and 0.5 ms, meaningful at time scale 1).
 
-It prints one line per world with robot and team success and their Wilson 95 % intervals, the mean time to
+It prints one line per run with robot and team success and their Wilson 95 % intervals, the mean time to
 goal (to capture, for a pursuit), the training wall-clock from the policy's train_metrics.json, and ends with
-``scenario=<name> sim_robot_success=<..> twin_robot_success=<..> jitter_p99_ms=<..> skew_p99_ms=<..>``.
+``scenario=<name> sim_<key>=<..> twin_<key>=<..> jitter_p99_ms=<..> skew_p99_ms=<..>`` where the key is
+robot_success, or team_success for a pursuit (one capture is the team's).
 Everything is written under `--out` (session.mcap, episodes.csv and metrics.json per world).
 
-    python benchmarks/scenarios.py --policy /tmp/rl/models/nominal/policy --fleet /tmp/fleets/rl.yaml \
-        --profile lab --time-scale 3 --out /tmp/rl/bench
+    python benchmarks/scenarios.py --policy models/nominal/policy --profile lab --time-scale 3 --out /tmp/bench
 """
 
 from __future__ import annotations
@@ -24,12 +25,16 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import replace
+from importlib import resources
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+import yaml
+
 from pipeline.analysis.timing import timing_figures
-from pipeline.mappings import from_mapping, merge, to_mapping
-from pipeline.params import EvalSimConfig
+from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
+from pipeline.params import EvalSimConfig, RandomizeConfig
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_session
 from pipeline.rollout.sim import evaluate_session
@@ -42,7 +47,11 @@ def _line(label: str, metrics: dict[str, float], prefix: str) -> str:
         low, high = metrics[f"{prefix}/{key}_ci_low"], metrics[f"{prefix}/{key}_ci_high"]
         return f"{100 * metrics[f'{prefix}/{key}']:.1f} % [{100 * low:.1f}, {100 * high:.1f}]"
 
-    robots = sorted(k.split("/")[1] for k in metrics if k.startswith(f"{prefix}/robot_") and k.endswith("_success"))
+    robots = sorted(
+        k.split("/")[1]
+        for k in metrics
+        if k.startswith(f"{prefix}/robot_") and k.endswith("_success") and k != f"{prefix}/robot_success"
+    )
     per_robot = " ".join(f"{r.removesuffix('_success')}={100 * metrics[f'{prefix}/{r}']:.0f}%" for r in robots)
     return (
         f"{label}: robot success {figure('robot_success')}, team {figure('team_success')}, "
@@ -51,12 +60,32 @@ def _line(label: str, metrics: dict[str, float], prefix: str) -> str:
     )
 
 
+def twin_fleet(path: Path, scenario: str, names: tuple[str, ...], limits: np.ndarray, domain_id: int) -> Path:
+    """The bundled twin fleet file, driving `scenario` with its robots at their (v_max, w_max) `limits`."""
+    fleet = read_yaml(Path(str(resources.files("pipeline.ros") / "fleets" / "twin.yaml")))
+    fleet["scenario"] = scenario
+    fleet["network"] = {**fleet["network"], "domain_id": domain_id}
+    fleet["robots"] = [
+        {"name": name, "namespace": name, "v_max_mps": float(v), "w_max_radps": float(w)}
+        for name, (v, w) in zip(names, limits, strict=True)
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(fleet, sort_keys=False))
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--policy", type=Path, required=True, help="an exported policy folder (policy.json)")
-    parser.add_argument("--fleet", required=True, help="a fleet file (target: twin) of the policy's scenario")
+    parser.add_argument(
+        "--fleet",
+        default=None,
+        help="a fleet file (target: twin) of the policy's scenario; default: the bundled twin fleet with the "
+        "scenario's robots at their limits, written to --out",
+    )
+    parser.add_argument("--domain-id", type=int, default=61, help="DDS domain of the default fleet")
     parser.add_argument("--sim-episodes", type=int, default=200)
-    parser.add_argument("--twin-episodes", type=int, default=50)
+    parser.add_argument("--twin-episodes", type=int, default=50, help="0: the simulator only")
     parser.add_argument("--sim-seed", type=int, default=10000)
     parser.add_argument("--twin-seed", type=int, default=20000)
     parser.add_argument("--profile", default="lab", help="the twin's reality profile")
@@ -74,25 +103,41 @@ def main() -> None:
             f"weights of step {trained.get('train/selected_at_steps', float('nan')):.0f}"
         )
 
+    limits = scenario.speed_limits(world.actions.v_max_mps, world.actions.w_max_radps)
+    # a pursuit's capture is the team's: its headline figure is team success
+    key = "team_success" if scenario.target is not None else "robot_success"
     lines = []
-    layouts: list[Literal["random", "fixed"]] = [world.layouts]
+    runs: list[tuple[str, Literal["random", "fixed"], bool]] = []
     if scenario.layouts is not None and world.layouts == "random":
-        layouts = ["random", "fixed"]
+        runs += [("held-out random layouts", "random", False), ("its fixed layout", "fixed", False)]
+        runs += [("held-out random layouts, randomized", "random", True)]
+    else:
+        runs += [("at the world values", world.layouts, False), ("randomized", world.layouts, True)]
     sim_success = float("nan")
-    for kind in layouts:
+    for label, kind, randomized in runs:
         cfg = from_mapping(
             EvalSimConfig,
             merge(to_mapping(EvalSimConfig()), {"episodes": args.sim_episodes, "seed": args.sim_seed}),
             "command-line options",
         )
-        scen, wld = make_world(world=replace(world, layouts=kind))
-        _, metrics = evaluate_session(scen, wld, runtime, cfg, args.out / f"sim_{kind}")
-        lines.append(_line(f"{scenario.name} sim ({kind} layouts)", metrics, "eval"))
+        wld = replace(world, layouts=kind)
+        if not randomized:
+            wld = replace(wld, randomize=RandomizeConfig())
+        scen, wld = make_world(world=wld)
+        folder = args.out / f"sim_{kind}{'_randomized' if randomized else ''}"
+        _, metrics = evaluate_session(scen, wld, runtime, cfg, folder)
+        lines.append(_line(f"{scenario.name} sim, {label}", metrics, "eval"))
         print(lines[-1], flush=True)
-        if kind == layouts[0]:
-            sim_success = metrics["eval/robot_success"]
+        if np.isnan(sim_success):
+            sim_success = metrics[f"eval/{key}"]
+    if args.twin_episodes == 0:
+        print(f"scenario={scenario.name} sim_{key}={sim_success:.4f}")
+        return
 
-    fleet = load_fleet(args.fleet)
+    fleet_file = args.fleet or str(
+        twin_fleet(args.out / "fleet.yaml", world.scenario, scenario.robot_names, limits, args.domain_id)
+    )
+    fleet = load_fleet(fleet_file)
     request = DeployRequest(
         episodes=args.twin_episodes,
         seed=args.twin_seed,
@@ -100,7 +145,7 @@ def main() -> None:
         time_scale=args.time_scale,
         profile=args.profile,
     )
-    outcome = deploy_session(runtime, fleet, args.fleet, request, args.out / "twin")
+    outcome = deploy_session(runtime, fleet, fleet_file, request, args.out / "twin")
     lines.append(_line(f"{scenario.name} twin ({args.profile}, {args.time_scale:g}x)", outcome.metrics, "real"))
     timing = timing_figures(args.out / "twin" / "session.mcap")
     lines.append(
@@ -109,8 +154,7 @@ def main() -> None:
     )
     print("\n".join(lines))
     print(
-        f"scenario={scenario.name} sim_robot_success={sim_success:.4f} "
-        f"twin_robot_success={outcome.metrics['real/robot_success']:.4f} "
+        f"scenario={scenario.name} sim_{key}={sim_success:.4f} twin_{key}={outcome.metrics[f'real/{key}']:.4f} "
         f"jitter_p99_ms={timing.tick_jitter_p99_ms:.3f} skew_p99_ms={timing.skew_p99_ms:.3f}"
     )
 
