@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import replace
-from importlib import resources
 from pathlib import Path
 from typing import Literal
 
@@ -38,7 +37,7 @@ from pipeline.params import EvalSimConfig, RandomizeConfig
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_session
 from pipeline.rollout.sim import evaluate_session
-from pipeline.ros.fleet import load_fleet
+from pipeline.ros.fleet import fleet_path, load_fleet
 from pipeline.sim import make_world
 
 
@@ -62,7 +61,7 @@ def _line(label: str, metrics: dict[str, float], prefix: str) -> str:
 
 def twin_fleet(path: Path, scenario: str, names: tuple[str, ...], limits: np.ndarray, domain_id: int) -> Path:
     """The bundled twin fleet file, driving `scenario` with its robots at their (v_max, w_max) `limits`."""
-    fleet = read_yaml(Path(str(resources.files("pipeline.ros") / "fleets" / "twin.yaml")))
+    fleet = read_yaml(fleet_path("twin"))
     fleet["scenario"] = scenario
     fleet["network"] = {**fleet["network"], "domain_id": domain_id}
     fleet["robots"] = [
