@@ -72,13 +72,21 @@ def _timed(kind: str, fn: Callable[..., Any]) -> Callable[..., Any]:
 def instrument() -> None:
     """Time the calls the training loop makes (for the breakdown only)."""
     VecWorlds.step = _timed("worlds", VecWorlds.step)  # type: ignore[method-assign]
-    for cls in (learners.OffPolicyLearner, learners.OnPolicyLearner):
+    for cls in (learners.OffPolicyLearner, learners.BatchedSACMember, learners.OnPolicyLearner):
         for name, kind in (("act", "inference"), ("observe", "store"), ("update", "updates")):
-            setattr(cls, name, _timed(kind, getattr(cls, name)))
+            if name in vars(cls):  # inherited methods are timed once, where they are defined
+                setattr(cls, name, _timed(kind, getattr(cls, name)))
 
 
 def train_rate(
-    algorithm: str, mode: str, scenario_name: str, steps: int, learning_starts: int, workers: int, out: Path
+    algorithm: str,
+    mode: str,
+    scenario_name: str,
+    steps: int,
+    learning_starts: int,
+    workers: int,
+    out: Path,
+    sac_update: str = "batched",
 ) -> tuple[float, dict[str, float]]:
     params = load_params()
     kind = action_kind(algorithm)
@@ -94,6 +102,7 @@ def train_rate(
         "checkpoint_every_episodes": 1_000_000,
         "selection": {"keep": "last", "every_steps": 0, "stop_at_success": None},
         "convergence": {"stop": False},
+        "sac": {"update": sac_update},
     }
     cfg = from_mapping(TrainConfig, merge(to_mapping(params.train), changes), "params.yaml (train_speed)")
     SPENT.clear()
@@ -110,6 +119,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=12_000, help="world steps per training run")
     parser.add_argument("--learning-starts", type=int, default=1_000, help="transitions before updates (sac, dqn)")
     parser.add_argument("--world-workers", type=int, default=None, help="(default: params.yaml's)")
+    parser.add_argument(
+        "--sac-updates",
+        nargs="+",
+        default=["batched", "library"],
+        choices=["batched", "library"],
+        help="SAC's train.sac.update settings to measure, each a row",
+    )
     args = parser.parse_args()
     n_envs = load_params().train.n_envs
     workers = args.world_workers or load_params().train.world_workers
@@ -126,26 +142,26 @@ def main() -> None:
     print(f"world workers' speed-up (continuous): {limits['continuous'] / single:.2f}")
     figures = [f"env_only={limits['continuous']:.0f}", f"env_only_1={single:.0f}"]
     instrument()
-    print(f"{'algorithm/mode':<20} {'steps/s':>8} {'s/100k':>8} {'ratio':>6}   time in: worlds inference store updates")
+    print(f"{'algorithm/mode':<28} {'steps/s':>8} {'s/100k':>8} {'ratio':>6}   time in: worlds inference store updates")
     with tempfile.TemporaryDirectory() as tmp:
         for algorithm in args.algorithms:
             for mode in args.modes:
-                limit = limits[action_kind(algorithm)]
-                rate, shares = train_rate(
-                    algorithm,
-                    mode,
-                    args.scenario,
-                    args.steps,
-                    args.learning_starts,
-                    workers,
-                    Path(tmp) / f"{algorithm}-{mode}",
-                )
-                parts = " ".join(f"{shares[k]:>6.0%}" for k in ("worlds", "inference", "store", "updates"))
-                print(
-                    f"{algorithm + '/' + mode:<20} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f}   {parts}",
-                    flush=True,
-                )
-                figures.append(f"{algorithm}/{mode}={rate:.0f} (ratio {rate / limit:.2f})")
+                for update in args.sac_updates if algorithm == "sac" else ["-"]:
+                    limit = limits[action_kind(algorithm)]
+                    rate, shares = train_rate(
+                        algorithm,
+                        mode,
+                        args.scenario,
+                        args.steps,
+                        args.learning_starts,
+                        workers,
+                        Path(tmp) / f"{algorithm}-{mode}-{update}",
+                        sac_update=update if algorithm == "sac" else "batched",
+                    )
+                    name = f"{algorithm}[{update}]/{mode}" if algorithm == "sac" else f"{algorithm}/{mode}"
+                    parts = " ".join(f"{shares[k]:>6.0%}" for k in ("worlds", "inference", "store", "updates"))
+                    print(f"{name:<28} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f}   {parts}", flush=True)
+                    figures.append(f"{name}={rate:.0f} (ratio {rate / limit:.2f})")
     print(" ".join(figures))
 
 

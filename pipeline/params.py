@@ -233,8 +233,13 @@ class SacConfig:
     tau: float = setting(0.005, gt=0.0, le=1.0)
     ent_coef: float = setting(0.0, ge=0.0, le=10.0)
     """Entropy coefficient; 0 learns it automatically toward the target entropy."""
+    ent_coef_init: float = setting(1.0, gt=0.0, le=10.0, optional=True)
+    """Where the learned entropy coefficient starts (SB3's default 1.0); with `ent_coef` 0 only."""
     target_entropy_scale: float = setting(1.0, gt=0.0, le=10.0)
     """Target entropy is -scale * action dimensions (SAC's default is scale 1)."""
+    update: Literal["batched", "library"] = setting("batched", optional=True)
+    """How gradient steps run: `batched` steps every learner's networks in one batched pass
+    (pipeline/learn/batched_sac.py), `library` calls stable-baselines3's SAC.train per learner."""
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn
 
+from pipeline.learn.batched_sac import BatchedSAC
 from pipeline.learn.dqn import PerDQN
 from pipeline.learn.modes import StreamBatch
 from pipeline.params import TrainConfig
@@ -201,6 +202,44 @@ class OffPolicyLearner:
             self.model.train(gradient_steps=steps, batch_size=self.cfg.batch_size)
 
 
+class BatchedSACMember(OffPolicyLearner):
+    """One learner of a :class:`BatchedSAC` group: its transitions go to the group's buffer of this
+    learner, and the last member's ``update`` runs the group's gradient steps for every learner."""
+
+    def __init__(self, model: LoopSAC, cfg: TrainConfig, seed: int, group: BatchedSAC, index: int) -> None:
+        super().__init__(model, cfg, seed)
+        self.group = group
+        self.index = index
+
+    def observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        active = np.flatnonzero(batch.active)
+        if not len(active):
+            return
+        self.group.add(
+            self.index,
+            obs[active],
+            batch.next_obs[active],
+            np.asarray(actions)[active],
+            batch.reward[active],
+            batch.terminated[active],
+        )
+        before = self.model.num_timesteps
+        self.model.num_timesteps += len(active)
+        counted = max(0, self.model.num_timesteps - max(before, self.cfg.learning_starts))
+        self.group.credit += self.cfg.updates_per_transition * counted / self.group.k
+
+    def update(self) -> None:
+        if self.index != self.group.k - 1:
+            return
+        self._steps += 1
+        if self._steps % self.cfg.train_every_steps:
+            return
+        steps = int(self.group.credit)
+        if steps > 0 and self.group.ready():
+            self.group.credit -= steps
+            self.group.train(steps)
+
+
 class OnPolicyLearner:
     """PPO over `n_streams` streams; a robot inactive at the start of a step gives a masked sample."""
 
@@ -322,12 +361,14 @@ def build_learner(
     }
     off: LoopSAC | LoopDQN
     if cfg.algorithm == "sac":
+        if cfg.sac.update == "batched":
+            common["buffer_size"] = 1  # the batched update keeps the replay of its own
         dims = int(np.prod(action_space.shape or (1,)))
         off = LoopSAC(
             "MlpPolicy",
             env,
             tau=cfg.sac.tau,
-            ent_coef="auto" if cfg.sac.ent_coef == 0.0 else cfg.sac.ent_coef,
+            ent_coef=f"auto_{cfg.sac.ent_coef_init!r}" if cfg.sac.ent_coef == 0.0 else cfg.sac.ent_coef,
             target_entropy=-cfg.sac.target_entropy_scale * dims,
             policy_kwargs={"net_arch": _net_arch(cfg)},
             **common,
@@ -352,3 +393,24 @@ def build_learner(
         )
     off.begin(cfg.total_steps)
     return OffPolicyLearner(off, cfg, seed)
+
+
+def build_learners(
+    cfg: TrainConfig,
+    observation_space: gymnasium.spaces.Box,
+    action_space: gymnasium.Space[Any],
+    n_streams: int,
+    n_learners: int,
+) -> list[OffPolicyLearner | OnPolicyLearner]:
+    """The `n_learners` learners of a training run (seeds ``cfg.seed + 7919 i``); SAC with
+    ``sac.update: batched`` as members of one :class:`BatchedSAC` group."""
+    seeds = [cfg.seed + 7919 * i for i in range(n_learners)]
+    learners = [build_learner(cfg, observation_space, action_space, n_streams, s) for s in seeds]
+    if cfg.algorithm != "sac" or cfg.sac.update != "batched":
+        return learners
+    models = [learner.model for learner in learners]
+    group = BatchedSAC(models, cfg, cfg.seed)
+    return [
+        BatchedSACMember(learner.model, cfg, seeds[i], group, i)  # type: ignore[arg-type]
+        for i, learner in enumerate(learners)
+    ]

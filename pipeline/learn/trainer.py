@@ -16,7 +16,7 @@ from tqdm import tqdm
 from pipeline.core.scenario import Scenario
 from pipeline.learn.checkpoint import save_checkpoint
 from pipeline.learn.errors import TrainingInterrupted
-from pipeline.learn.learners import OffPolicyLearner, OnPolicyLearner, build_learner
+from pipeline.learn.learners import build_learners
 from pipeline.learn.modes import StreamMap
 from pipeline.learn.progress import ConvergenceTracker, LearningCurve
 from pipeline.learn.selection import Selector, greedy_policy
@@ -115,10 +115,9 @@ def _train(
     report: Callable[[int, int, float], None] | None,
 ) -> TrainResult:
     streams = StreamMap(cfg.mode, worlds)
-    learners: list[OffPolicyLearner | OnPolicyLearner] = [
-        build_learner(cfg, streams.observation_space, streams.action_space, streams.n_streams, cfg.seed + 7919 * i)
-        for i in range(streams.n_learners)
-    ]
+    learners = build_learners(
+        cfg, streams.observation_space, streams.action_space, streams.n_streams, streams.n_learners
+    )
     tracker = ConvergenceTracker(scenario.n_robots, cfg.convergence.window_episodes, cfg.convergence.success_threshold)
     curve = LearningCurve(out_dir / CURVE_FILE, scenario.robot_names)
     ckpt_dir = out_dir / CHECKPOINT_DIR
