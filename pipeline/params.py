@@ -147,9 +147,11 @@ class ActionConfig:
     discrete_set: tuple[Literal["forward", "left", "right", "backward", "stop"], ...] = setting(
         ("forward", "left", "right"), min_len=2
     )
+    reverse: bool = setting(True, optional=True)
+    """Continuous actions: speed commands in [-v_max, v_max] (true) or forward only, [0, v_max] (false)."""
 
     def codec(self) -> ActionCodec:
-        return ActionCodec(self.kind, self.v_max_mps, self.w_max_radps, tuple(self.discrete_set))
+        return ActionCodec(self.kind, self.v_max_mps, self.w_max_radps, tuple(self.discrete_set), reverse=self.reverse)
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """The action codec: policy actions -> (v, w) velocity commands, clamped to the limits.
 
 Continuous actions are (a_v, a_w) in [-1, 1] scaled linearly to [-v_max, v_max] m/s and
-[-w_max, w_max] rad/s (values outside [-1, 1] are clamped). Discrete actions index a named set:
+[-w_max, w_max] rad/s (values outside [-1, 1] are clamped); with `reverse` off a_v maps to [0, v_max]
+(forward only: a_v = -1 stops). Discrete actions index a named set:
 forward (0.15 m/s), left (0.1 m/s, +0.2 rad/s), right (0.1 m/s, -0.2 rad/s), and optionally
 backward (-0.15 m/s) and stop.
 """
@@ -41,6 +42,8 @@ class ActionCodec:
     robot_limits: tuple[tuple[float, float], ...] = ()
     """Per robot (v_max, w_max) of a mixed fleet: continuous actions scale to each robot's own, discrete
     commands are cut to them; empty: every robot has `v_max_mps`, `w_max_radps`."""
+    reverse: bool = True
+    """Continuous a_v in [-1, 1] maps to [-v_max, v_max]; False: to [0, v_max]."""
 
     def limits(self, n: int) -> np.ndarray:
         """(n, 2) each robot's (v_max m/s, w_max rad/s)."""
@@ -73,6 +76,8 @@ class ActionCodec:
                 out.append(f"actions.{key} {a:g} vs {b:g}")
         if self.robot_limits != other.robot_limits:
             out.append(f"the robots' own limits {list(self.robot_limits)} vs {list(other.robot_limits)}")
+        if self.kind == other.kind == "continuous" and self.reverse != other.reverse:
+            out.append(f"actions.reverse {self.reverse} vs {other.reverse}")
         if self.kind == other.kind == "discrete" and self.discrete_set != other.discrete_set:
             out.append(f"actions.discrete_set {list(self.discrete_set)} vs {list(other.discrete_set)}")
         return out
@@ -113,6 +118,8 @@ class ActionCodec:
             if not np.isfinite(a).all():
                 raise ActionError(f"continuous actions must be finite, got {a.tolist()}")
             a = np.clip(a, -1.0, 1.0)
+            if not self.reverse:
+                a = np.stack([0.5 * (a[:, 0] + 1.0), a[:, 1]], axis=1)
             if self.robot_limits:
                 return np.asarray(a * self.limits(len(a)))
             return np.stack([a[:, 0] * self.v_max_mps, a[:, 1] * self.w_max_radps], axis=1)
@@ -136,8 +143,9 @@ class ActionCodec:
         """Inverse of decode for continuous actions: (n, 2) (v, w) -> (n, 2) in [-1, 1]."""
         if self.kind != "continuous":
             raise ActionError("encode is defined for continuous actions only")
-        if self.robot_limits:
-            lim = self.limits(len(cmd))
-            return np.asarray(np.clip(np.asarray(cmd, dtype=np.float64), -lim, lim) / lim)
-        c = self.clamp(cmd)
-        return np.stack([c[:, 0] / self.v_max_mps, c[:, 1] / self.w_max_radps], axis=1)
+        c = np.asarray(cmd, dtype=np.float64)
+        lim = self.limits(len(c))
+        a = np.clip(c, -lim, lim) / lim
+        if not self.reverse:
+            a[:, 0] = 2.0 * np.clip(a[:, 0], 0.0, 1.0) - 1.0
+        return np.asarray(a)

@@ -118,7 +118,7 @@ class RobotEnv(gymnasium.Env[np.ndarray, Any]):
         codec = self.sim.codec
         if codec.kind == "continuous":
             self.action_space: gymnasium.Space[Any] = gymnasium.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-            self._still: np.ndarray = np.zeros((self.sim.n, 2))
+            self._still: np.ndarray = codec.for_scenario(scenario).encode(np.zeros((self.sim.n, 2)))
         else:
             self.action_space = gymnasium.spaces.Discrete(codec.n_discrete)
             if "stop" not in codec.discrete_set and teammates is None:

@@ -210,3 +210,17 @@ def test_export_clips_unbounded_ppo_means_like_the_training_library(tmp_path: Pa
     actions = PolicyRuntime(tmp_path / "policy").actions(golden[3])
     assert np.abs(actions).max() == pytest.approx(1.0)
     assert isinstance(weights[0]["action_net.weight"], torch.Tensor)
+
+
+def test_a_forward_only_policy_carries_its_action_range_to_the_runtime(tmp_path: Path) -> None:
+    scenario, world = world_for("sac")
+    world = world_config({"actions": {"kind": "continuous", "reverse": False}}, base=world)
+    result = train(scenario, world, tiny_config(algorithm="sac", mode="shared"), tmp_path / "run", progress=False)
+    golden = golden_from_sim(scenario, world)
+    export_policy(result.checkpoint, tmp_path / "policy", golden, tolerance=1e-5)
+    runtime = PolicyRuntime(tmp_path / "policy")
+    assert runtime.codec.reverse is False
+    actions = np.concatenate([runtime.actions(o) for o in golden])
+    commands = np.concatenate([runtime.commands(o) for o in golden])
+    np.testing.assert_allclose(commands[:, 0], 0.5 * (actions[:, 0] + 1.0) * 0.4, atol=1e-6)
+    assert commands[:, 0].min() >= 0.0

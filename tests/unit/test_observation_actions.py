@@ -52,6 +52,17 @@ def test_continuous_scaling_and_clamping():
     np.testing.assert_allclose(codec.encode(cmd[:2]), [[1.0, -1.0], [0.5, 0.25]])
 
 
+def test_forward_only_speed_commands():
+    codec = ActionCodec("continuous", 0.4, 0.2, reverse=False)
+    cmd = codec.decode(np.array([[-1.0, 0.0], [0.0, 1.0], [1.0, -1.0], [-5.0, 0.5]]))
+    np.testing.assert_allclose(cmd, [[0.0, 0.0], [0.2, 0.2], [0.4, -0.2], [0.0, 0.1]])
+    np.testing.assert_allclose(codec.encode(cmd[:3]), [[-1.0, 0.0], [0.0, 1.0], [1.0, -1.0]])
+    np.testing.assert_allclose(codec.encode(np.array([[-0.3, 0.0]])), [[-1.0, 0.0]])  # no reverse: stop
+    mixed = ActionCodec("continuous", 0.4, 0.2, robot_limits=((0.4, 0.2), (0.8, 0.5)), reverse=False)
+    np.testing.assert_allclose(mixed.decode(np.array([[0.0, 1.0], [1.0, 1.0]])), [[0.2, 0.2], [0.8, 0.5]])
+    assert codec.differences(ActionCodec("continuous", 0.4, 0.2)) == ["actions.reverse False vs True"]
+
+
 def test_discrete_set_and_limits():
     codec = ActionCodec("discrete", 0.4, 0.2, ("forward", "left", "right", "backward", "stop"))
     np.testing.assert_allclose(
