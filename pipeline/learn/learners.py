@@ -9,6 +9,7 @@ methods. Only transitions of robots that were active at the start of a step are 
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -25,6 +26,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepRetu
 from pipeline.learn.batched_sac import BatchedSAC
 from pipeline.learn.dqn import PerDQN
 from pipeline.learn.modes import StreamBatch
+from pipeline.learn.per import PrioritizedReplayBuffer
 from pipeline.params import TrainConfig
 
 
@@ -173,6 +175,11 @@ class OffPolicyLearner:
         return np.asarray(action, dtype=np.float32)
 
     def observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        buffer = self.model.replay_buffer
+        with buffer.batch() if isinstance(buffer, PrioritizedReplayBuffer) else contextlib.nullcontext():
+            self._observe(obs, actions, batch)
+
+    def _observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
         for i in np.flatnonzero(batch.active):
             self.model.store(
                 obs[i],

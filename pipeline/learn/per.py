@@ -14,7 +14,9 @@ Leaf layout: SB3 stores transitions as (buffer_size, n_envs); transition (pos, e
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -213,6 +215,26 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         self._beta = float(beta)
         self.sum_tree = SumTree(self.buffer_size * self.n_envs)
         """Leaf ``pos * n_envs + env`` holds p^alpha of transition (pos, env)."""
+        self._deferred: list[int] | None = None
+
+    @contextlib.contextmanager
+    def batch(self) -> Iterator[None]:
+        """Adds inside the block write their priorities to the sum tree in one update when it ends.
+
+        Every transition added in the block gets the largest priority stored when it starts (1 in an
+        empty buffer), as it would one add at a time (adding at the largest priority never changes it);
+        nothing may be sampled inside the block."""
+        if self._deferred is not None:
+            raise RuntimeError("PrioritizedReplayBuffer.batch blocks do not nest")
+        self._deferred = []
+        try:
+            yield
+        finally:
+            rows, self._deferred = self._deferred, None
+            if rows:
+                priority = 1.0 if self.sum_tree.empty else self.sum_tree.max_priority
+                leaves = np.asarray(rows)[:, None] * self.n_envs + np.arange(self.n_envs)[None, :]
+                self.sum_tree.update(leaves.reshape(-1), priority)
 
     @property
     def beta(self) -> float:
@@ -240,6 +262,10 @@ class PrioritizedReplayBuffer(ReplayBuffer):
     ) -> None:
         """Store one step of every env (arrays with leading axis n_envs) at the current max priority."""
         row = self.pos
+        if self._deferred is not None:
+            super().add(obs, next_obs, action, reward, done, infos)
+            self._deferred.append(row)
+            return
         priority = 1.0 if self.sum_tree.empty else self.sum_tree.max_priority
         super().add(obs, next_obs, action, reward, done, infos)
         self.sum_tree.update(row * self.n_envs + np.arange(self.n_envs), priority)
@@ -252,6 +278,8 @@ class PrioritizedReplayBuffer(ReplayBuffer):
             raise PrioritizedReplayError("batch_size", batch_size, "must be at least 1")
         if self.n_transitions == 0:
             raise ValueError("cannot sample from an empty replay buffer")
+        if self._deferred is not None:
+            raise RuntimeError("cannot sample inside PrioritizedReplayBuffer.batch: priorities are not written yet")
         total = self.sum_tree.total
         segment = total / batch_size
         prefix_sums = (np.arange(batch_size) + np.random.random(batch_size)) * segment

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 import torch as th
@@ -140,6 +142,31 @@ def test_new_transitions_get_the_current_max_priority():
     buffer.update_priorities([1, 3], [1.0, 1.0])  # the max drops: later transitions follow it down
     add_steps(buffer, 1, start=4)
     assert buffer.sum_tree.values([4])[0] == pytest.approx(expected[0])
+
+
+@pytest.mark.parametrize("n_envs", [1, 2])
+def test_adds_in_a_batch_leave_the_tree_as_adds_one_at_a_time(n_envs):
+    one, batched = make_buffer(8, n_envs=n_envs, alpha=0.5), make_buffer(8, n_envs=n_envs, alpha=0.5)
+    for buffer in (one, batched):
+        with buffer.batch() if buffer is batched else contextlib.nullcontext():
+            add_steps(buffer, 3)
+        buffer.update_priorities(np.arange(3 * n_envs), np.linspace(0.0, 4.0, 3 * n_envs))
+        with buffer.batch() if buffer is batched else contextlib.nullcontext():
+            add_steps(buffer, 7, start=3)  # wraps around the 8 rows
+    np.testing.assert_array_equal(one.sum_tree._sum, batched.sum_tree._sum)
+    np.testing.assert_array_equal(one.sum_tree._min, batched.sum_tree._min)
+    np.testing.assert_array_equal(one.sum_tree._max, batched.sum_tree._max)
+    np.testing.assert_array_equal(one.observations, batched.observations)
+
+
+def test_no_sampling_inside_a_batch():
+    buffer = make_buffer(8)
+    add_steps(buffer, 2)
+    with buffer.batch():
+        add_steps(buffer, 1, start=2)
+        with pytest.raises(RuntimeError, match="inside PrioritizedReplayBuffer.batch"):
+            buffer.sample(2)
+    assert buffer.sum_tree.values([2])[0] == 1.0
 
 
 def test_weights_match_the_formula_by_hand():
