@@ -68,8 +68,12 @@ def main() -> None:
     }
     outcome = run_sweep(list(trials.values()), base, Path(args.out), args.episodes, workers=args.workers)
     stats = {s.cell: s for s in cell_stats(outcome.rows)}
-    print(f"SAC, {args.mode} mode, {args.scenario}, {args.seeds} seeds; shared settings: {' '.join(DEFAULT_SET + args.set)}")
-    print("| variant | seeds | robot success IQM, % [95 % CI] | per robot, % | converged seeds | episodes to convergence |")
+    shared = " ".join(DEFAULT_SET + args.set)
+    print(f"SAC, {args.mode} mode, {args.scenario}, {args.seeds} seeds; shared settings: {shared}")
+    print(
+        "| variant | seeds | robot success IQM, % [95 % CI] | per robot, % | converged seeds | "
+        "episodes to convergence |"
+    )
     print("|---|---|---|---|---|---|")
     figures = []
     for name in args.variants:

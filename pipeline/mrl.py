@@ -752,6 +752,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="a params.yaml key set for every trial, e.g. train.total_steps=300000 (repeatable)",
     )
     sweep.add_argument(
+        "--set-for",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("ALGORITHM", "KEY=VALUE"),
+        help="a params.yaml key set for that algorithm's trials only, e.g. sac train.updates_per_transition=1.0 "
+        "(repeatable; shown in the table's settings column)",
+    )
+    sweep.add_argument(
         "--params", default="params.yaml", metavar="FILE", help="the base settings (default: params.yaml)"
     )
     sweep.add_argument("--episodes", type=int, default=200, metavar="N", help="evaluation episodes (default: 200)")
@@ -777,7 +786,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from pipeline.bench.report import marks, splice_readme, write_report
     from pipeline.bench.stats import cell_stats, markdown_table
     from pipeline.bench.sweep import collect, run_sweep
-    from pipeline.bench.trials import base_mapping, expand, parse_axis, parse_setting, with_settings
+    from pipeline.bench.trials import base_mapping, expand, parse_axis, parse_setting, scoped_settings, with_settings
     from pipeline.params import load_params
 
     if args.readme:  # checked before a sweep of hours, not after it
@@ -794,6 +803,7 @@ def _sweep(args: argparse.Namespace) -> int:
     axes = [parse_axis(text) for text in args.axis]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     trials = expand(args.algorithms, args.modes, args.scenarios, seeds, axes)
+    trials = scoped_settings(trials, args.set_for)
     settings = [parse_setting(text) for text in args.set]
     if not any(key == "train.world_workers" for key, _ in settings):  # a trial's worlds use the CPUs it holds
         settings.append(("train.world_workers", max(1, int(args.cpus_per_trial))))

@@ -149,21 +149,32 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f}"
 
 
+def _settings(cell: str) -> str:
+    """A cell's own params keys (the part of its name after algorithm/mode/scenario), or ''."""
+    parts = cell.split("/", 3)
+    return parts[3] if len(parts) == 4 else ""
+
+
 def markdown_table(stats: Sequence[CellStats]) -> str:
-    """The results table: one line per cell (generated, not typed)."""
+    """The results table: one line per cell (generated, not typed); a column of the cells' own params keys
+    when any cell has some."""
+    keyed = any(_settings(s.cell) for s in stats)
     lines = [
-        "| algorithm | mode | scenario | seeds | robot success IQM, % [95 % CI] | team success IQM, % [95 % CI] | "
+        "| algorithm | mode | scenario |"
+        + (" settings |" if keyed else "")
+        + " seeds | robot success IQM, % [95 % CI] | team success IQM, % [95 % CI] | "
         "per robot (IQM, %) | converged seeds | episodes to convergence | wall-clock to convergence | "
         "training steps, wall-clock | env steps/s | target |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|" + ("---|" if keyed else "") + "---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in stats:
         robots = ", ".join(_pct(v) for v in s.per_robot_iqm.values())
         episodes = "-" if s.episodes_to_convergence is None else f"{s.episodes_to_convergence:.0f}"
         wall = "-" if s.wall_to_convergence_s is None else f"{s.wall_to_convergence_s:.0f} s"
         target = "met" if s.meets_target else "missed"
+        settings = f" {_settings(s.cell).replace(',', ', ') or '-'} |" if keyed else ""
         lines.append(
-            f"| {s.algorithm} | {s.mode} | {s.scenario} | {s.seeds} | {_pct(s.robot_iqm)} "
+            f"| {s.algorithm} | {s.mode} | {s.scenario} |{settings} {s.seeds} | {_pct(s.robot_iqm)} "
             f"[{_pct(s.robot_ci[0])}, {_pct(s.robot_ci[1])}] | {_pct(s.team_iqm)} "
             f"[{_pct(s.team_ci[0])}, {_pct(s.team_ci[1])}] | {robots} | {s.converged_seeds}/{s.seeds} | "
             f"{episodes} | {wall} | {s.train_steps / 1000:.0f}k, {s.train_wall_s / 60:.0f} min | "

@@ -10,6 +10,7 @@ changed since) is stale, and the trial runs again.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -148,6 +149,20 @@ def expand(
         for s in scenarios
         for combo in combos
         for seed in seeds
+    ]
+
+
+def scoped_settings(trials: Sequence[Trial], scoped: Sequence[Sequence[str]]) -> list[Trial]:
+    """`trials` with each (algorithm, ``KEY=VALUE``) of `scoped` added to the keys of that algorithm's trials."""
+    parsed = []
+    for pair in scoped:
+        algorithm, text = pair[0], pair[1]
+        if algorithm not in ALGORITHMS:
+            raise ConfigError("--set-for", [ConfigProblem("algorithm", algorithm, " | ".join(ALGORITHMS))])
+        key, value = parse_setting(text)
+        parsed.append((algorithm, key, value))
+    return [
+        dataclasses.replace(t, keys=t.keys + tuple((k, v) for a, k, v in parsed if a == t.algorithm)) for t in trials
     ]
 
 

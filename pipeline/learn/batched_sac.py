@@ -42,8 +42,16 @@ LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3's clamp of the actor's log standard
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
-def _linears(module: nn.Module) -> list[nn.Linear]:
+def _linears(module: object) -> list[nn.Linear]:
+    if not isinstance(module, nn.Module):
+        raise TypeError(f"expected a torch module, got {type(module).__name__}")
     return [m for m in module.modules() if isinstance(m, nn.Linear)]
+
+
+def _linear(module: object) -> nn.Linear:
+    if not isinstance(module, nn.Linear):
+        raise TypeError(f"expected a linear layer, got {type(module).__name__}")
+    return module
 
 
 class _Stack:
@@ -108,8 +116,8 @@ class BatchedSAC:
         actors = [m.policy.actor for m in sacs]
         hidden = [_linears(a.latent_pi) for a in actors]
         self.actor_hidden = [_Stack([h[i] for h in hidden]) for i in range(len(hidden[0]))]
-        self.actor_head = _HeadStack([a.mu for a in actors], [a.log_std for a in actors])
-        self.act_dim = actors[0].mu.out_features
+        self.actor_head = _HeadStack([_linear(a.mu) for a in actors], [_linear(a.log_std) for a in actors])
+        self.act_dim = _linear(actors[0].mu).out_features
 
         def critic_stacks(attr: str) -> list[_Stack]:
             per_net = [_linears(q) for m in sacs for q in getattr(m.policy, attr).q_networks]
@@ -119,7 +127,7 @@ class BatchedSAC:
 
         self.critic = critic_stacks("critic")
         self.target = critic_stacks("critic_target")
-        self.obs_dim = int(actors[0].latent_pi[0].in_features)
+        self.obs_dim = hidden[0][0].in_features
 
         dims = self.act_dim
         self.learn_alpha = cfg.sac.ent_coef == 0.0

@@ -37,7 +37,12 @@ def _fill(group: BatchedSAC, n: int, seed: int, reward_shift: tuple[float, ...] 
         obs = rng.normal(size=(n, OBS))
         shift = reward_shift[k] if k < len(reward_shift) else 0.0
         group.add(
-            k, obs, rng.normal(size=(n, OBS)), rng.uniform(-1, 1, (n, ACT)), rng.normal(size=n) + shift, rng.random(n) < 0.1
+            k,
+            obs,
+            rng.normal(size=(n, OBS)),
+            rng.uniform(-1, 1, (n, ACT)),
+            rng.normal(size=n) + shift,
+            rng.random(n) < 0.1,
         )
 
 

@@ -8,7 +8,7 @@ import pytest
 from scipy import stats as sps
 
 from pipeline.bench.stats import cell_stats, markdown_table, performance_profiles, score_matrices
-from pipeline.bench.trials import Trial, expand, parse_axis
+from pipeline.bench.trials import Trial, expand, parse_axis, scoped_settings
 from pipeline.errors import ConfigError
 from pipeline.params import load_params
 
@@ -105,6 +105,33 @@ def test_trials_expand_with_any_params_key_as_an_axis():
         parse_axis("learning_rate")
     with pytest.raises(ConfigError, match="learning_rat"):
         Trial("sac", "shared", "empty", 0, (("train.learning_rat", 1.0),)).params(_base())
+
+
+def test_settings_for_one_algorithm_go_to_its_trials_and_the_table_shows_them():
+    trials = scoped_settings(
+        expand(["sac", "dqn"], ["independent"], ["empty"], [0, 1]), [["sac", "train.updates_per_transition=1.0"]]
+    )
+    sac = [t for t in trials if t.algorithm == "sac"]
+    dqn = [t for t in trials if t.algorithm == "dqn"]
+    assert all(t.keys == (("train.updates_per_transition", 1.0),) for t in sac)
+    assert all(t.keys == () for t in dqn)
+    assert sac[0].params(_base()).train.updates_per_transition == 1.0
+    assert dqn[0].params(_base()).train.updates_per_transition == load_params().train.updates_per_transition
+    with pytest.raises(ConfigError, match="--set-for"):
+        scoped_settings(trials, [["td3", "train.gamma=0.9"]])
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        scoped_settings(trials, [["sac", "gamma"]])
+    rows = rows_of({"sac/independent/empty": np.full((2, 3), 0.9), "dqn/independent/empty": np.full((2, 3), 0.8)})
+    rows = rows.with_columns(
+        pl.when(pl.col("algorithm") == "sac")
+        .then(pl.lit(f"sac/independent/empty/{sac[0].cell.split('/', 3)[3]}"))
+        .otherwise(pl.col("cell"))
+        .alias("cell")
+    )
+    table = markdown_table(cell_stats(rows, reps=50))
+    assert "| settings |" in table
+    assert "| sac | independent | empty | train.updates_per_transition=1.0 | 2 |" in table
+    assert "| dqn | independent | empty | - | 2 |" in table
 
 
 def _base() -> dict:

@@ -164,7 +164,7 @@ def test_no_sampling_inside_a_batch():
     add_steps(buffer, 2)
     with buffer.batch():
         add_steps(buffer, 1, start=2)
-        with pytest.raises(RuntimeError, match="inside PrioritizedReplayBuffer.batch"):
+        with pytest.raises(RuntimeError, match=r"inside PrioritizedReplayBuffer\.batch"):
             buffer.sample(2)
     assert buffer.sum_tree.values([2])[0] == 1.0
 
