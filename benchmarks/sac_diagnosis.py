@@ -9,7 +9,8 @@ each variant changes one thing, named after the factor it tests:
 - shaping: a time penalty per step;
 - network: two layers of 256 instead of 128;
 - exploration: forward-only speed commands (actions in [0, v_max] instead of [-v_max, v_max]: random
-  actions drive forward, as the discrete set's do).
+  actions drive forward, as the discrete set's do);
+- and the three that helped, together.
 
 The trials run as one `mrl sweep` (``pipeline.bench.sweep``: finished trials are skipped when the
 script runs again) and the table prints robot-level success IQM with its stratified bootstrap interval
@@ -36,6 +37,11 @@ VARIANTS: dict[str, tuple[tuple[str, Any], ...]] = {
     "shaping: -0.05 per step": (("world.reward.step", -0.05),),
     "network: [256, 256]": (("train.net_arch", [256, 256]),),
     "exploration: forward only": (("world.actions.reverse", False),),
+    "forward + budget + entropy": (
+        ("world.actions.reverse", False),
+        ("train.updates_per_transition", 1.0),
+        ("train.sac.ent_coef_init", 0.05),
+    ),
 }
 
 DEFAULT_SET = [

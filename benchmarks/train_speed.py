@@ -55,6 +55,51 @@ def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: 
         return rounds * n_envs / (time.perf_counter() - t0)
 
 
+def sac_gradient_step_ms(update: str, k: int, steps: int = 200) -> float:
+    """Milliseconds per SAC gradient step of `k` learners together (params.yaml's network and batch, one torch
+    thread, a replay of random transitions): SB3's ``SAC.train`` per learner (`library`) or one batched pass."""
+    import dataclasses
+
+    import gymnasium
+    import torch as th
+
+    th.set_num_threads(1)
+    cfg = load_params().train
+    cfg = dataclasses.replace(cfg, algorithm="sac", sac=dataclasses.replace(cfg.sac, update=update))
+    obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (21,), np.float32)
+    act_space = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    group = learners.build_learners(cfg, obs_space, act_space, 8, k)
+    rng = np.random.default_rng(0)
+    n = 2 * cfg.batch_size
+    if update == "batched":
+        batched = group[0]
+        assert isinstance(batched, learners.BatchedSACMember)
+        for i in range(k):
+            batched.group.add(
+                i, rng.normal(size=(n, 21)), rng.normal(size=(n, 21)), rng.uniform(-1, 1, (n, 2)),
+                rng.normal(size=n), np.zeros(n),
+            )  # fmt: skip
+
+        def run(m: int) -> None:
+            batched.group.train(m)
+    else:
+        for learner in group:
+            for _ in range(n):
+                learner.model.store(  # type: ignore[union-attr]
+                    rng.normal(size=21).astype(np.float32), rng.normal(size=21).astype(np.float32),
+                    rng.uniform(-1, 1, 2).astype(np.float32), 0.0, False, False,
+                )  # fmt: skip
+
+        def run(m: int) -> None:
+            for learner in group:
+                learner.model.train(gradient_steps=m, batch_size=cfg.batch_size)  # type: ignore[union-attr]
+
+    run(10)
+    t0 = time.perf_counter()
+    run(steps)
+    return 1e3 * (time.perf_counter() - t0) / steps
+
+
 SPENT: dict[str, float] = defaultdict(float)
 
 
@@ -141,6 +186,14 @@ def main() -> None:
         )
     print(f"world workers' speed-up (continuous): {limits['continuous'] / single:.2f}")
     figures = [f"env_only={limits['continuous']:.0f}", f"env_only_1={single:.0f}"]
+    if "sac" in args.algorithms and len(args.sac_updates) == 2:
+        for k in (1, 3):
+            times = {u: sac_gradient_step_ms(u, k) for u in ("library", "batched")}
+            print(
+                f"SAC gradient step of {k} learner(s) together: library {times['library']:.2f} ms, "
+                f"batched {times['batched']:.2f} ms, speed-up {times['library'] / times['batched']:.2f}"
+            )
+            figures.append(f"sac_step_speedup_{k}={times['library'] / times['batched']:.2f}")
     instrument()
     print(f"{'algorithm/mode':<28} {'steps/s':>8} {'s/100k':>8} {'ratio':>6}   time in: worlds inference store updates")
     with tempfile.TemporaryDirectory() as tmp:
