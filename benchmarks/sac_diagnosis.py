@@ -10,7 +10,8 @@ each variant changes one thing, named after the factor it tests:
 - network: two layers of 256 instead of 128;
 - exploration: forward-only speed commands (actions in [0, v_max] instead of [-v_max, v_max]: random
   actions drive forward, as the discrete set's do);
-- and the three that helped, together.
+- and the three that helped, together, also with a constant learning rate (params.yaml's decays to 0
+  over the budget).
 
 The trials run as one `mrl sweep` (``pipeline.bench.sweep``: finished trials are skipped when the
 script runs again) and the table prints robot-level success IQM with its stratified bootstrap interval
@@ -41,6 +42,12 @@ VARIANTS: dict[str, tuple[tuple[str, Any], ...]] = {
         ("world.actions.reverse", False),
         ("train.updates_per_transition", 1.0),
         ("train.sac.ent_coef_init", 0.05),
+    ),
+    "the three + constant learning rate": (
+        ("world.actions.reverse", False),
+        ("train.updates_per_transition", 1.0),
+        ("train.sac.ent_coef_init", 0.05),
+        ("train.learning_rate_schedule", "constant"),
     ),
 }
 
