@@ -25,9 +25,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+import polars as pl
+
 from pipeline.bench.stats import cell_stats
-from pipeline.bench.sweep import run_sweep
-from pipeline.bench.trials import Trial, base_mapping, parse_setting, with_settings
+from pipeline.bench.sweep import collect, run_sweep, trial_folder
+from pipeline.bench.trials import Trial, base_mapping, parse_setting, read_row, with_settings
 from pipeline.params import load_params
 
 VARIANTS: dict[str, tuple[tuple[str, Any], ...]] = {
@@ -38,6 +40,7 @@ VARIANTS: dict[str, tuple[tuple[str, Any], ...]] = {
     "shaping: -0.05 per step": (("world.reward.step", -0.05),),
     "network: [256, 256]": (("train.net_arch", [256, 256]),),
     "exploration: forward only": (("world.actions.reverse", False),),
+    "forward + budget": (("world.actions.reverse", False), ("train.updates_per_transition", 1.0)),
     "forward + budget + entropy": (
         ("world.actions.reverse", False),
         ("train.updates_per_transition", 1.0),
@@ -69,6 +72,13 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100, help="evaluation episodes per trial")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default="logs/sac_diagnosis")
+    parser.add_argument("--report-only", action="store_true", help="the table of the finished trials, run nothing")
+    parser.add_argument(
+        "--any-digest",
+        action="store_true",
+        help="with --report-only: take each trial's row whatever settings digest it carries (rows written before a "
+        "params key with a default was added)",
+    )
     args = parser.parse_args()
 
     settings = [parse_setting(text) for text in [*DEFAULT_SET, *args.set]]
@@ -79,8 +89,14 @@ def main() -> None:
         for seed in range(args.seeds)  # every variant's first seed first
         for name in args.variants
     }
-    outcome = run_sweep(list(trials.values()), base, Path(args.out), args.episodes, workers=args.workers)
-    stats = {s.cell: s for s in cell_stats(outcome.rows)}
+    if args.report_only and args.any_digest:
+        found = [read_row(trial_folder(Path(args.out), t)) for t in trials.values()]
+        rows = pl.DataFrame([r for r in found if r is not None])
+    elif args.report_only:
+        rows = collect(Path(args.out), list(trials.values()), base)
+    else:
+        rows = run_sweep(list(trials.values()), base, Path(args.out), args.episodes, workers=args.workers).rows
+    stats = {s.cell: s for s in cell_stats(rows)} if not rows.is_empty() else {}
     shared = " ".join(DEFAULT_SET + args.set)
     print(f"SAC, {args.mode} mode, {args.scenario}, {args.seeds} seeds; shared settings: {shared}")
     print(
