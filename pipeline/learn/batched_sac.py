@@ -2,8 +2,8 @@
 
 stable-baselines3's ``SAC.train`` runs a gradient step of one learner as some thirty small tensor
 operations and three optimizer steps. At this project's network sizes (two layers of 128) on a
-CPU the per-operation overhead costs as much as the arithmetic, and `independent` mode pays it once
-per robot. Here the SB3 models stay the owners of the weights: every linear layer of the K
+CPU about a third of its time is per-operation overhead, and `independent` mode pays it once per
+robot. Here the SB3 models stay the owners of the weights: every linear layer of the K
 learners' actors, critics and target critics becomes one slice of a stacked (K, out, in) tensor
 (the two critics of a learner side by side: 2K slices), and the SB3 modules' parameters are views
 of those slices. Checkpoints, the periodic evaluations, action sampling and export read the SB3
@@ -22,8 +22,8 @@ modules as before and see every update; a gradient step is one batched pass over
 One difference from SB3's ordering: SB3 steps the critics before it evaluates the actor's loss on
 them, here both losses see the critics of the start of the step (as most SAC implementations do).
 The update schedule: `updates_per_transition` gradient steps per stored transition averaged over the
-learners, every learner taking each step, once every learner has `learning_starts` transitions and a
-batch. Same seed, same weights, to the bit (the batch indices and action noise come from a generator
+learners (a learner's transitions count from its `learning_starts`-th on), every learner taking each
+step, once every learner has a batch. Same seed, same weights, to the bit (the batch indices and action noise come from a generator
 seeded by the training seed).
 """
 
