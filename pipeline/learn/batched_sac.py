@@ -23,8 +23,8 @@ One difference from SB3's ordering: SB3 steps the critics before it evaluates th
 them, here both losses see the critics of the start of the step (as most SAC implementations do).
 The update schedule: `updates_per_transition` gradient steps per stored transition averaged over the
 learners (a learner's transitions count from its `learning_starts`-th on), every learner taking each
-step, once every learner has a batch. Same seed, same weights, to the bit (the batch indices and action noise come from a generator
-seeded by the training seed).
+step, once every learner has a batch. Same seed, same weights, to the bit (the batch indices and
+action noise come from a generator seeded by the training seed).
 """
 
 from __future__ import annotations
