@@ -52,10 +52,20 @@ def _curve(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(episodes), np.asarray(success)
 
 
+def cell_label(cell: str) -> str:
+    """A legend label for a cell: algorithm/mode/scenario, its own keys by their last name (``reverse=False``)."""
+    parts = cell.split("/", 3)
+    if len(parts) < 4:
+        return cell
+    pairs = [item.partition("=") for item in parts[3].split(",")]
+    keys = ", ".join(f"{key.rsplit('.', 1)[-1]}={value}" for key, _, value in pairs)
+    return f"{'/'.join(parts[:3])} ({keys})"
+
+
 def plot_learning_curves(out: Path, rows: pl.DataFrame, path: Path) -> bool:
     """Per cell: median windowed training success over seeds and the band between the lowest and highest seed."""
     cells = rows["cell"].unique(maintain_order=True).to_list()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = plt.subplots(figsize=(8, 4.5 + 0.2 * len(cells)))
     drawn = False
     for cell in cells:
         curves = [
@@ -68,7 +78,7 @@ def plot_learning_curves(out: Path, rows: pl.DataFrame, path: Path) -> bool:
         last = min(float(e[-1]) for e, _ in curves)
         grid = np.linspace(1.0, last, CURVE_GRID)
         ys = np.stack([np.interp(grid, e, s) for e, s in curves])
-        line = ax.plot(grid, np.median(ys, axis=0), label=f"{cell} ({len(curves)} seeds)")[0]
+        line = ax.plot(grid, np.median(ys, axis=0), label=f"{cell_label(cell)}, {len(curves)} seeds")[0]
         ax.fill_between(grid, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
         drawn = True
     if not drawn:
@@ -78,7 +88,7 @@ def plot_learning_curves(out: Path, rows: pl.DataFrame, path: Path) -> bool:
     ax.set_ylabel("robot success (last 20 episodes)")
     ax.set_ylim(-0.02, 1.02)
     ax.axhline(0.8, color="grey", lw=0.8, ls=":")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1, frameon=False)
     ax.set_title("Learning curves: median over seeds, band lowest to highest seed")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -90,13 +100,13 @@ def plot_profiles(rows: pl.DataFrame, path: Path) -> bool:
     taus, profiles, bands = performance_profiles(rows)
     if not profiles:
         return False
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    fig, ax = plt.subplots(figsize=(8, 4.2 + 0.2 * len(profiles)))
     for cell, profile in profiles.items():
-        line = ax.plot(taus, profile, label=cell)[0]
+        line = ax.plot(taus, profile, label=cell_label(cell))[0]
         ax.fill_between(taus, bands[cell][0], bands[cell][1], color=line.get_color(), alpha=0.2)
     ax.set_xlabel("robot success threshold tau")
     ax.set_ylabel("fraction of (seed, robot) scores > tau")
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     ax.set_title("Performance profiles (rliable score distributions, 95 % bands)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
