@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 
-from pipeline.bench.stats import CellStats, markdown_table, performance_profiles
+from pipeline.bench.stats import CellStats, cell_settings, markdown_table, performance_profiles
 
 CURVE_GRID = 200
 """Points on the common episode grid the seeds' curves are put on."""
@@ -54,12 +54,12 @@ def _curve(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
 
 def cell_label(cell: str) -> str:
     """A legend label for a cell: algorithm/mode/scenario, its own keys by their last name (``reverse=False``)."""
-    parts = cell.split("/", 3)
-    if len(parts) < 4:
+    settings = cell_settings(cell)
+    if not settings:
         return cell
-    pairs = [item.partition("=") for item in parts[3].split(",")]
+    pairs = [item.partition("=") for item in settings.split(",")]
     keys = ", ".join(f"{key.rsplit('.', 1)[-1]}={value}" for key, _, value in pairs)
-    return f"{'/'.join(parts[:3])} ({keys})"
+    return f"{'/'.join(cell.split('/', 3)[:3])} ({keys})"
 
 
 def plot_learning_curves(out: Path, rows: pl.DataFrame, path: Path) -> bool:

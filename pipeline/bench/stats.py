@@ -149,7 +149,7 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f}"
 
 
-def _settings(cell: str) -> str:
+def cell_settings(cell: str) -> str:
     """A cell's own params keys (the part of its name after algorithm/mode/scenario), or ''."""
     parts = cell.split("/", 3)
     return parts[3] if len(parts) == 4 else ""
@@ -158,7 +158,7 @@ def _settings(cell: str) -> str:
 def markdown_table(stats: Sequence[CellStats]) -> str:
     """The results table: one line per cell (generated, not typed); a column of the cells' own params keys
     when any cell has some."""
-    keyed = any(_settings(s.cell) for s in stats)
+    keyed = any(cell_settings(s.cell) for s in stats)
     lines = [
         "| algorithm | mode | scenario |"
         + (" settings |" if keyed else "")
@@ -172,7 +172,7 @@ def markdown_table(stats: Sequence[CellStats]) -> str:
         episodes = "-" if s.episodes_to_convergence is None else f"{s.episodes_to_convergence:.0f}"
         wall = "-" if s.wall_to_convergence_s is None else f"{s.wall_to_convergence_s:.0f} s"
         target = "met" if s.meets_target else "missed"
-        settings = f" {_settings(s.cell).replace(',', ', ') or '-'} |" if keyed else ""
+        settings = f" {cell_settings(s.cell).replace(',', ', ') or '-'} |" if keyed else ""
         lines.append(
             f"| {s.algorithm} | {s.mode} | {s.scenario} |{settings} {s.seeds} | {_pct(s.robot_iqm)} "
             f"[{_pct(s.robot_ci[0])}, {_pct(s.robot_ci[1])}] | {_pct(s.team_iqm)} "

@@ -201,16 +201,18 @@ class BatchedSAC:
     def _policy_sample(self, obs: th.Tensor, noise: th.Tensor | None = None) -> tuple[th.Tensor, th.Tensor]:
         """Squashed Gaussian actions (K, B, a) and their log-probabilities (K, B), reparametrized
         (standard normal `noise` drawn from the generator unless given)."""
-        latent = _mlp(self.actor_hidden, obs, last_linear=False)
-        out = self.actor_head(latent)
-        mean, log_std = out[..., : self.act_dim], out[..., self.act_dim :]
-        log_std = th.clamp(log_std, LOG_STD_MIN, LOG_STD_MAX)
+        mean, log_std = self._mean_log_std(obs)
         if noise is None:
             noise = th.randn(mean.shape, generator=self.generator)
         action = th.tanh(mean + log_std.exp() * noise)
         log_prob = (-0.5 * noise.square() - log_std - _HALF_LOG_2PI).sum(-1)
         log_prob = log_prob - th.log(1.0 - action.square() + 1e-6).sum(-1)
         return action, log_prob
+
+    def _mean_log_std(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """The actor's Gaussian mean and clamped log standard deviation, (K, B, a) each."""
+        out = self.actor_head(_mlp(self.actor_hidden, obs, last_linear=False))
+        return out[..., : self.act_dim], th.clamp(out[..., self.act_dim :], LOG_STD_MIN, LOG_STD_MAX)
 
     def _q(self, layers: Sequence[_Stack], obs: th.Tensor, actions: th.Tensor, frozen: bool = False) -> th.Tensor:
         """Both critics of every learner: (K, 2, B)."""
@@ -227,8 +229,7 @@ class BatchedSAC:
     def actor_mean(self, obs: th.Tensor) -> th.Tensor:
         """Deterministic actions tanh(mean) for (K, B, obs) (for checks)."""
         with th.no_grad():
-            out = self.actor_head(_mlp(self.actor_hidden, obs, last_linear=False))
-            return th.tanh(out[..., : self.act_dim])
+            return th.tanh(self._mean_log_std(obs)[0])
 
     # -- updates -------------------------------------------------------------------------------------
     def _lr(self) -> float:

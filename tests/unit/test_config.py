@@ -170,3 +170,22 @@ def test_unknown_algorithm_or_mode_lists_the_allowed_ones(params_data, write_par
     allowed = _problem_of(info.value, f"train.{key}").allowed
     expected = ("'sac'", "'dqn'", "'ppo'") if key == "algorithm" else ("'independent'", "'shared'", "'centralized'")
     assert all(name in allowed for name in expected)
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "allowed"),
+    [
+        (("train", "sac"), "update", "fast", "'batched'"),
+        (("train", "sac"), "ent_coef_init", 0.0, "> 0.0"),
+        (("world", "actions"), "reverse", "sometimes", "true or false"),
+    ],
+)
+def test_new_sac_and_action_keys_are_checked(params_data, write_params, section, key, value, allowed):
+    node = params_data
+    for part in section:
+        node = node[part]
+    node[key] = value
+    with pytest.raises(ConfigError) as info:
+        load_params(write_params(params_data))
+    problem = _problem_of(info.value, ".".join((*section, key)))
+    assert allowed in str(problem.allowed)
