@@ -13,8 +13,9 @@ it are medians over the seeds that reached it, with the count of those seeds.
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Sequence
+import zlib
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +65,21 @@ def _natural(name: str) -> tuple[str, int]:
     return (head, int(tail)) if tail.isdigit() else (name, 0)
 
 
+@contextmanager
+def _bootstrap_draws(seed: int, key: str) -> Iterator[None]:
+    """Seed numpy's global generator for one of rliable's bootstraps, and restore it after.
+
+    rliable's ``StratifiedBootstrap.update_indices`` draws its resamples with ``np.random.choice``, numpy's
+    global generator, whatever ``random_state`` it is given; seeding that generator from (`seed`, `key`) is
+    what makes an interval reproducible."""
+    saved = np.random.get_state()
+    np.random.seed([seed, zlib.crc32(key.encode())])
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)
+
+
 def score_matrices(rows: pl.DataFrame) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per cell: (seeds x robots robot-level success, seeds x 1 team success), rows in seed order."""
     robots = _robots(rows)
@@ -86,15 +102,13 @@ def cell_stats(rows: pl.DataFrame, reps: int = 2000, seed: int = 0) -> list[Cell
     def iqm(x: np.ndarray) -> np.ndarray:
         return np.array([metrics.aggregate_iqm(x)])
 
-    state = np.random.RandomState(seed)
-    with warnings.catch_warnings():  # arch deprecates the random_state that rliable hands it
-        warnings.simplefilter("ignore", FutureWarning)
-        robot_point, robot_ci = rly.get_interval_estimates(
-            {c: m[0] for c, m in matrices.items()}, iqm, reps=reps, random_state=state
-        )
-        team_point, team_ci = rly.get_interval_estimates(
-            {c: m[1] for c, m in matrices.items()}, iqm, reps=reps, random_state=state
-        )
+    robot_point, robot_ci, team_point, team_ci = {}, {}, {}, {}
+    for cell, (robot_scores, team_scores) in matrices.items():
+        with _bootstrap_draws(seed, cell):  # a cell's interval depends neither on the other cells nor the rows' order
+            point, ci = rly.get_interval_estimates({cell: robot_scores}, iqm, reps=reps)
+            robot_point[cell], robot_ci[cell] = point[cell], ci[cell]
+            point, ci = rly.get_interval_estimates({cell: team_scores}, iqm, reps=reps)
+            team_point[cell], team_ci[cell] = point[cell], ci[cell]
     robots = _robots(rows)
     out = []
     for cell, (robot, _team) in matrices.items():
@@ -139,8 +153,7 @@ def performance_profiles(
 
     grid = np.linspace(0.0, 1.0, 51) if taus is None else np.asarray(taus, dtype=np.float64)
     matrices = {c: m[0] for c, m in score_matrices(rows).items()}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
+    with _bootstrap_draws(0, "performance profiles"):
         profiles, bands = rly.create_performance_profile(matrices, grid, reps=reps)
     return grid, dict(profiles), dict(bands)
 

@@ -62,6 +62,23 @@ def test_the_iqm_is_the_trimmed_mean_of_seeds_by_robots_with_an_interval_around_
     assert ("met" in table) == stats["sac/independent/empty"].meets_target
 
 
+def test_a_cells_interval_does_not_depend_on_the_other_cells_or_the_rows_order():
+    rng = np.random.default_rng(2)
+    cells = {
+        f"sac/independent/{room}": np.clip(rng.normal(0.8, 0.1, size=(3, 3)), 0, 1) for room in ("empty", "obstacles")
+    }
+    rows = rows_of(cells)
+    together = {s.cell: s for s in cell_stats(rows, reps=300)}
+    shuffled = {s.cell: s for s in cell_stats(rows.sample(fraction=1.0, shuffle=True, seed=3), reps=300)}
+    alone = cell_stats(rows.filter(pl.col("cell") == "sac/independent/obstacles"), reps=300)[0]
+    for cell, s in together.items():
+        assert (s.robot_ci, s.team_ci) == (shuffled[cell].robot_ci, shuffled[cell].team_ci)
+    assert (alone.robot_ci, alone.team_ci) == (together[alone.cell].robot_ci, together[alone.cell].team_ci)
+    # a different seed draws other resamples: the intervals are the bootstrap's, not fixed numbers
+    other = {s.cell: s for s in cell_stats(rows, reps=300, seed=1)}
+    assert any(other[c].robot_ci != together[c].robot_ci for c in together)
+
+
 def test_the_95_percent_interval_covers_the_population_iqm():
     """Seeds x robots drawn around 0.8 (a symmetric distribution: its IQM is 0.8). With 5 seeds of 3 robots the
     stratified bootstrap's interval covered 0.8 in 91 of 100 draws when measured (3 seeds: 86, 10 seeds: 93)."""

@@ -20,6 +20,14 @@ from pipeline.learn.dqn import DuelingDQNPolicy, DuelingQNetwork, PerDQN
 from pipeline.learn.errors import PrioritizedReplayError
 from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 
+
+@pytest.fixture(autouse=True)
+def _sb3_logs_in_tmp(tmp_path: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """SB3's default logger makes a folder of its own in the system's temporary directory on every
+    ``_setup_learn``; here it goes to the test's temporary folder instead."""
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path / "sb3"))
+
+
 N_CELLS = 6
 GOAL = N_CELLS - 1
 LEFT, RIGHT = 0, 1
