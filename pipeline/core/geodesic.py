@@ -24,9 +24,18 @@ class DistanceField:
     """Shortest free-path distance (m) from any point of the room to one goal point."""
 
     def __init__(
-        self, scenario: Scenario, goal_xy: np.ndarray, resolution_m: float = 0.05, radius_m: float | None = None
+        self,
+        scenario: Scenario,
+        goal_xy: np.ndarray,
+        resolution_m: float = 0.05,
+        radius_m: float | None = None,
+        margin_m: float = 0.0,
     ) -> None:
-        """`radius_m`: the body kept clear of walls and boxes (default: the scenario's robot)."""
+        """`radius_m`: the body kept clear of walls and boxes (default: the scenario's robot).
+
+        `margin_m`: the path keeps this much more clearance where it can (an inflated map, as a costmap's
+        inflation); where the inflated map cuts a part of the room off from the goal, the field is the
+        plain map's."""
         room = scenario.room
         self.resolution_m = resolution_m
         self.x0, self.y0 = room.x_min_m, room.y_min_m
@@ -47,8 +56,21 @@ class DistanceField:
         )
         for box in scenario.obstacles:
             clear = np.minimum(clear, box_clearance(box, points))
-        free = (clear >= radius).reshape(nx, ny)
         goal = np.asarray(goal_xy, dtype=np.float64)
+        plain = (clear >= radius).reshape(nx, ny)
+        field = self._field(clear.reshape(nx, ny) >= radius + margin_m, goal, gx, gy) if margin_m > 0 else None
+        if field is None or not np.isfinite(field[plain]).all():
+            field = self._field(plain, goal, gx, gy)
+        self.values = field
+        gx_, gy_ = np.gradient(field, resolution_m)
+        # the free path leaves each point against the gradient of the distance
+        self.directions = np.arctan2(-gy_, -gx_)
+        self.unit = np.stack([np.cos(self.directions), np.sin(self.directions)], axis=-1)
+
+    def _field(self, free: np.ndarray, goal: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+        """Free-path distances to `goal` over the cells `free` (nx, ny); other cells take their nearest free
+        cell's value plus the distance to it (nan where no free path reaches the goal)."""
+        resolution_m = self.resolution_m
         # the goal's cell and the free cells around it are sources at their straight-line distance
         dist_to_goal = np.hypot(gx - goal[0], gy - goal[1])
         source = free & (dist_to_goal <= max(2 * resolution_m, 1e-9))
@@ -59,11 +81,7 @@ class DistanceField:
         if (~free).any() and free.any():
             gap, (ix, iy) = ndimage.distance_transform_edt(~free, return_indices=True)
             field = np.where(free, field, field[ix, iy] + gap * resolution_m)
-        self.values = field
-        gx_, gy_ = np.gradient(field, resolution_m)
-        # the free path leaves each point against the gradient of the distance
-        self.directions = np.arctan2(-gy_, -gx_)
-        self.unit = np.stack([np.cos(self.directions), np.sin(self.directions)], axis=-1)
+        return np.asarray(field)
 
     def _dijkstra(self, free: np.ndarray, source: np.ndarray, straight: np.ndarray) -> np.ndarray:
         nx, ny = free.shape

@@ -16,6 +16,7 @@ import numpy as np
 
 from pipeline.core.geodesic import DistanceField, GoalFields
 from pipeline.core.scenario import Scenario, box_clearance
+from pipeline.mappings import setting
 
 ProgressDistance = Literal["geodesic", "euclidean"]
 
@@ -33,6 +34,9 @@ class RewardWeights:
     team: float = 10.0
     collision: float = -10.0
     step: float = 0.0
+    path_clearance_m: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    """The free path that progress and heading follow keeps this much clearance (m) from walls and boxes
+    beyond the robot's radius, where the room allows (0: paths graze them)."""
 
 
 @dataclass(frozen=True)
@@ -83,7 +87,8 @@ class EpisodeJudge:
         """Judge against `scenario`'s goals and map from the next episode on (the same robots; another layout)."""
         self.scenario = scenario
         # a moving target's free-path field would change every step: a pursuit measures progress straight
-        self._fields = goal_fields(scenario) if self.distance == "geodesic" and not scenario.pursuit else None
+        geodesic = self.distance == "geodesic" and not scenario.pursuit
+        self._fields = goal_fields(scenario, self.weights.path_clearance_m) if geodesic else None
         self.goals = scenario.goals
         self.capture_m = scenario.target.capture_distance_m if scenario.target is not None else None
         self.half_goal_m = scenario.goal_size_m / 2
@@ -218,12 +223,13 @@ class EpisodeJudge:
 
 
 @lru_cache(maxsize=16)
-def goal_fields(scenario: Scenario) -> GoalFields:
-    """The free-path distance fields of every robot's goal (cached: scenarios are immutable; the last few
-    layouts, so that an episode's layout drawn and checked for reachability is not computed again)."""
+def goal_fields(scenario: Scenario, margin_m: float = 0.0) -> GoalFields:
+    """The free-path distance fields of every robot's goal, paths keeping `margin_m` beyond each robot's
+    radius where they can (cached: scenarios are immutable; the last few layouts, so that an episode's
+    layout drawn and checked for reachability is not computed again)."""
     return GoalFields(
         [
-            DistanceField(scenario, goal, radius_m=float(r))
+            DistanceField(scenario, goal, radius_m=float(r), margin_m=margin_m)
             for goal, r in zip(scenario.goals, scenario.radii, strict=True)
         ]
     )

@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.core.geodesic import DistanceField, GoalFields
 from pipeline.core.judge import EpisodeJudge, RewardWeights
-from pipeline.core.scenario import load_scenario
+from pipeline.core.scenario import box_clearance, load_scenario
 
 
 @pytest.fixture(scope="module")
@@ -61,3 +61,93 @@ def test_heading_term_rewards_turning_toward_the_path(obstacles):
     step = judge.step(turned, turned)
     np.testing.assert_allclose(step.terms["heading"], 2.0 * before, atol=1e-9)
     assert sum(step.robot_terms(0).values()) == float(step.reward[0])
+
+
+def _min_clearance_along_path(scenario, field, start, radius, steps=300, step_m=0.02):
+    """Follow the field's path direction from `start`; the smallest gap (m) between the body and a box."""
+    p, gap = np.array(start, dtype=float), np.inf
+    for _ in range(steps):
+        heading = field.direction(p[None])[0]
+        p = p + step_m * np.array([math.cos(heading), math.sin(heading)])
+        gap = min(gap, min(float(box_clearance(b, p[None])[0]) for b in scenario.obstacles) - radius)
+        if field(p[None])[0] < 0.1:
+            break
+    return gap, field(p[None])[0]
+
+
+def test_path_clearance_keeps_the_path_off_the_box(obstacles):
+    # robot_1's path runs past the box at (2.5, 1.0): the plain map's path grazes it, the inflated one keeps clear
+    radius = obstacles.robot.radius_m
+    plain = DistanceField(obstacles, obstacles.goals[0])
+    kept = DistanceField(obstacles, obstacles.goals[0], margin_m=0.15)
+    gap_plain, end_plain = _min_clearance_along_path(obstacles, plain, (1.9, 1.0), radius)
+    gap_kept, end_kept = _min_clearance_along_path(obstacles, kept, (1.9, 1.0), radius)
+    assert end_plain < 0.1 and end_kept < 0.1  # both paths arrive
+    assert gap_plain < 0.05
+    assert gap_kept > gap_plain + 0.05
+    # in open space the inflated map's distances stay the plain ones
+    far = np.array([[4.0, 0.5], [4.3, 0.5]])
+    np.testing.assert_allclose(kept(far), plain(far), atol=1e-9)
+
+
+def _wall_with_gap(gap_m):
+    """A 6 x 4 m room cut by a box from the top wall down to `gap_m` above the bottom wall."""
+    height = 4.0 - gap_m
+    return load_scenario(
+        {
+            "name": "gap",
+            "room": {
+                "x_min_m": 0.0,
+                "x_max_m": 6.0,
+                "y_min_m": 0.0,
+                "y_max_m": 4.0,
+                "wall_thickness_m": 0.1,
+                "wall_height_m": 0.5,
+            },
+            "robot": {
+                "radius_m": 0.165,
+                "height_m": 0.2,
+                "mass_kg": 5.0,
+                "wheel_separation_m": 0.281,
+                "wheel_diameter_m": 0.068,
+            },
+            "goal_size_m": 0.4,
+            "robots": [{"start": {"x_m": 1.0, "y_m": 2.0, "yaw_rad": 0.0}, "goal": {"x_m": 5.0, "y_m": 2.0}}],
+            "obstacles": [
+                {
+                    "kind": "box",
+                    "x_m": 3.0,
+                    "y_m": gap_m + height / 2,
+                    "size_x_m": 0.3,
+                    "size_y_m": height,
+                    "height_m": 0.4,
+                    "yaw_rad": 0.0,
+                }
+            ],
+        }
+    )
+
+
+def test_path_clearance_falls_back_where_the_inflated_map_cuts_the_goal_off():
+    # a 0.5 m gap: the robot (0.33 m across) passes, a path 0.15 m clear of both sides (0.63 m) does not
+    narrow = _wall_with_gap(0.5)
+    plain = DistanceField(narrow, narrow.goals[0])
+    kept = DistanceField(narrow, narrow.goals[0], margin_m=0.15)
+    start = narrow.starts[:, :2]
+    assert np.isfinite(kept(start)).all()
+    np.testing.assert_array_equal(kept.values, plain.values)
+    # a 1.2 m gap leaves room for the margin: the inflated map is used, and its path is no shorter
+    wide = _wall_with_gap(1.2)
+    plain_w = DistanceField(wide, wide.goals[0])
+    kept_w = DistanceField(wide, wide.goals[0], margin_m=0.15)
+    assert not np.array_equal(kept_w.values, plain_w.values)
+    assert kept_w(wide.starts[:, :2])[0] >= plain_w(wide.starts[:, :2])[0] - 1e-9
+
+
+def test_judge_follows_the_inflated_path_when_asked(obstacles):
+    plain = EpisodeJudge(obstacles, RewardWeights(), 350, 0.02, "geodesic")
+    kept = EpisodeJudge(obstacles, RewardWeights(path_clearance_m=0.15), 350, 0.02, "geodesic")
+    near_box = np.array([[2.1, 0.75, 0.0], [4.0, 2.0, math.pi], [1.0, 3.0, 0.0]])
+    expected = DistanceField(obstacles, obstacles.goals[0], margin_m=0.15).direction(near_box[:1, :2])[0]
+    assert kept.path_direction(near_box)[0] == pytest.approx(expected)
+    assert kept.path_direction(near_box)[0] != pytest.approx(plain.path_direction(near_box)[0], abs=1e-3)
