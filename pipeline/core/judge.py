@@ -20,7 +20,7 @@ from pipeline.mappings import setting
 
 ProgressDistance = Literal["geodesic", "euclidean"]
 
-REWARD_TERMS: tuple[str, ...] = ("progress", "heading", "goal", "team", "collision", "step")
+REWARD_TERMS: tuple[str, ...] = ("progress", "heading", "goal", "team", "collision", "step", "proximity")
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,10 @@ class RewardWeights:
     team: float = 10.0
     collision: float = -10.0
     step: float = 0.0
+    proximity: float = setting(0.0, le=0.0, optional=True)
+    """Per step while a robot's body is closer than `proximity_m` to a wall, box or robot: this much at
+    contact, falling linearly to 0 at `proximity_m` (0 turns it off)."""
+    proximity_m: float = setting(0.3, gt=0.0, le=2.0, optional=True)
     path_clearance_m: float = setting(0.0, ge=0.0, le=1.0, optional=True)
     """The free path that progress and heading follow keeps this much clearance (m) from walls and boxes
     beyond the robot's radius, where the room allows (0: paths graze them)."""
@@ -171,11 +175,12 @@ class EpisodeJudge:
         pose = truth_pose if truth_pose is not None else odom_pose
         self.steps += 1
         if truth_pose is not None:
-            hit = self.clearance(truth_pose) < self.margin_m
+            gap = self.clearance(truth_pose)
         elif ranges is not None:
-            hit = np.asarray(ranges).min(axis=1) < self.radius_m + self.margin_m
+            gap = np.asarray(ranges).min(axis=1) - self.radius_m
         else:
-            hit = np.zeros_like(active)
+            gap = np.full(len(active), np.inf)
+        hit = gap < self.margin_m
         arrived = self.in_goal(pose)
         new_collided = active & hit
         new_reached = active & arrived & ~hit
@@ -192,6 +197,7 @@ class EpisodeJudge:
             "team": zeros.copy(),
             "collision": np.where(new_collided, w.collision, 0.0),
             "step": np.where(active, w.step, 0.0),
+            "proximity": np.where(active, w.proximity * np.clip(1.0 - gap / w.proximity_m, 0.0, 1.0), 0.0),
         }
         self._prev_dist = np.where(active, dist, self._prev_dist)
         self._prev_heading_err = np.where(active, heading_err, self._prev_heading_err)

@@ -74,6 +74,8 @@ def test_wrong_type_is_reported_with_what_is_allowed(params_data, write_params, 
         ("control_period_s", 0.0, "> 0.0"),
         ("reward.path_clearance_m", -0.1, ">= 0.0"),
         ("reward.path_clearance_m", 2.0, "<= 1.0"),
+        ("reward.proximity", 0.5, "<= 0.0"),
+        ("reward.proximity_m", 0.0, "> 0.0"),
     ],
 )
 def test_out_of_range_values_fail_with_bounds(params_data, write_params, dotted, value, allowed):

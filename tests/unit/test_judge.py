@@ -96,3 +96,27 @@ def test_collision_beats_goal_in_the_same_step(judge):
     step = judge.step(pose, truth_pose=pose)
     assert judge.in_goal(pose)[0]
     assert step.collided[0] and not step.reached[0]
+
+
+def test_proximity_term_grows_linearly_to_contact():
+    weights = RewardWeights(proximity=-1.0, proximity_m=0.3)
+    judge = EpisodeJudge(load_scenario("obstacles"), weights, max_steps=350, collision_margin_m=0.02)
+    pose = judge.scenario.starts.copy()
+    judge.reset(pose)
+    radius = judge.scenario.robot.radius_m
+    pose[0, :2] = (1.0, radius + 0.15)  # robot_1 0.15 m from the bottom wall: half way in
+    pose[1, :2] = (4.0, 2.0)  # robot_2 in the open (the nearest box is 0.85 m off)
+    pose[2, :2] = (1.0, 4.0 - radius - 0.3)  # robot_3 just at the edge
+    step = judge.step(pose, truth_pose=pose)
+    np.testing.assert_allclose(step.terms["proximity"], [-0.5, 0.0, 0.0], atol=1e-9)
+    assert not step.collided.any()
+    # without ground truth the gap comes from the closest lidar return, as for collisions
+    lidar = EpisodeJudge(load_scenario("obstacles"), weights, max_steps=350, collision_margin_m=0.02)
+    lidar.reset(judge.scenario.starts)
+    ranges = np.full((3, 15), 4.0)
+    ranges[1, 3] = radius + 0.06
+    step = lidar.step(judge.scenario.starts, ranges=ranges)
+    np.testing.assert_allclose(step.terms["proximity"], [0.0, -0.8, 0.0], atol=1e-9)
+    # off by default; the terms still sum to the reward
+    assert RewardWeights().proximity == 0.0
+    assert float(step.reward[1]) == pytest.approx(sum(step.robot_terms(1).values()))
