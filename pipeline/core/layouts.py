@@ -78,11 +78,64 @@ def _wall_gap(scenario: Scenario, xy: np.ndarray) -> float:
     return float(min(xy[0] - room.x_min_m, room.x_max_m - xy[0], xy[1] - room.y_min_m, room.y_max_m - xy[1]))
 
 
-def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generator) -> tuple[Scenario | None, str]:
+def _box_problem(scenario: Scenario, box: Box, others: list[Box], c: float) -> str:
+    """Why `box` may not stand there among `others` ('' when it may)."""
     room = scenario.room
-    r = float(scenario.radii.max())  # every body kept as clear as the largest
+    corners = box_corners(box)
+    if (
+        corners[:, 0].min() < room.x_min_m + c
+        or corners[:, 0].max() > room.x_max_m - c
+        or corners[:, 1].min() < room.y_min_m + c
+        or corners[:, 1].max() > room.y_max_m - c
+    ):
+        return "a box reached within clearance_m of a wall"
+    if any(_box_gap(box, other) < c for other in others):
+        return "two boxes came within clearance_m of each other"
+    return ""
+
+
+def _goal_problem(scenario: Scenario, g: np.ndarray, boxes: list[Box], r: float, c: float) -> str:
+    room = scenario.room
+    half = scenario.goal_size_m / 2
+    if (
+        g[0] - half < room.x_min_m
+        or g[0] + half > room.x_max_m
+        or g[1] - half < room.y_min_m
+        or g[1] + half > room.y_max_m
+    ):
+        return "a goal square reached outside the room"
+    if _wall_gap(scenario, g) < r + c or any(box_clearance(b, g[None])[0] < r + c for b in boxes):
+        return "a goal centre came within a robot radius plus clearance_m of a wall or box"
+    return ""
+
+
+def _start_problem(
+    scenario: Scenario,
+    ranges: LayoutRanges,
+    s: np.ndarray,
+    goal: np.ndarray,
+    starts: list[np.ndarray],
+    goals: list[np.ndarray],
+    boxes: list[Box],
+    r: float,
+) -> str:
     c = ranges.clearance_m
     half = scenario.goal_size_m / 2
+    xy = s[:2]
+    if _wall_gap(scenario, xy) < r + c or any(box_clearance(b, xy[None])[0] < r + c for b in boxes):
+        return "a start came within a robot radius plus clearance_m of a wall or box"
+    if any(math.hypot(*(xy - o[:2])) < 2 * r + c for o in starts):
+        return "two starts came within two robot radii plus clearance_m"
+    if any(abs(xy[0] - g[0]) < half + r + c and abs(xy[1] - g[1]) < half + r + c for g in goals):
+        return "a start came within a robot radius plus clearance_m of a goal square"
+    if math.hypot(*(xy - goal)) < ranges.min_goal_distance_m:
+        return "a goal lay closer than min_goal_distance_m to its robot's start"
+    return ""
+
+
+def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generator) -> tuple[Scenario | None, str]:
+    r = float(scenario.radii.max())  # every body kept as clear as the largest
+    c = ranges.clearance_m
     boxes = list(scenario.obstacles)
     if ranges.move_boxes:
         boxes = []
@@ -93,45 +146,30 @@ def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generato
                 y_m=_uniform(rng, ranges.box_y_m),
                 yaw_rad=_uniform(rng, ranges.box_yaw_rad),
             )
-            corners = box_corners(moved)
-            if (
-                corners[:, 0].min() < room.x_min_m + c
-                or corners[:, 0].max() > room.x_max_m - c
-                or corners[:, 1].min() < room.y_min_m + c
-                or corners[:, 1].max() > room.y_max_m - c
-            ):
-                return None, "a box reached within clearance_m of a wall"
-            if any(_box_gap(moved, other) < c for other in boxes):
-                return None, "two boxes came within clearance_m of each other"
+            problem = _box_problem(scenario, moved, boxes, c)
+            if problem:
+                return None, problem
             boxes.append(moved)
     goals = []
     for _ in scenario.robots:
         g = np.array([_uniform(rng, ranges.goal_x_m), _uniform(rng, ranges.goal_y_m)])
-        if (
-            g[0] - half < room.x_min_m
-            or g[0] + half > room.x_max_m
-            or g[1] - half < room.y_min_m
-            or g[1] + half > room.y_max_m
-        ):
-            return None, "a goal square reached outside the room"
-        if _wall_gap(scenario, g) < r + c or any(box_clearance(b, g[None])[0] < r + c for b in boxes):
-            return None, "a goal centre came within a robot radius plus clearance_m of a wall or box"
+        problem = _goal_problem(scenario, g, boxes, r, c)
+        if problem:
+            return None, problem
         goals.append(g)
     starts: list[np.ndarray] = []
     for i, _ in enumerate(scenario.robots):
         s = np.array(
             [_uniform(rng, ranges.start_x_m), _uniform(rng, ranges.start_y_m), _uniform(rng, ranges.start_yaw_rad)]
         )
-        xy = s[:2]
-        if _wall_gap(scenario, xy) < r + c or any(box_clearance(b, xy[None])[0] < r + c for b in boxes):
-            return None, "a start came within a robot radius plus clearance_m of a wall or box"
-        if any(math.hypot(*(xy - o[:2])) < 2 * r + c for o in starts):
-            return None, "two starts came within two robot radii plus clearance_m"
-        if any(abs(xy[0] - g[0]) < half + r + c and abs(xy[1] - g[1]) < half + r + c for g in goals):
-            return None, "a start came within a robot radius plus clearance_m of a goal square"
-        if math.hypot(*(xy - goals[i])) < ranges.min_goal_distance_m:
-            return None, "a goal lay closer than min_goal_distance_m to its robot's start"
+        problem = _start_problem(scenario, ranges, s, goals[i], starts, goals, boxes, r)
+        if problem:
+            return None, problem
         starts.append(s)
+    if ranges.move_boxes and ranges.box_in_way_share > 0:
+        boxes, problem = _boxes_in_the_way(scenario, ranges, rng, boxes, starts, goals)
+        if problem:
+            return None, problem
     robots = tuple(
         RobotSpec(Pose2D(float(s[0]), float(s[1]), float(s[2])), Point2D(float(g[0]), float(g[1])))
         for s, g in zip(starts, goals, strict=True)
@@ -144,6 +182,46 @@ def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generato
     if not _reachable(layout):
         return None, "a goal could not be reached from its robot's start along free space"
     return layout, ""
+
+
+def _boxes_in_the_way(
+    scenario: Scenario,
+    ranges: LayoutRanges,
+    rng: np.random.Generator,
+    boxes: list[Box],
+    starts: list[np.ndarray],
+    goals: list[np.ndarray],
+) -> tuple[list[Box], str]:
+    """Each box, with probability `box_in_way_share`, moved onto a robot's straight way: between 35 % and 65 %
+    of the segment from its start to its goal, up to `box_in_way_offset_m` to either side (the draws are taken
+    after the rest of the layout, so a share of 0 leaves every layout as it was)."""
+    r = float(scenario.radii.max())
+    c = ranges.clearance_m
+    placed: list[Box] = []
+    for box in boxes:
+        if rng.uniform() >= ranges.box_in_way_share:
+            placed.append(box)
+            continue
+        i = int(rng.integers(len(starts)))
+        t = float(rng.uniform(0.35, 0.65))
+        side = float(rng.uniform(-ranges.box_in_way_offset_m, ranges.box_in_way_offset_m))
+        a, b = starts[i][:2], goals[i]
+        along = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+        centre = a + t * (b - a) + side * np.array([-along[1], along[0]])
+        placed.append(dataclasses.replace(box, x_m=float(centre[0]), y_m=float(centre[1])))
+    for k, box in enumerate(placed):
+        problem = _box_problem(scenario, box, placed[:k], c)
+        if problem:
+            return placed, problem
+    for g in goals:
+        problem = _goal_problem(scenario, g, placed, r, c)
+        if problem:
+            return placed, problem
+    for i, s in enumerate(starts):
+        problem = _start_problem(scenario, ranges, s, goals[i], starts[:i], goals, placed, r)
+        if problem:
+            return placed, problem
+    return placed, ""
 
 
 def _reachable(layout: Scenario) -> bool:

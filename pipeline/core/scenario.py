@@ -132,6 +132,11 @@ class LayoutRanges:
     move_boxes: bool = setting(True, optional=True)
     """False: the boxes stay where `obstacles` puts them (box ranges unused)."""
     min_goal_distance_m: float = setting(1.0, ge=0.0, optional=True)
+    box_in_way_share: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    """Each box lands on a robot's straight way from its start to its goal with this probability (0: boxes
+    anywhere in their ranges)."""
+    box_in_way_offset_m: float = setting(0.15, ge=0.0, le=2.0, optional=True)
+    """How far to either side of that straight way such a box may stand."""
     clearance_m: float = setting(0.1, ge=0.0, optional=True)
     tries: int = setting(1000, ge=1, le=1_000_000, optional=True)
 

@@ -135,3 +135,57 @@ def test_fixed_layouts_keep_the_scenario_and_training_seeds_stay_apart_from_eval
 def test_random_layouts_need_an_observation_with_the_goal():
     with pytest.raises(ConfigError, match=r"observation = 'paper': rich: scenario 'obstacles_random' draws a layout"):
         make_world(world=world_config({**RICH, "observation": "paper"}))
+
+
+def _in_way_share(share: float, tmp_path, offset: float = 0.15):
+    data = read_yaml(load_scenario_path("obstacles_random"))
+    data["layouts"]["box_in_way_share"] = share
+    data["layouts"]["box_in_way_offset_m"] = offset
+    path = tmp_path / f"in_way_{share}.yaml"
+    path.write_text(__import__("yaml").safe_dump(data))
+    return load_scenario(path)
+
+
+def _on_a_way(box, lay, offset: float) -> bool:
+    """Whether the box centre lies 35-65 % of the way from some robot's start to its goal, within `offset` of it."""
+    for start, goal in zip(lay.starts[:, :2], lay.goals, strict=True):
+        d = goal - start
+        length = float(np.hypot(*d))
+        u = d / length
+        p = np.array([box.x_m, box.y_m]) - start
+        t = float(p @ u) / length
+        side = abs(float(p @ np.array([-u[1], u[0]])))
+        if 0.35 - 1e-9 <= t <= 0.65 + 1e-9 and side <= offset + 1e-9:
+            return True
+    return False
+
+
+def test_boxes_put_in_the_way_lie_on_a_robots_straight_way_and_keep_the_layout_valid(scenario, tmp_path):
+    every = _in_way_share(1.0, tmp_path)
+    r, c = scenario.robot.radius_m, scenario.layouts.clearance_m
+    for seed in range(40):
+        lay = draw_layout(every, seed)
+        assert lay == draw_layout(every, seed)
+        lay.validate()
+        for box in lay.obstacles:
+            assert _on_a_way(box, lay, 0.15), f"seed {seed}: a box off every robot's way"
+            assert box_clearance(box, lay.starts[:, :2]).min() >= r + c
+            assert box_clearance(box, lay.goals).min() >= r + c
+        assert np.all(np.isfinite(goal_fields(lay).distance(lay.starts[:, :2])))
+    # the uniform draws stay as they were: a share of 0 is the bundled scenario's layouts, bit for bit
+    none = _in_way_share(0.0, tmp_path)
+    assert all(draw_layout(none, seed) == draw_layout(scenario, seed) for seed in range(20))
+    # a share in between puts some boxes in the way, more than the uniform draw does by chance
+    half = _in_way_share(0.5, tmp_path)
+    on = sum(_on_a_way(b, lay, 0.15) for lay in (draw_layout(half, s) for s in range(60)) for b in lay.obstacles)
+    by_chance = sum(
+        _on_a_way(b, lay, 0.15) for lay in (draw_layout(scenario, s) for s in range(60)) for b in lay.obstacles
+    )
+    assert on > by_chance + 30
+
+
+def test_a_share_outside_zero_to_one_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        _in_way_share(1.5, tmp_path)
+    assert "in_way_1.5.yaml" in str(err.value)
+    assert "layouts.box_in_way_share = 1.5: a value >= 0.0 and <= 1.0" in str(err.value)
