@@ -16,7 +16,7 @@ import numpy as np
 
 from pipeline.core.actions import ActionCodec
 from pipeline.core.judge import EpisodeJudge, ProgressDistance, RewardWeights
-from pipeline.core.observation import LayoutName, ObservationBuilder, ObservationLayout
+from pipeline.core.observation import LayoutName, ObservationBuilder, ObservationLayout, ObservedPose
 from pipeline.core.scan import Reduction
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
@@ -24,6 +24,7 @@ from pipeline.params import ActionConfig, WorldConfig
 
 _WORLD_KEYS = {
     "observation": "world.observation",
+    "observed_pose": "world.observed_pose",
     "beams": "world.lidar.beams",
     "range_min_m": "world.lidar.range_min_m",
     "range_max_m": "world.lidar.range_max_m",
@@ -46,6 +47,7 @@ class MdpDefinition:
     that build it, actions, reward, control period, step limit, collision margin, progress measure."""
 
     observation: LayoutName
+    observed_pose: ObservedPose
     beams: int
     range_min_m: float
     range_max_m: float
@@ -62,6 +64,7 @@ class MdpDefinition:
         lidar = world.lidar
         return cls(
             observation=world.observation,
+            observed_pose=world.observed_pose,
             beams=lidar.beams,
             range_min_m=lidar.range_min_m,
             range_max_m=lidar.range_max_m,

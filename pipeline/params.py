@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pipeline.core.actions import ActionCodec, ActionKind
 from pipeline.core.judge import ProgressDistance, RewardWeights
-from pipeline.core.observation import LayoutName, ObservationLayout
+from pipeline.core.observation import LayoutName, ObservationLayout, ObservedPose
 from pipeline.core.scan import Reduction
 from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mappings import bounds_text, from_mapping, in_bounds, merge, read_yaml, setting, to_mapping
@@ -167,6 +167,9 @@ class WorldConfig:
     progress_distance: ProgressDistance = setting("geodesic")
     """Progress toward the goal is measured along the free path (geodesic) or in a straight line."""
     observation: LayoutName = setting("paper")
+    observed_pose: ObservedPose = setting("odometry", optional=True)
+    """The pose the observation is built from: the robots' wheel odometry (the paper's), or ground truth (a
+    localized robot: motion capture on a fleet, the simulator's truth)."""
     layouts: Literal["random", "fixed"] = setting("random", optional=True)
     """random: a scenario with layouts ranges draws each episode's layout from them; fixed: its own layout."""
     lidar: LidarConfig = setting(LidarConfig())

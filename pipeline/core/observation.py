@@ -24,6 +24,8 @@ from pipeline.core.scan import Reduction, ScanGeometry, reduce_scan
 from pipeline.core.scenario import Scenario
 
 LayoutName = Literal["paper", "rich", "rich_limits"]
+ObservedPose = Literal["odometry", "ground_truth"]
+"""Where an observation's pose comes from: wheel odometry, or ground truth (motion capture, the simulator)."""
 LAYOUTS: tuple[LayoutName, ...] = ("paper", "rich", "rich_limits")
 
 _FIELDS: dict[str, tuple[tuple[str, int], ...]] = {

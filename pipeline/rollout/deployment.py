@@ -132,6 +132,11 @@ def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scen
             f"scenario {scenario.name!r} is a pursuit: the policy needs the target's pose from motion capture "
             f"({T.TARGET_TRUTH.name}), and the fleet has none (timing.use_ground_truth is false)"
         )
+    if runtime.spec.mdp.observed_pose == "ground_truth" and not fleet.timing.use_ground_truth:
+        problems.append(
+            "the policy observes the robots' ground-truth poses (world.observed_pose: ground_truth), and the fleet "
+            "has no motion capture (timing.use_ground_truth is false)"
+        )
     if scenario.pursuit and runtime.layout.name == "paper":
         problems.append(f"scenario {scenario.name!r} is a pursuit and the policy's observation ('paper') has no goal")
     if scenario.layouts is not None and fleet.target == "robots":

@@ -78,6 +78,7 @@ class DeployRunner:
         twin draws it (:mod:`pipeline.core.layouts`)."""
         self.period_ns = self.mdp.period_ns
         self.use_truth = fleet.timing.use_ground_truth
+        self.observe_truth = self.mdp.definition.observed_pose == "ground_truth"
         self.handshake = ResetHandshake(
             lambda episode, seed: self.link.publish_reset(episode, seed),
             fleet.timing.reset_timeout_s,
@@ -268,7 +269,7 @@ class DeployRunner:
             scans, geoms, odom_raw, truth = self.samples.arrays(state)
             odom = self.odometry.to_map(odom_raw)
             self._track()
-            observed = self.builder.build(scans, geoms, odom)
+            observed = self.builder.build(scans, geoms, truth if self.observe_truth and truth is not None else odom)
             if step > 0:
                 judged = self.judge.step(odom, truth, observed.ranges)
                 tally.log_events(self.log, t, step, judged)

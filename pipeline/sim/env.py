@@ -65,7 +65,8 @@ class MultiRobotSim:
 
     def _observe(self) -> np.ndarray:
         self.raw_scan = self.world.scan()
-        observed = self.observer.build(self.raw_scan, self.world.scan_geometry, self.world.odometry.pose)
+        pose = self.world.truth if self.mdp.definition.observed_pose == "ground_truth" else self.world.odometry.pose
+        observed = self.observer.build(self.raw_scan, self.world.scan_geometry, pose)
         self.ranges, self.obs = observed.ranges, observed.obs
         return self.obs
 
