@@ -73,15 +73,18 @@ def first_contact(layout: Scenario, trajectory: np.ndarray, i: int, margin_m: fl
     return "unknown", len(trajectory) - 1, float("nan"), float("nan")
 
 
-def sort_failures(scenario: Scenario, results: list[EpisodeResult], margin_m: float) -> dict[str, object]:
-    """Counts and figures of the failed robot-episodes of `results` (random layouts drawn from their seeds)."""
+def sort_failures(
+    scenario: Scenario, results: list[EpisodeResult], margin_m: float, random_layouts: bool = True
+) -> dict[str, object]:
+    """Counts and figures of the failed robot-episodes of `results` (with `random_layouts`, each episode's
+    layout drawn from its seed)."""
     hits: Counter[str] = Counter()
     reversing = early = 0
     side = 0
     end_dist: list[float] = []
     stalled = 0
     for r in results:
-        layout = draw_layout(scenario, r.seed) if scenario.layouts is not None else scenario
+        layout = draw_layout(scenario, r.seed) if random_layouts else scenario
         fields = goal_fields(layout)
         for i in np.flatnonzero(r.collided):
             what, step, forward, bearing = first_contact(layout, r.trajectory, int(i), margin_m)
@@ -112,18 +115,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", type=Path, required=True, help="an exported policy folder")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=10000, help="the first evaluation seed")
+    parser.add_argument(
+        "--scenario", default=None, help="judge in this scenario (the same robots) instead of the policy's own"
+    )
+    parser.add_argument("--layouts", choices=("random", "fixed"), default=None, help="default: the policy's")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         raise SystemExit("--episodes must be at least 1")
 
     runtime = PolicyRuntime(args.policy)
     world = replace(runtime.spec.world, randomize=RandomizeConfig())
+    if args.scenario is not None:
+        world = replace(world, scenario=args.scenario)
+    if args.layouts is not None:
+        world = replace(world, layouts=args.layouts)
     scenario, world = make_world(world=world)
-    results = evaluate(MultiRobotSim(scenario, world), runtime.actions, args.episodes, args.seed, progress=True)
+    sim = MultiRobotSim(scenario, world)
+    results = evaluate(sim, runtime.actions, args.episodes, args.seed, progress=True)
     m = summarize(results)
-    s = sort_failures(scenario, results, world.collision_margin_m)
+    s = sort_failures(scenario, results, world.collision_margin_m, sim.random_layouts)
     n = s["robot_episodes"]
-    print(f"{scenario.name}: {args.episodes} episodes, {n} robot-episodes, world values")
+    print(f"{scenario.name} ({world.layouts} layouts): {args.episodes} episodes, {n} robot-episodes, world values")
     low, high = m["eval/robot_success_ci_low"], m["eval/robot_success_ci_high"]
     print(f"robot success {m['eval/robot_success']:.3f} [{low:.3f}, {high:.3f}]")
     print(
