@@ -197,7 +197,9 @@ class EpisodeJudge:
             "team": zeros.copy(),
             "collision": np.where(new_collided, w.collision, 0.0),
             "step": np.where(active, w.step, 0.0),
-            "proximity": np.where(active, w.proximity * np.clip(1.0 - gap / w.proximity_m, 0.0, 1.0), 0.0),
+            "proximity": np.where(active, w.proximity * _closeness(gap, w.proximity_m), 0.0)
+            if w.proximity
+            else zeros.copy(),
         }
         self._prev_dist = np.where(active, dist, self._prev_dist)
         self._prev_heading_err = np.where(active, heading_err, self._prev_heading_err)
@@ -226,6 +228,12 @@ class EpisodeJudge:
             team_success=self.team_success,
             events=events,
         )
+
+
+def _closeness(gap: np.ndarray, within_m: float) -> np.ndarray:
+    """1 at contact falling linearly to 0 at `within_m` of free space (0 where the gap is unknown)."""
+    known = np.nan_to_num(np.asarray(gap, dtype=np.float64), nan=np.inf)
+    return np.asarray(np.clip(1.0 - known / within_m, 0.0, 1.0))
 
 
 @lru_cache(maxsize=16)

@@ -117,6 +117,13 @@ def test_proximity_term_grows_linearly_to_contact():
     ranges[1, 3] = radius + 0.06
     step = lidar.step(judge.scenario.starts, ranges=ranges)
     np.testing.assert_allclose(step.terms["proximity"], [0.0, -0.8, 0.0], atol=1e-9)
+    # a robot whose scan has no valid return is not penalized (nor is its reward nan)
+    blank = EpisodeJudge(load_scenario("obstacles"), weights, max_steps=350, collision_margin_m=0.02)
+    blank.reset(judge.scenario.starts)
+    unknown = np.full((3, 15), 4.0)
+    unknown[0] = np.nan
+    quiet = blank.step(judge.scenario.starts, ranges=unknown)
+    assert np.isfinite(quiet.reward).all() and quiet.terms["proximity"][0] == 0.0
     # off by default; the terms still sum to the reward
     assert RewardWeights().proximity == 0.0
     assert float(step.reward[1]) == pytest.approx(sum(step.robot_terms(1).values()))
