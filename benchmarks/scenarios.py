@@ -90,10 +90,19 @@ def main() -> None:
     parser.add_argument("--profile", default="lab", help="the twin's reality profile")
     parser.add_argument("--time-scale", type=float, default=3.0, help="1 for the timing targets")
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument(
+        "--scenario",
+        default=None,
+        help="judge the policy in the simulator in this scenario (the same robots) instead of its own, e.g. the "
+        "layouts it was not trained on (needs --twin-episodes 0: a deployment drives in the policy's scenario)",
+    )
     args = parser.parse_args()
+    if args.scenario is not None and args.twin_episodes:
+        parser.error("--scenario needs --twin-episodes 0: a deployment drives in the policy's own scenario")
 
     runtime = PolicyRuntime(args.policy)
-    scenario, world = make_world(world=runtime.spec.world)
+    own = runtime.spec.world
+    scenario, world = make_world(world=own if args.scenario is None else replace(own, scenario=args.scenario))
     train_file = args.policy.parent / "train_metrics.json"
     if train_file.exists():
         trained = json.loads(train_file.read_text())
