@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.cli import run_stage
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.judge import goal_fields
 from pipeline.core.layouts import draw_layout
@@ -158,4 +159,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_stage("layout_failures", main))

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Literal
@@ -32,6 +33,7 @@ import numpy as np
 import yaml
 
 from pipeline.analysis.timing import timing_figures
+from pipeline.cli import run_stage
 from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
 from pipeline.params import EvalSimConfig, RandomizeConfig
 from pipeline.policy.runtime import PolicyRuntime
@@ -73,7 +75,7 @@ def twin_fleet(path: Path, scenario: str, names: tuple[str, ...], limits: np.nda
     return path
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--policy", type=Path, required=True, help="an exported policy folder (policy.json)")
     parser.add_argument(
@@ -140,7 +142,7 @@ def main() -> None:
             sim_success = metrics[f"eval/{key}"]
     if args.twin_episodes == 0:
         print(f"scenario={scenario.name} sim_{key}={sim_success:.4f}")
-        return
+        return 0
 
     fleet_file = args.fleet or str(
         twin_fleet(args.out / "fleet.yaml", world.scenario, scenario.robot_names, limits, args.domain_id)
@@ -165,7 +167,8 @@ def main() -> None:
         f"scenario={scenario.name} sim_{key}={sim_success:.4f} twin_{key}={outcome.metrics[f'real/{key}']:.4f} "
         f"jitter_p99_ms={timing.tick_jitter_p99_ms:.3f} skew_p99_ms={timing.skew_p99_ms:.3f}"
     )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_stage("scenarios", main))
