@@ -38,12 +38,13 @@ from pipeline.sim.env import MultiRobotSim
 COLLISION_GAP_M = 0.02
 
 
-def first_contact(layout: Scenario, trajectory: np.ndarray, i: int, margin_m: float) -> tuple[str, int, float, float]:
+def first_contact(
+    layout: Scenario, trajectory: np.ndarray, i: int, margin_m: float, period_s: float
+) -> tuple[str, int, float, float]:
     """(what: wall | box | robot, step, forward speed m/s, bearing of what was hit in degrees, nan for a wall)
     at the first step where robot i's body comes within `margin_m` of something."""
     radii = layout.radii
     room = layout.room
-    dt = 0.1
     for t in range(1, len(trajectory)):
         xy = trajectory[t, :, :2]
         gaps: list[tuple[float, str, np.ndarray | None]] = [
@@ -64,7 +65,7 @@ def first_contact(layout: Scenario, trajectory: np.ndarray, i: int, margin_m: fl
         gap, what, where = min(gaps, key=lambda g: g[0])
         if gap < margin_m:
             yaw = trajectory[t, i, 2]
-            v = (trajectory[t, i, :2] - trajectory[t - 1, i, :2]) / dt
+            v = (trajectory[t, i, :2] - trajectory[t - 1, i, :2]) / period_s
             forward = float(np.cos(yaw) * v[0] + np.sin(yaw) * v[1])
             bearing = float("nan")
             if where is not None:
@@ -75,7 +76,7 @@ def first_contact(layout: Scenario, trajectory: np.ndarray, i: int, margin_m: fl
 
 
 def sort_failures(
-    scenario: Scenario, results: list[EpisodeResult], margin_m: float, random_layouts: bool = True
+    scenario: Scenario, results: list[EpisodeResult], margin_m: float, period_s: float, random_layouts: bool = True
 ) -> dict[str, object]:
     """Counts and figures of the failed robot-episodes of `results` (with `random_layouts`, each episode's
     layout drawn from its seed)."""
@@ -88,14 +89,14 @@ def sort_failures(
         layout = draw_layout(scenario, r.seed) if random_layouts else scenario
         fields = goal_fields(layout)
         for i in np.flatnonzero(r.collided):
-            what, step, forward, bearing = first_contact(layout, r.trajectory, int(i), margin_m)
+            what, step, forward, bearing = first_contact(layout, r.trajectory, int(i), margin_m, period_s)
             hits[what] += 1
             reversing += forward < -0.05
-            early += step <= 30
+            early += step * period_s <= 3.0
             side += bool(np.isfinite(bearing) and 45 <= abs(bearing) <= 135)
         for i in np.flatnonzero(~r.reached & ~r.collided):
             end_dist.append(float(fields.distance(r.trajectory[-1:, :, :2][0])[i]))
-            last = r.trajectory[-100:, i, :2]
+            last = r.trajectory[-round(10.0 / period_s) :, i, :2]
             stalled += float(np.hypot(*np.diff(last, axis=0).T).sum()) < 0.3
     n = sum(len(r.reached) for r in results)
     return {
@@ -109,6 +110,11 @@ def sort_failures(
         "timeouts_within_0_6_m": int(sum(d <= 0.6 for d in end_dist)),
         "timeouts_stalled": stalled,
     }
+
+
+def _success(m: dict[str, float]) -> str:
+    low, high = m["eval/robot_success_ci_low"], m["eval/robot_success_ci_high"]
+    return f"robot success {m['eval/robot_success']:.3f} [{low:.3f}, {high:.3f}]"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,11 +140,10 @@ def main(argv: list[str] | None = None) -> int:
     sim = MultiRobotSim(scenario, world)
     results = evaluate(sim, runtime.actions, args.episodes, args.seed, progress=True)
     m = summarize(results)
-    s = sort_failures(scenario, results, world.collision_margin_m, sim.random_layouts)
+    s = sort_failures(scenario, results, world.collision_margin_m, world.control_period_s, sim.random_layouts)
     n = s["robot_episodes"]
     print(f"{scenario.name} ({world.layouts} layouts): {args.episodes} episodes, {n} robot-episodes, world values")
-    low, high = m["eval/robot_success_ci_low"], m["eval/robot_success_ci_high"]
-    print(f"robot success {m['eval/robot_success']:.3f} [{low:.3f}, {high:.3f}]")
+    print(_success(m))
     print(
         f"collisions {s['collisions']} ({s['hit']}): reversing {s['reversing']}, in the first 3 s {s['in_first_3_s']}, "
         f"side-on (45-135 deg) {s['side_on']}"
@@ -149,10 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     exact = replace(world, odometry=OdometryConfig(drift_per_m=0.0))
     exact_results = evaluate(MultiRobotSim(scenario, exact), runtime.actions, args.episodes, args.seed, progress=True)
-    e = summarize(exact_results)
     print(
-        f"with exact odometry: robot success {e['eval/robot_success']:.3f} "
-        f"[{e['eval/robot_success_ci_low']:.3f}, {e['eval/robot_success_ci_high']:.3f}] "
+        f"with exact odometry: {_success(summarize(exact_results))} "
         f"(odometry drift {world.odometry.drift_per_m} per m otherwise)"
     )
     return 0

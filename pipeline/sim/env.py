@@ -45,6 +45,7 @@ class MultiRobotSim:
         self.codec = self.mdp.codec
         self.observer = self.mdp.observer
         self.judge = self.mdp.judge
+        self._observe_truth = self.mdp.definition.observed_pose == "ground_truth"
         self.n = scenario.n_robots
         self.obs_low, self.obs_high = self.observer.low, self.observer.high
         self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))
@@ -65,7 +66,7 @@ class MultiRobotSim:
 
     def _observe(self) -> np.ndarray:
         self.raw_scan = self.world.scan()
-        pose = self.world.truth if self.mdp.definition.observed_pose == "ground_truth" else self.world.odometry.pose
+        pose = self.world.truth if self._observe_truth else self.world.odometry.pose
         observed = self.observer.build(self.raw_scan, self.world.scan_geometry, pose)
         self.ranges, self.obs = observed.ranges, observed.obs
         return self.obs

@@ -10,6 +10,7 @@ import pytest
 from pipeline.core.geodesic import DistanceField, GoalFields
 from pipeline.core.judge import EpisodeJudge, RewardWeights
 from pipeline.core.scenario import box_clearance, load_scenario
+from pipeline.mappings import to_mapping
 
 
 @pytest.fixture(scope="module")
@@ -91,41 +92,13 @@ def test_path_clearance_keeps_the_path_off_the_box(obstacles):
 
 
 def _wall_with_gap(gap_m):
-    """A 6 x 4 m room cut by a box from the top wall down to `gap_m` above the bottom wall."""
+    """The empty 6 x 4 m room with one robot, cut by a box from the top wall down to `gap_m` above the bottom."""
     height = 4.0 - gap_m
-    return load_scenario(
-        {
-            "name": "gap",
-            "room": {
-                "x_min_m": 0.0,
-                "x_max_m": 6.0,
-                "y_min_m": 0.0,
-                "y_max_m": 4.0,
-                "wall_thickness_m": 0.1,
-                "wall_height_m": 0.5,
-            },
-            "robot": {
-                "radius_m": 0.165,
-                "height_m": 0.2,
-                "mass_kg": 5.0,
-                "wheel_separation_m": 0.281,
-                "wheel_diameter_m": 0.068,
-            },
-            "goal_size_m": 0.4,
-            "robots": [{"start": {"x_m": 1.0, "y_m": 2.0, "yaw_rad": 0.0}, "goal": {"x_m": 5.0, "y_m": 2.0}}],
-            "obstacles": [
-                {
-                    "kind": "box",
-                    "x_m": 3.0,
-                    "y_m": gap_m + height / 2,
-                    "size_x_m": 0.3,
-                    "size_y_m": height,
-                    "height_m": 0.4,
-                    "yaw_rad": 0.0,
-                }
-            ],
-        }
-    )
+    data = to_mapping(load_scenario("empty"))
+    data["robots"] = [{"start": {"x_m": 1.0, "y_m": 2.0, "yaw_rad": 0.0}, "goal": {"x_m": 5.0, "y_m": 2.0}}]
+    box = {"kind": "box", "x_m": 3.0, "y_m": gap_m + height / 2, "size_x_m": 0.3, "size_y_m": height}
+    data["obstacles"] = [{**box, "height_m": 0.4, "yaw_rad": 0.0}]
+    return load_scenario(data)
 
 
 def test_path_clearance_falls_back_where_the_inflated_map_cuts_the_goal_off():

@@ -28,13 +28,13 @@ def _reversing_into_the_box(steps: int = 40) -> np.ndarray:
 
 def test_first_contact_names_what_was_hit_and_how() -> None:
     scenario = load_scenario("obstacles")
-    what, step, forward, bearing = first_contact(scenario, _reversing_into_the_box(), 0, 0.02)
+    what, step, forward, bearing = first_contact(scenario, _reversing_into_the_box(), 0, 0.02, 0.1)
     # the body's gap to the box edge (x = 2.35) drops under 0.02 m at x = 2.18, step 6
     assert (what, step) == ("box", 6)
     assert forward == pytest.approx(-0.3)
     assert abs(bearing) == pytest.approx(180.0)
     # a robot that never comes near anything has no contact
-    assert first_contact(scenario, _reversing_into_the_box(), 1, 0.02)[0] == "unknown"
+    assert first_contact(scenario, _reversing_into_the_box(), 1, 0.02, 0.1)[0] == "unknown"
 
 
 def test_failures_are_sorted_into_collisions_and_timeouts() -> None:
@@ -51,7 +51,7 @@ def test_failures_are_sorted_into_collisions_and_timeouts() -> None:
         team_success=False,
         trajectory=trajectory,
     )
-    sorted_ = sort_failures(scenario, [result], 0.02)
+    sorted_ = sort_failures(scenario, [result], 0.02, 0.1)
     assert sorted_["robot_episodes"] == 3
     assert sorted_["collisions"] == 1 and sorted_["hit"] == {"box": 1}
     assert sorted_["reversing"] == 1 and sorted_["in_first_3_s"] == 1 and sorted_["side_on"] == 0
