@@ -8,6 +8,9 @@ For an exported policy (`--policy`, trained with `python stages/train.py` on the
 - a twin deployment over DDS on loopback (`--fleet`, a fleet file of the same scenario, `--profile`,
   `--time-scale`), `--twin-episodes` episodes; for random layouts the twin places robots and boxes at the
   layout drawn from each episode's seed;
+- `--scenario S`: both in scenario S instead of the policy's own (the twin only where S is another layout
+  draw of the room and robots a random-layout policy was trained in), e.g. held-out uniform layouts for a
+  policy trained with boxes on the robots' way;
 - the emitter/receiver timing of that deployment from its recorded /mrl/timing (tick jitter p99 and
   cross-robot send skew p99; targets 1 ms and 0.5 ms, meaningful at time scale 1).
 
@@ -95,12 +98,10 @@ def main() -> int:
     parser.add_argument(
         "--scenario",
         default=None,
-        help="judge the policy in the simulator in this scenario (the same robots) instead of its own, e.g. the "
-        "layouts it was not trained on (needs --twin-episodes 0: a deployment drives in the policy's scenario)",
+        help="judge the policy in this scenario instead of its own, e.g. the layouts it was not trained on: in the "
+        "simulator, and on the twin when the policy was trained on random layouts of the same room and robots",
     )
     args = parser.parse_args()
-    if args.scenario is not None and args.twin_episodes:
-        parser.error("--scenario needs --twin-episodes 0: a deployment drives in the policy's own scenario")
 
     runtime = PolicyRuntime(args.policy)
     own = runtime.spec.world

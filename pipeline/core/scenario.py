@@ -220,6 +220,26 @@ class Scenario:
     def diagonal_m(self) -> float:
         return math.hypot(self.room.x_max_m - self.room.x_min_m, self.room.y_max_m - self.room.y_min_m)
 
+    def beyond_layout(self, other: Scenario) -> list[str]:
+        """What in `other` is more than another layout of this room and robots, one line each; [] when the two
+        differ at most in their name, starts, goals, box poses and layouts ranges (a policy that learned to
+        drive in any layout of this room meets nothing new there)."""
+        out = []
+        for key in ("room", "robot", "goal_size_m", "target"):
+            if getattr(self, key) != getattr(other, key):
+                out.append(f"{key} differs")
+        if self.n_robots != other.n_robots:
+            out.append(f"{self.n_robots} robots vs {other.n_robots}")
+        else:
+            for name, mine, theirs in zip(self.robot_names, self.robots, other.robots, strict=True):
+                limits = (mine.shape, mine.v_max_mps, mine.w_max_radps)
+                if limits != (theirs.shape, theirs.v_max_mps, theirs.w_max_radps):
+                    out.append(f"{name}'s body or speed limits differ")
+        sizes = [(b.kind, b.size_x_m, b.size_y_m, b.height_m) for b in self.obstacles]
+        if sizes != [(b.kind, b.size_x_m, b.size_y_m, b.height_m) for b in other.obstacles]:
+            out.append(f"other obstacles ({len(self.obstacles)} vs {len(other.obstacles)}, or other sizes)")
+        return out
+
     def with_robots(self, n: int) -> Scenario:
         """The same scenario with only its first `n` robots."""
         if not 1 <= n <= self.n_robots:

@@ -120,9 +120,18 @@ def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scen
     more than a robot's velocity limits (its commands would be clamped: another action space)."""
     runtime.check_fits(fleet.names, runtime.layout)
     problems = []
-    trained = runtime.spec.scenario.name
-    if trained != scenario.name:
-        problems.append(f"it was trained in scenario {trained!r}, the fleet drives in {scenario.name!r}")
+    trained = runtime.spec.scenario
+    if trained.name != scenario.name:
+        # a policy trained on layouts drawn per episode may drive any other layout of the same room and robots
+        beyond = trained.beyond_layout(scenario)
+        if trained.layouts is None or beyond:
+            why = (
+                f" ({'; '.join(beyond)})"
+                if beyond
+                else " (it was trained on one fixed layout; a policy trained on layouts ranges may drive another "
+                "layout of its room and robots)"
+            )
+            problems.append(f"it was trained in scenario {trained.name!r}, the fleet drives in {scenario.name!r}{why}")
     if scenario.layouts is not None and runtime.layout.name == "paper":
         problems.append(
             f"scenario {scenario.name!r} draws a layout per episode and the policy's observation ('paper') has no goal"

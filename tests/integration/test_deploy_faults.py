@@ -244,3 +244,13 @@ def test_a_world_scenario_other_than_the_fleets_is_refused_not_ignored(tiny_poli
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "world.scenario is 'empty'" in done.stderr and "drives in 'obstacles'" in done.stderr
     assert not (tmp_path / "real").exists()
+
+
+def test_a_fixed_layout_policy_in_another_scenario_is_refused_before_anything_moves(tiny_policy, tmp_path):
+    from pipeline.policy.errors import PolicyMismatch
+
+    fleet = write_fleet(tmp_path / "fleet.yaml", scenario="obstacles_random")
+    request = DeployRequest(episodes=1, seed=0, recording=tmp_path / "session.mcap", progress=False)
+    with pytest.raises(PolicyMismatch, match=r"trained in scenario 'obstacles'.*'obstacles_random'.*one fixed layout"):
+        deploy_session(PolicyRuntime(tiny_policy), load_fleet(fleet), str(fleet), request, tmp_path / "real")
+    assert not (tmp_path / "session.mcap").exists()

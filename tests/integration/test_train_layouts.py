@@ -73,6 +73,7 @@ def test_the_twin_and_the_runner_play_each_episode_in_the_layout_drawn_from_its_
     seed; the twin places its robots and boxes there, the runner judges and records it."""
     from pipeline.calibration import calibrate
     from pipeline.calibration.errors import CalibrationError
+    from pipeline.policy.errors import PolicyMismatch
     from pipeline.rollout.deployment import DeployRequest, deploy_policy
     from pipeline.ros.fleet import load_fleet
     from tests.integration.conftest import write_fleet
@@ -101,6 +102,25 @@ def test_the_twin_and_the_runner_play_each_episode_in_the_layout_drawn_from_its_
         first = next(msg for t, msg in truth if t >= map_msg.log_time_ns)
         at = np.array([first.pose.position.x, first.pose.position.y])
         assert np.hypot(*(at - layout.starts[0, :2])) < 0.05
+
+    # a policy trained on drawn layouts drives another draw of the same room and robots (boxes on the robots'
+    # way): the twin and the runner play that draw's layout
+    runtime = PolicyRuntime(tmp_path / "policy")
+    in_way = make_world(world=world_config({**WORLD, "scenario": "obstacles_random_in_way"}))[0]
+    seed = next(s for s in range(100) if draw_layout(in_way, s).obstacles != draw_layout(scenario, s).obstacles)
+    other = write_fleet(tmp_path / "in_way.yaml", scenario="obstacles_random_in_way")
+    again = DeployRequest(episodes=1, seed=seed, recording=tmp_path / "in_way.mcap", progress=False)
+    (result,), _ = deploy_policy(runtime, load_fleet(other), str(other), again)
+    assert result.seed == seed and not result.aborted
+    (map_msg,) = [m.msg for m in McapLog(tmp_path / "in_way.mcap").messages(["/mrl/map"])]
+    boxes = [(mk.pose.position.x, mk.pose.position.y) for mk in map_msg.markers if mk.ns == "boxes"]
+    np.testing.assert_allclose(boxes, [(b.x_m, b.y_m) for b in draw_layout(in_way, seed).obstacles], atol=1e-9)
+    # ... but not a room with other obstacles, refused before anything is recorded
+    empty = write_fleet(tmp_path / "empty.yaml", scenario="empty")
+    refused = DeployRequest(episodes=1, seed=0, recording=tmp_path / "empty.mcap", progress=False)
+    with pytest.raises(PolicyMismatch, match=r"trained in scenario 'obstacles_random'.*'empty' \(other obstacles"):
+        deploy_policy(runtime, load_fleet(empty), str(empty), refused)
+    assert not (tmp_path / "empty.mcap").exists()
 
     # calibration fits one layout: a recording of layouts drawn per episode is refused, saying why
     with pytest.raises(CalibrationError, match=r"draws a layout per episode.*cannot use this recording yet"):

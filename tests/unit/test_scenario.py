@@ -113,3 +113,16 @@ def test_goal_squares_that_touch_or_stand_apart_are_accepted(apart):
 def test_bundled_scenarios_keep_their_goals_apart():
     for name in bundled_scenarios():
         assert load_scenario(name).n_robots >= 3
+
+
+def test_another_layout_of_the_same_room_and_robots_is_nothing_beyond_a_layout():
+    drawn = load_scenario("obstacles_random")
+    assert drawn.beyond_layout(load_scenario("obstacles_random_in_way")) == []
+    assert drawn.beyond_layout(load_scenario("obstacles")) == []  # the paper's fixed layout of the room
+    assert drawn.beyond_layout(load_scenario("empty")) == ["other obstacles (2 vs 0, or other sizes)"]
+    assert drawn.beyond_layout(load_scenario("six")) == ["3 robots vs 6"]
+    assert drawn.beyond_layout(load_scenario("mixed")) == ["robot_3's body or speed limits differ"]
+    assert drawn.beyond_layout(load_scenario("pursuit")) == ["target differs"]
+    bigger = to_mapping(drawn)
+    bigger["obstacles"][1]["size_x_m"] = 0.5
+    assert drawn.beyond_layout(load_scenario(bigger)) == ["other obstacles (2 vs 2, or other sizes)"]
