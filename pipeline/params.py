@@ -330,6 +330,8 @@ class TrainConfig:
     """... and turned up to this much; evaluation and deployment always use the exact starts."""
     seed: int = setting(0, ge=0)
     net_arch: tuple[int, ...] = setting((256, 256), min_len=1)
+    observation_scaling: Literal["none", "bounds"] = setting("none")
+    """bounds: the network maps each observation value from its bounds to [-1, 1] first (ppo)."""
     learning_rate: float = setting(3e-4, gt=0.0, le=1.0)
     learning_rate_schedule: Literal["constant", "linear"] = setting("constant")
     """linear: decay to 0 over the budget, which steadies the final policy."""
@@ -355,6 +357,8 @@ class TrainConfig:
         bad: list[tuple[str, object, str]] = []
         if any(width < 1 for width in self.net_arch):
             bad.append(("net_arch", list(self.net_arch), "layer widths >= 1"))
+        if self.observation_scaling != "none" and self.algorithm != "ppo":
+            bad.append(("observation_scaling", self.observation_scaling, f"'none' with algorithm {self.algorithm}"))
         return bad
 
 

@@ -23,9 +23,10 @@ import torch as th
 
 from pipeline.learn.checkpoint import META_FILE, load_checkpoint
 from pipeline.learn.modes import deterministic_actions
+from pipeline.learn.scaling import BoundsScaling, space_of
 from pipeline.mappings import from_mapping
 from pipeline.policy.errors import PolicyError
-from pipeline.policy.networks import ActionNetwork, action_network
+from pipeline.policy.networks import SCALE_CENTER, SCALE_HALF_RANGE, ActionNetwork, action_network
 from pipeline.policy.onnx_graph import INPUT, policy_graph
 from pipeline.policy.spec import FORMAT, GOLDEN_FILE, ONNX_FILE, SPEC_FILE, PolicySpec, write_policy_spec
 
@@ -43,7 +44,7 @@ def _torch_policy(
     kind: str, weights: dict[str, th.Tensor], obs_size: int, action_space: gymnasium.Space[Any], net_arch: list[int]
 ) -> Any:
     """The training library's own network for `kind`, built from spaces and loaded with `weights` (strict)."""
-    obs_space = gymnasium.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
+    obs_space: gymnasium.spaces.Box[Any] = gymnasium.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
 
     def lr(_: float) -> float:
         return 0.0
@@ -56,7 +57,11 @@ def _torch_policy(
     elif kind == "ppo_actor":
         from stable_baselines3.common.policies import ActorCriticPolicy
 
-        policy = ActorCriticPolicy(obs_space, action_space, lr, net_arch={"pi": net_arch, "vf": net_arch})
+        scaled: dict[str, Any] = {}
+        if SCALE_CENTER in weights:
+            obs_space = space_of(weights[SCALE_CENTER].numpy(), weights[SCALE_HALF_RANGE].numpy())
+            scaled = {"features_extractor_class": BoundsScaling}
+        policy = ActorCriticPolicy(obs_space, action_space, lr, net_arch={"pi": net_arch, "vf": net_arch}, **scaled)
     else:
         from stable_baselines3.dqn.policies import DQNPolicy
 

@@ -27,6 +27,7 @@ from pipeline.learn.batched_sac import BatchedSAC
 from pipeline.learn.dqn import PerDQN
 from pipeline.learn.modes import StreamBatch
 from pipeline.learn.per import PrioritizedReplayBuffer
+from pipeline.learn.scaling import BoundsScaling
 from pipeline.params import TrainConfig
 
 
@@ -346,7 +347,10 @@ def build_learner(
             ent_coef=ppo.ent_coef,
             vf_coef=ppo.vf_coef,
             max_grad_norm=ppo.max_grad_norm,
-            policy_kwargs={"net_arch": {"pi": _net_arch(cfg), "vf": _net_arch(cfg)}},
+            policy_kwargs={
+                "net_arch": {"pi": _net_arch(cfg), "vf": _net_arch(cfg)},
+                **({"features_extractor_class": BoundsScaling} if cfg.observation_scaling == "bounds" else {}),
+            },
             seed=seed,
             device="cpu",
             verbose=0,

@@ -5,7 +5,8 @@ A trained learner's weights are a mapping of tensor names to arrays (stable-base
 
 - ``sac_actor``: ReLU MLP ``actor.latent_pi`` -> ``actor.mu`` -> tanh (actions in [-1, 1]);
 - ``ppo_actor``: tanh MLP ``mlp_extractor.policy_net`` -> ``action_net`` -> clip to [-1, 1]
-  (continuous) or argmax of the logits (discrete);
+  (continuous) or argmax of the logits (discrete); an input scaling (``features_extractor.center`` and
+  ``half_range``, :mod:`pipeline.learn.scaling`) is folded into the first layer;
 - ``dqn``: ReLU MLP ``q_net.q_net`` whose last layer gives Q values -> argmax;
 - ``dqn_dueling``: ReLU MLP ``q_net.shared`` -> ``q_net.value_head`` (1) and
   ``q_net.advantage_head`` (n_actions); Q = V + A - mean(A) per sample -> argmax.
@@ -97,6 +98,26 @@ def _sequential(weights: Mapping[str, Any], prefix: str, where: str) -> list[Den
     return [_dense(weights, f"{prefix}.{i}", where) for i in indices]
 
 
+SCALE_CENTER = "features_extractor.center"
+SCALE_HALF_RANGE = "features_extractor.half_range"
+"""A PPO network's input scaling (train.observation_scaling: bounds): (obs - centre) / half range."""
+
+
+def _fold_scaling(weights: Mapping[str, Any], first: Dense, where: str) -> Dense:
+    """`first` with the input scaling folded in: W ((x - c) / h) + b = (W / h) x + (b - (W / h) c)."""
+    try:
+        c = np.asarray(weights[SCALE_CENTER], dtype=np.float64)
+        h = np.asarray(weights[SCALE_HALF_RANGE], dtype=np.float64)
+    except KeyError as exc:
+        raise PolicyError(where, f"weights lack {exc.args[0]!r} (the input scaling has two parts)") from None
+    n = first.weight.shape[1]
+    if c.shape != (n,) or h.shape != (n,) or not (np.isfinite(c).all() and np.isfinite(h).all() and (h > 0).all()):
+        raise PolicyError(where, f"the input scaling needs a centre and positive finite half ranges of {n} values")
+    w = first.weight.astype(np.float64) / h[None, :]
+    b = first.bias.astype(np.float64) - w @ c
+    return Dense(w.astype(np.float32), b.astype(np.float32))
+
+
 def _chain(layers: list[Dense], where: str) -> None:
     for a, b in itertools.pairwise(layers):
         if a.weight.shape[0] != b.weight.shape[1]:
@@ -112,6 +133,8 @@ def action_network(kind: str, weights: Mapping[str, Any], discrete: bool, where:
         return ActionNetwork(tuple(hidden), "relu", out, "tanh")
     if kind == "ppo_actor":
         hidden = _sequential(weights, "mlp_extractor.policy_net", where)
+        if SCALE_CENTER in weights or SCALE_HALF_RANGE in weights:
+            hidden[0] = _fold_scaling(weights, hidden[0], where)
         out = _dense(weights, "action_net", where)
         _chain([*hidden, out], where)
         return ActionNetwork(tuple(hidden), "tanh", out, "argmax" if discrete else "clip")

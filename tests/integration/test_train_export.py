@@ -224,3 +224,49 @@ def test_a_forward_only_policy_carries_its_action_range_to_the_runtime(tmp_path:
     commands = np.concatenate([runtime.commands(o) for o in golden])
     np.testing.assert_allclose(commands[:, 0], 0.5 * (actions[:, 0] + 1.0) * 0.4, atol=1e-6)
     assert commands[:, 0].min() >= 0.0
+
+
+@pytest.mark.parametrize("mode", ["shared", "centralized"])
+def test_a_bounds_scaled_ppo_network_exports_with_its_scaling_folded_in(tmp_path: Path, mode: str) -> None:
+    """train.observation_scaling: bounds puts (obs - centre) / half range before the first layer; the exported
+    network, which has no scaling of its own, computes the same actions, and the same seed gives the same
+    weights to the bit."""
+    import torch
+
+    from pipeline.policy.networks import SCALE_CENTER, SCALE_HALF_RANGE, action_network
+
+    scenario, world = world_for("ppo")
+    cfg = tiny_config(algorithm="ppo", mode=mode, observation_scaling="bounds")
+    result = train(scenario, world, cfg, tmp_path / "run", progress=False)
+    again = train(scenario, world, cfg, tmp_path / "again", progress=False)
+    assert result.digest == again.digest
+    (weights,) = load_checkpoint(result.checkpoint).weights
+    low, high = world.layout().bounds(
+        (scenario.room.x_min_m, scenario.room.x_max_m),
+        (scenario.room.y_min_m, scenario.room.y_max_m),
+        world.lidar.range_min_m,
+        world.lidar.range_max_m,
+    )
+    copies = scenario.n_robots if mode == "centralized" else 1
+    np.testing.assert_allclose(weights[SCALE_CENTER].numpy(), np.tile((low + high) / 2, copies), rtol=1e-6)
+    np.testing.assert_allclose(weights[SCALE_HALF_RANGE].numpy(), np.tile((high - low) / 2, copies), rtol=1e-6)
+
+    golden = golden_from_sim(scenario, world)
+    export_policy(result.checkpoint, tmp_path / "policy", golden, tolerance=1e-5)  # ONNX against torch
+    runtime = PolicyRuntime(tmp_path / "policy")
+    obs = golden.reshape(len(golden), -1) if mode == "centralized" else golden.reshape(-1, golden.shape[-1])
+    plain = {k: v.numpy() for k, v in weights.items() if k not in (SCALE_CENTER, SCALE_HALF_RANGE)}
+    unscaled = action_network("ppo_actor", plain, discrete=False).forward(obs)
+    scaled = np.concatenate([runtime.actions(o).reshape(1, -1) for o in golden]).reshape(unscaled.shape)
+    assert np.abs(scaled - unscaled).max() > 1e-3  # the scaling is in the exported network
+    # ... and it is the scaling torch computes
+    policy_input = (torch.as_tensor(obs) - weights[SCALE_CENTER]) / weights[SCALE_HALF_RANGE]
+    reference = action_network("ppo_actor", plain, discrete=False).forward(policy_input.numpy())
+    np.testing.assert_allclose(scaled, reference, atol=1e-5)
+
+
+def test_bounds_scaling_is_refused_for_off_policy_algorithms() -> None:
+    from pipeline.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"observation_scaling.*'none' with algorithm sac"):
+        tiny_config(algorithm="sac", observation_scaling="bounds")
