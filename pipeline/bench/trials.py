@@ -36,6 +36,18 @@ EVAL_SEED = 10_000
 """Evaluation episodes use noise seeds EVAL_SEED, EVAL_SEED + 1, ... (the same for every trial)."""
 
 
+DIGEST_KEYS_ADDED: dict[str, Any] = {
+    "world.reward.path_clearance_m": 0.0,
+    "world.reward.proximity": 0.0,
+    "world.reward.proximity_m": 0.3,
+    "world.observed_pose": "odometry",
+    "train.observation_scaling": "none",
+}
+"""Settings added to params.yaml after trials were first digested, each with the value that behaves as before it
+existed. At that value a setting is left out of a trial's digest, so a trial finished before the setting
+existed stays finished; at any other value the trial differs and runs. A new setting is added here."""
+
+
 def action_kind(algorithm: str) -> str:
     """The action space an algorithm trains on: DQN's are discrete, SAC's and PPO's continuous."""
     return "discrete" if algorithm == "dqn" else "continuous"
@@ -69,9 +81,17 @@ class Trial:
     def digest(self, base: Mapping[str, Any]) -> str:
         """A short digest of every setting the trial trains and evaluates with (a row of other settings is stale).
 
-        Not of `train.world_workers`: how many processes step the worlds changes no transition."""
+        Not of `train.world_workers`: how many processes step the worlds changes no transition; nor of a
+        setting of :data:`DIGEST_KEYS_ADDED` at its value from before it existed."""
         settings = to_mapping(self.params(base))
         settings["train"].pop("world_workers", None)
+        for key, neutral in DIGEST_KEYS_ADDED.items():
+            *path, leaf = key.split(".")
+            node = settings
+            for part in path:
+                node = node[part]
+            if node.get(leaf) == neutral:
+                del node[leaf]
         text = json.dumps(settings, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 

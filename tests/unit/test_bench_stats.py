@@ -170,3 +170,47 @@ def test_a_row_of_other_settings_is_stale(tmp_path):
     assert read_row(tmp_path, trial.digest(base)) == {"name": trial.name, "params_digest": trial.digest(base)}
     assert read_row(tmp_path, trial.digest(longer)) is None  # params.yaml changed since: the trial runs again
     assert [p.name for p in tmp_path.iterdir()] == ["row.json"]  # written whole, no temporary left
+
+
+def test_a_setting_added_later_leaves_trials_finished_before_it_finished():
+    """A trial digested before a setting existed keeps its digest while the setting holds the value that
+    behaves as before; any other value makes it stale."""
+    import copy
+    import hashlib
+    import json
+
+    from pipeline.bench.trials import DIGEST_KEYS_ADDED
+    from pipeline.mappings import merge, to_mapping
+
+    trial = Trial("ppo", "shared", "obstacles", 1)
+    base = _base()
+    before = to_mapping(trial.params(base))  # the settings as a trial saw them before the added ones existed
+    before["train"].pop("world_workers")
+    for key in DIGEST_KEYS_ADDED:
+        *path, leaf = key.split(".")
+        node = before
+        for part in path:
+            node = node[part]
+        del node[leaf]
+    digest_before = hashlib.sha256(json.dumps(before, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    assert trial.digest(base) == digest_before
+    for changed in ({"world": {"observed_pose": "ground_truth"}}, {"world": {"reward": {"proximity": -0.5}}}):
+        assert trial.digest(merge(copy.deepcopy(base), changed)) != digest_before
+
+
+def test_every_setting_is_either_digested_or_added_with_its_former_behaviour():
+    from pathlib import Path
+
+    from pipeline.bench.trials import DIGEST_KEYS_ADDED
+    from pipeline.mappings import to_mapping
+
+    def leaves(mapping: dict, prefix: str = ""):
+        for key, value in mapping.items():
+            yield from leaves(value, f"{prefix}{key}.") if isinstance(value, dict) else [f"{prefix}{key}"]
+
+    listed = Path(__file__).parents[1] / "golden" / "digested_settings.txt"
+    digested = {line for line in listed.read_text().splitlines() if line and not line.startswith("#")}
+    settings = set(leaves(to_mapping(load_params())))
+    new = sorted(settings - digested - set(DIGEST_KEYS_ADDED))
+    assert not new, f"settings {new} are in neither {listed.name} nor trials.DIGEST_KEYS_ADDED: say which"
+    assert set(DIGEST_KEYS_ADDED) <= settings and not digested & set(DIGEST_KEYS_ADDED)
