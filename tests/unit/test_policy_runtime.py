@@ -85,3 +85,25 @@ def test_golden_actions_of_the_wrong_shape_are_a_policy_error(tmp_path):
     edit(folder, "golden.json", lambda g: g.update(actions=[row[0] for row in g["actions"]]))
     with pytest.raises(PolicyError, match=r"golden.json: actions have shape \(4, 2\); .* need \(4, 2, 2\)"):
         PolicyRuntime(folder)
+
+
+def test_an_input_scaling_folds_into_the_first_layer_or_is_refused_when_broken():
+    from pipeline.policy.networks import SCALE_CENTER, SCALE_HALF_RANGE, action_network
+
+    rng = np.random.default_rng(0)
+    weights = {
+        "mlp_extractor.policy_net.0.weight": rng.normal(size=(8, 5)).astype(np.float32),
+        "mlp_extractor.policy_net.0.bias": rng.normal(size=8).astype(np.float32),
+        "action_net.weight": rng.normal(size=(2, 8)).astype(np.float32),
+        "action_net.bias": rng.normal(size=2).astype(np.float32),
+    }
+    center = np.array([3.0, 2.0, 0.0, 0.5, 2.5], dtype=np.float32)
+    half = np.array([4.0, 3.0, 1.0, 9.2, 2.47], dtype=np.float32)
+    plain = action_network("ppo_actor", weights, discrete=False)
+    scaled = action_network("ppo_actor", {**weights, SCALE_CENTER: center, SCALE_HALF_RANGE: half}, discrete=False)
+    x = rng.uniform(-1, 6, size=(64, 5))
+    np.testing.assert_allclose(scaled.forward(x), plain.forward((x - center) / half), atol=1e-5)
+    with pytest.raises(PolicyError, match=r"lack 'features_extractor.half_range'"):
+        action_network("ppo_actor", {**weights, SCALE_CENTER: center}, discrete=False, where="w.pt")
+    with pytest.raises(PolicyError, match=r"positive finite half ranges of 5 values"):
+        action_network("ppo_actor", {**weights, SCALE_CENTER: center, SCALE_HALF_RANGE: 0 * half}, discrete=False)
