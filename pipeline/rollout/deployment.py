@@ -124,14 +124,14 @@ def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scen
     if trained.name != scenario.name:
         # a policy trained on layouts drawn per episode may drive any other layout of the same room and robots
         beyond = trained.beyond_layout(scenario)
-        if trained.layouts is None or beyond:
-            why = (
-                f" ({'; '.join(beyond)})"
-                if beyond
-                else " (it was trained on one fixed layout; a policy trained on layouts ranges may drive another "
-                "layout of its room and robots)"
-            )
-            problems.append(f"it was trained in scenario {trained.name!r}, the fleet drives in {scenario.name!r}{why}")
+        if trained.layouts is None and not beyond:
+            beyond = [
+                "it was trained on one fixed layout; a policy trained on layouts ranges may drive another layout "
+                "of its room and robots"
+            ]
+        if beyond:
+            where = f"it was trained in scenario {trained.name!r}, the fleet drives in {scenario.name!r}"
+            problems.append(f"{where} ({'; '.join(beyond)})")
     if scenario.layouts is not None and runtime.layout.name == "paper":
         problems.append(
             f"scenario {scenario.name!r} draws a layout per episode and the policy's observation ('paper') has no goal"
