@@ -92,23 +92,33 @@ def score_matrices(rows: pl.DataFrame) -> dict[str, tuple[np.ndarray, np.ndarray
     return out
 
 
-def cell_stats(rows: pl.DataFrame, reps: int = 2000, seed: int = 0) -> list[CellStats]:
-    """Every cell's IQMs with 95 % stratified bootstrap intervals, per-robot IQMs and convergence figures."""
+def iqm_intervals(
+    matrices: Sequence[np.ndarray], key: str, reps: int = 2000, seed: int = 0
+) -> list[tuple[float, tuple[float, float]]]:
+    """rliable's IQM of each runs x tasks score matrix and its 95 % stratified bootstrap interval (percentile),
+    drawn in order from one generator seeded from (`seed`, `key`): the same matrices under the same key give
+    the same intervals."""
     from rliable import library as rly
     from rliable import metrics
-
-    matrices = score_matrices(rows)
 
     def iqm(x: np.ndarray) -> np.ndarray:
         return np.array([metrics.aggregate_iqm(x)])
 
-    robot_point, robot_ci, team_point, team_ci = {}, {}, {}, {}
-    for cell, (robot_scores, team_scores) in matrices.items():
-        with _bootstrap_draws(seed, cell):  # a cell's interval depends neither on the other cells nor the rows' order
-            point, ci = rly.get_interval_estimates({cell: robot_scores}, iqm, reps=reps)
-            robot_point[cell], robot_ci[cell] = point[cell], ci[cell]
-            point, ci = rly.get_interval_estimates({cell: team_scores}, iqm, reps=reps)
-            team_point[cell], team_ci[cell] = point[cell], ci[cell]
+    out = []
+    with _bootstrap_draws(seed, key):
+        for scores in matrices:
+            point, ci = rly.get_interval_estimates({key: scores}, iqm, reps=reps)
+            out.append((float(point[key][0]), (float(ci[key][0, 0]), float(ci[key][1, 0]))))
+    return out
+
+
+def cell_stats(rows: pl.DataFrame, reps: int = 2000, seed: int = 0) -> list[CellStats]:
+    """Every cell's IQMs with 95 % stratified bootstrap intervals, per-robot IQMs and convergence figures."""
+    from rliable import metrics
+
+    matrices = score_matrices(rows)
+    # a cell's interval depends neither on the other cells nor the rows' order
+    estimates = {cell: iqm_intervals([robot, team], cell, reps, seed) for cell, (robot, team) in matrices.items()}
     robots = _robots(rows)
     out = []
     for cell, (robot, _team) in matrices.items():
@@ -123,10 +133,10 @@ def cell_stats(rows: pl.DataFrame, reps: int = 2000, seed: int = 0) -> list[Cell
                 mode=str(first["mode"]),
                 scenario=str(first["scenario"]),
                 seeds=part.height,
-                robot_iqm=float(robot_point[cell][0]),
-                robot_ci=(float(robot_ci[cell][0, 0]), float(robot_ci[cell][1, 0])),
-                team_iqm=float(team_point[cell][0]),
-                team_ci=(float(team_ci[cell][0, 0]), float(team_ci[cell][1, 0])),
+                robot_iqm=estimates[cell][0][0],
+                robot_ci=estimates[cell][0][1],
+                team_iqm=estimates[cell][1][0],
+                team_ci=estimates[cell][1][1],
                 per_robot_iqm={r: float(metrics.aggregate_iqm(robot[:, [k]])) for k, r in enumerate(present)},
                 converged_seeds=converged.height,
                 episodes_to_convergence=_median(converged["converged_at_episode"]) if converged.height else None,

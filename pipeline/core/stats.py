@@ -1,8 +1,10 @@
-"""Small statistics shared by evaluation, deployment and analysis: binomial intervals and tests."""
+"""Small statistics shared by evaluation, deployment and analysis: binomial intervals and tests, and the
+mean of a few runs with its Student-t interval."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 Z_95 = 1.959963984540054
 """The two-sided 95 % normal quantile."""
@@ -51,3 +53,21 @@ def two_proportion_z_test(successes_a: int, trials_a: int, successes_b: int, tri
         return 0.0, 1.0
     z = (successes_a / trials_a - successes_b / trials_b) / se
     return z, math.erfc(abs(z) / math.sqrt(2))
+
+
+def mean_interval(values: Sequence[float], level: float = 0.95) -> tuple[float, float, float]:
+    """The mean of independent runs (e.g. one figure per training seed) and its two-sided Student-t interval.
+
+    The interval is for the expected value of a run: it takes the spread between runs as it is, so with
+    few runs it is wide rather than overconfident. Returns (mean, nan, nan) for a single run."""
+    from scipy import stats as sps  # only here: every rollout imports the rest of this module
+
+    x = [float(v) for v in values]
+    if not x:
+        raise ValueError("need at least one value")
+    mean = math.fsum(x) / len(x)
+    if len(x) < 2:
+        return mean, math.nan, math.nan
+    sd = math.sqrt(math.fsum((v - mean) ** 2 for v in x) / (len(x) - 1))
+    half = float(sps.t.ppf(0.5 + level / 2, len(x) - 1)) * sd / math.sqrt(len(x))
+    return mean, mean - half, mean + half
