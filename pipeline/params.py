@@ -313,6 +313,20 @@ class SelectionConfig:
 
 
 @dataclass(frozen=True)
+class ImitationConfig:
+    """A warm start for PPO (pipeline/learn/imitation.py): before reinforcement learning the policy imitates the
+    scripted go-to-goal controller in the training worlds, and its value head learns the controller's returns."""
+
+    steps: int = setting(0, ge=0, le=100_000_000)
+    """World steps of the controller's driving to learn from, summed over the parallel worlds (0: off). They are
+    not counted in `total_steps`; train_metrics.json reports them as train/imitation_world_steps."""
+    epochs: int = setting(20, ge=1, le=1000)
+    """Passes over the controller's samples."""
+    log_std: float = setting(-1.0, ge=-5.0, le=1.0)
+    """The log standard deviation of the policy's action noise afterwards (actions in [-1, 1]; continuous)."""
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """The `train` stage: algorithm, multi-agent mode, budget and hyperparameters."""
 
@@ -351,6 +365,7 @@ class TrainConfig:
     ppo: PpoConfig = setting(PpoConfig())
     convergence: ConvergenceConfig = setting(ConvergenceConfig())
     selection: SelectionConfig = setting(SelectionConfig())
+    imitation: ImitationConfig = setting(ImitationConfig(), optional=True)
     out_dir: str = setting("models")
 
     def check(self) -> list[tuple[str, object, str]]:
@@ -359,6 +374,8 @@ class TrainConfig:
             bad.append(("net_arch", list(self.net_arch), "layer widths >= 1"))
         if self.observation_scaling != "none" and self.algorithm != "ppo":
             bad.append(("observation_scaling", self.observation_scaling, f"'none' with algorithm {self.algorithm}"))
+        if self.imitation.steps > 0 and self.algorithm != "ppo":
+            bad.append(("imitation.steps", self.imitation.steps, f"0 with algorithm {self.algorithm} (ppo only)"))
         return bad
 
 
@@ -496,6 +513,14 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
         bad.append(("world.actions.kind", kind, "'continuous' for train.algorithm 'sac'"))
     if train.algorithm == "dqn" and kind != "discrete":
         bad.append(("world.actions.kind", kind, "'discrete' for train.algorithm 'dqn'"))
+    if train.imitation.steps > 0 and world.observation == "paper":
+        bad.append(
+            (
+                "world.observation",
+                world.observation,
+                "'rich' or 'rich_limits' with train.imitation.steps > 0 (the scripted controller steers by the goal)",
+            )
+        )
     if train.mode == "shared" and world.observation == "paper":
         bad.append(
             (

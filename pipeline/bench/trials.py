@@ -42,6 +42,9 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "world.reward.proximity_m": 0.3,
     "world.observed_pose": "odometry",
     "train.observation_scaling": "none",
+    "train.imitation.steps": 0,
+    "train.imitation.epochs": 20,
+    "train.imitation.log_std": -1.0,
 }
 """Settings added to params.yaml after trials were first digested, each with the value that behaves as before it
 existed. At that value a setting is left out of a trial's digest, so a trial finished before the setting

@@ -126,6 +126,20 @@ class StreamMap:
             return a.reshape(k, n, 2)
         return joint_to_robot_actions(a.reshape(k), self.codec.n_discrete, n)
 
+    def learner_actions(self, world_actions: np.ndarray) -> list[np.ndarray]:
+        """Per learner its actions from world actions (n_worlds, n_robots, 2) or (n_worlds, n_robots): the
+        inverse of :meth:`world_actions`."""
+        a = np.asarray(world_actions)
+        discrete = self.codec.kind == "discrete"
+        if self.mode == "independent":
+            return [a[:, i] for i in range(self.n_robots)]
+        if self.mode == "shared":
+            return [a.reshape(self.n_worlds * self.n_robots, *a.shape[2:])]
+        if not discrete:
+            return [a.reshape(self.n_worlds, -1)]
+        powers = self.codec.n_discrete ** np.arange(self.n_robots - 1, -1, -1, dtype=np.int64)
+        return [(a.astype(np.int64) * powers[None, :]).sum(axis=1)]
+
 
 def joint_to_robot_actions(index: np.ndarray, k: int, n_robots: int) -> np.ndarray:
     """(batch, n_robots) discrete actions from joint indices (batch,) over k ** n_robots (robot_1 most significant)."""

@@ -11,11 +11,13 @@ from typing import Any
 import numpy as np
 import stable_baselines3
 import torch as th
+from stable_baselines3 import PPO
 from tqdm import tqdm
 
 from pipeline.core.scenario import Scenario
 from pipeline.learn.checkpoint import save_checkpoint
 from pipeline.learn.errors import TrainingInterrupted
+from pipeline.learn.imitation import ImitationResult, warm_start
 from pipeline.learn.learners import build_learners
 from pipeline.learn.modes import StreamMap
 from pipeline.learn.progress import ConvergenceTracker, LearningCurve
@@ -45,6 +47,8 @@ class TrainResult:
     """World steps of the weights in the checkpoint when they were chosen by evaluation (keep: best)."""
     selected_robot_success: float | None = None
     selected_team_success: float | None = None
+    imitation: ImitationResult | None = None
+    """The warm start's figures (train.imitation.steps > 0)."""
 
     def metrics(self) -> dict[str, float | None]:
         """Flat ``train/...`` metrics for dvc."""
@@ -63,6 +67,11 @@ class TrainResult:
             out["train/selected_at_steps"] = float(self.selected_at_steps)
             out["train/selected_eval_robot_success"] = self.selected_robot_success
             out["train/selected_eval_team_success"] = self.selected_team_success
+        if self.imitation is not None:
+            out["train/imitation_world_steps"] = float(self.imitation.world_steps)
+            out["train/imitation_samples"] = float(self.imitation.samples)
+            out["train/imitation_action_loss"] = self.imitation.action_loss
+            out["train/imitation_value_loss"] = self.imitation.value_loss
         return out
 
 
@@ -140,6 +149,10 @@ def _train(
     digest = ""
     selector = Selector(cfg.selection, scenario, world, out_dir)
     models = [learner.model for learner in learners]
+    imitation = None
+    if cfg.imitation.steps > 0:  # ppo only (TrainConfig.check)
+        imitation = warm_start(worlds, streams, [m for m in models if isinstance(m, PPO)], cfg, progress)
+        meta["imitation"] = to_mapping(imitation)
     greedy = greedy_policy(
         models, cfg.mode, scenario.n_robots, streams.codec.kind == "discrete", streams.codec.n_discrete
     )
@@ -237,4 +250,5 @@ def _train(
         selected_at_steps=None if chosen is None else chosen.world_steps,
         selected_robot_success=None if chosen is None else chosen.robot_success,
         selected_team_success=None if chosen is None else chosen.team_success,
+        imitation=imitation,
     )

@@ -1,0 +1,172 @@
+"""A warm start for PPO (`train.imitation`): before reinforcement learning, the policy imitates the scripted
+go-to-goal controller (:class:`pipeline.policy.scripted.GoToGoalController`) in the training worlds.
+
+The controller drives `steps` world steps of training episodes (their layout draws, randomization and start
+perturbations); every learner then fits, on what its streams saw, its action head to the controller's
+actions (squared error on the Gaussian mean for continuous actions, cross-entropy on the logits for
+discrete ones) and its value head to the controller's discounted returns, for `epochs` passes in
+minibatches of ``ppo.minibatch_size``. Only samples whose episode ended within the demonstration count: a
+return cut off by the end of the demonstration would be biased. Afterwards the policy's action noise is
+set to ``exp(log_std)``, and PPO goes on from these weights with its own optimizer state, untouched here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from stable_baselines3 import PPO
+from torch.nn import functional as F
+from tqdm import tqdm
+
+from pipeline.learn.modes import StreamMap
+from pipeline.learn.worlds import VecWorlds
+from pipeline.params import TrainConfig
+from pipeline.policy.scripted import GoToGoalController
+
+
+@dataclass(frozen=True)
+class Demonstration:
+    """One learner's samples of the controller's driving: observations, actions (the learner's own action
+    space), discounted returns; only samples of episodes that ended within the demonstration."""
+
+    obs: np.ndarray
+    actions: np.ndarray
+    returns: np.ndarray
+
+
+@dataclass(frozen=True)
+class ImitationResult:
+    world_steps: int
+    samples: int
+    episodes: int
+    action_loss: float
+    """Per learner mean, over the last epoch: squared error of the action mean (continuous) or cross-entropy."""
+    value_loss: float
+
+
+def demonstrate(
+    worlds: VecWorlds, streams: StreamMap, world_steps: int, gamma: float, progress: bool = False
+) -> tuple[list[Demonstration], int, int]:
+    """The controller drives every world for `world_steps` world steps (summed over the worlds, as training
+    counts them); per learner its streams' samples with the controller's returns, the world steps driven
+    and the episodes finished."""
+    controller = GoToGoalController(worlds.config.layout(), worlds.codec)
+    obs = worlds.reset()
+    n_learners = streams.n_learners
+    seen: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
+    acts: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
+    rewards: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
+    valid: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
+    ends: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
+    steps = episodes = 0
+    bar = tqdm(total=world_steps, desc="imitation: controller drives", unit="step", disable=not progress)
+    while steps < world_steps:
+        world_actions = controller(obs.reshape(-1, streams.obs_size))
+        world_actions = world_actions.reshape(streams.n_worlds, streams.n_robots, *world_actions.shape[1:])
+        per_learner = streams.learner_obs(obs)
+        step = worlds.step(world_actions)
+        for i, (o, a, b) in enumerate(
+            zip(per_learner, streams.learner_actions(world_actions), streams.learner_batches(step), strict=True)
+        ):
+            seen[i].append(o)
+            acts[i].append(a)
+            rewards[i].append(b.reward)
+            valid[i].append(b.active)
+            ends[i].append(b.terminated | b.truncated)
+        steps += worlds.n_worlds
+        episodes += len(step.finished)
+        obs = step.obs
+        bar.update(worlds.n_worlds)
+    bar.close()
+    out = []
+    for i in range(n_learners):
+        r, ok, end = np.stack(rewards[i]), np.stack(valid[i]), np.stack(ends[i])
+        returns, known = discounted_returns(r, ok, end, gamma)
+        keep = ok & known
+        out.append(
+            Demonstration(
+                obs=np.concatenate(seen[i])[keep.reshape(-1)],
+                actions=np.concatenate(acts[i])[keep.reshape(-1)],
+                returns=returns[keep].astype(np.float32),
+            )
+        )
+    return out, steps, episodes
+
+
+def discounted_returns(
+    reward: np.ndarray, active: np.ndarray, ended: np.ndarray, gamma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per (step, stream): the discounted return from that step to its episode's end, and whether that end
+    lies within the arrays (else the return is cut off and unknown). Arrays are (steps, streams); a stream
+    inactive at a step (a robot that already finished) has no sample there."""
+    n_steps = reward.shape[0]
+    returns = np.zeros(reward.shape, dtype=np.float64)
+    known = np.zeros(reward.shape, dtype=bool)
+    g = np.zeros(reward.shape[1])
+    k = np.zeros(reward.shape[1], dtype=bool)
+    for t in range(n_steps - 1, -1, -1):
+        g = np.where(ended[t], reward[t], reward[t] + gamma * g)
+        k = ended[t] | k
+        g = np.where(active[t], g, 0.0)
+        returns[t], known[t] = g, k & active[t]
+    return returns, known
+
+
+def imitate(
+    model: PPO, demo: Demonstration, cfg: TrainConfig, seed: int, progress: bool = False
+) -> tuple[float, float]:
+    """Fit `model`'s policy to `demo` (see the module); returns the last epoch's (action loss, value loss)."""
+    policy = model.policy
+    optimizer = th.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
+    obs = th.as_tensor(demo.obs, dtype=th.float32)
+    discrete = demo.actions.ndim == 1
+    target = th.as_tensor(demo.actions, dtype=th.long if discrete else th.float32)
+    returns = th.as_tensor(demo.returns, dtype=th.float32)
+    generator = th.Generator().manual_seed(seed)
+    batch = cfg.ppo.minibatch_size
+    action_loss = value_loss = float("nan")
+    policy.set_training_mode(True)
+    bar = tqdm(range(cfg.imitation.epochs), desc="imitation: fit", unit="epoch", disable=not progress)
+    for _ in bar:
+        order = th.randperm(len(obs), generator=generator)
+        totals = np.zeros(2)
+        for start in range(0, len(obs), batch):
+            idx = order[start : start + batch]
+            features = policy.extract_features(obs[idx])
+            latent_pi, latent_vf = policy.mlp_extractor(features)
+            head = policy.action_net(latent_pi)
+            a_loss = F.cross_entropy(head, target[idx]) if discrete else F.mse_loss(head, target[idx])
+            v_loss = F.mse_loss(policy.value_net(latent_vf).flatten(), returns[idx])
+            optimizer.zero_grad()
+            (a_loss + cfg.ppo.vf_coef * v_loss).backward()
+            th.nn.utils.clip_grad_norm_(policy.parameters(), cfg.ppo.max_grad_norm)
+            optimizer.step()
+            totals += (a_loss.item() * len(idx), v_loss.item() * len(idx))
+        action_loss, value_loss = totals / max(len(obs), 1)
+        bar.set_postfix(action_loss=f"{action_loss:.4f}", value_loss=f"{value_loss:.2f}", refresh=False)
+    bar.close()
+    policy.set_training_mode(False)
+    if not discrete:
+        with th.no_grad():
+            policy.log_std.fill_(cfg.imitation.log_std)
+    return float(action_loss), float(value_loss)
+
+
+def warm_start(
+    worlds: VecWorlds, streams: StreamMap, models: list[PPO], cfg: TrainConfig, progress: bool = False
+) -> ImitationResult:
+    """Demonstrate, then fit every learner's policy to its share; the worlds are left mid-episode (the caller
+    resets them)."""
+    demos, steps, episodes = demonstrate(worlds, streams, cfg.imitation.steps, cfg.gamma, progress)
+    losses = [
+        imitate(m, d, cfg, cfg.seed + 104729 * i, progress) for i, (m, d) in enumerate(zip(models, demos, strict=True))
+    ]
+    return ImitationResult(
+        world_steps=steps,
+        samples=sum(len(d.returns) for d in demos),
+        episodes=episodes,
+        action_loss=float(np.mean([a for a, _ in losses])),
+        value_loss=float(np.mean([v for _, v in losses])),
+    )

@@ -1,0 +1,113 @@
+"""train.imitation: PPO's warm start from the scripted controller, in real worlds with tiny budgets."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+
+from pipeline.errors import ConfigError
+from pipeline.learn.imitation import demonstrate, discounted_returns, imitate
+from pipeline.learn.learners import build_learners
+from pipeline.learn.modes import StreamMap
+from pipeline.learn.trainer import train
+from pipeline.learn.worlds import VecWorlds
+from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
+from pipeline.params import Params, TrainConfig, world_config
+from pipeline.sim import make_world
+from tests.integration.test_train_export import tiny_config, world_for
+
+pytestmark = pytest.mark.integration
+
+
+def test_discounted_returns_stop_at_each_episode_end_and_are_unknown_past_the_last():
+    # one stream: an episode of 3 steps (ends at t=2), the robot inactive at t=3 (finished, others drive on),
+    # then a new episode cut off by the end of the arrays
+    reward = np.array([[1.0], [2.0], [10.0], [0.0], [4.0], [5.0]])
+    active = np.array([[1], [1], [1], [0], [1], [1]], dtype=bool)
+    ended = np.array([[0], [0], [1], [0], [0], [0]], dtype=bool)
+    returns, known = discounted_returns(reward, active, ended, gamma=0.5)
+    assert returns[:3, 0].tolist() == [1 + 0.5 * (2 + 0.5 * 10), 2 + 0.5 * 10, 10.0]
+    assert known[:, 0].tolist() == [True, True, True, False, False, False]
+    assert returns[3, 0] == 0.0
+
+
+@pytest.mark.parametrize("mode", ["independent", "shared", "centralized"])
+@pytest.mark.parametrize("kind", ["continuous", "discrete"])
+def test_learner_actions_are_the_inverse_of_world_actions(mode: str, kind: str) -> None:
+    scenario, world = make_world(
+        world=world_config({"scenario": "obstacles", "observation": "rich", "actions": {"kind": kind}})
+    )
+    with VecWorlds(scenario, world, 3, seed=0) as worlds:
+        streams = StreamMap(mode, worlds)  # type: ignore[arg-type]
+        rng = np.random.default_rng(0)
+        if kind == "continuous":
+            actions = rng.uniform(-1, 1, size=(3, scenario.n_robots, 2)).astype(np.float32)
+        else:
+            actions = rng.integers(0, worlds.codec.n_discrete, size=(3, scenario.n_robots))
+        per_learner = streams.learner_actions(actions)
+        assert len(per_learner) == streams.n_learners
+        np.testing.assert_array_equal(streams.world_actions(per_learner), actions)
+
+
+@pytest.mark.parametrize("mode", ["shared", "independent", "centralized"])
+def test_the_imitated_policy_drives_like_the_controller_and_its_values_follow_the_returns(mode: str) -> None:
+    scenario, world = world_for("ppo", n_robots=3, max_steps=40)
+    cfg = tiny_config(
+        algorithm="ppo", mode=mode, learning_rate=1e-3, imitation={"steps": 600, "epochs": 60, "log_std": -1.5}
+    )
+    with VecWorlds(scenario, world, 2, seed=4, start_xy_m=0.3) as worlds:
+        streams = StreamMap(mode, worlds)  # type: ignore[arg-type]
+        learners = build_learners(
+            cfg, streams.observation_space, streams.action_space, streams.n_streams, streams.n_learners
+        )
+        demos, steps, episodes = demonstrate(worlds, streams, 600, cfg.gamma)
+        assert steps == 600 and episodes >= 10 and len(demos) == streams.n_learners
+        for learner, demo in zip(learners, demos, strict=True):
+            assert len(demo.obs) == len(demo.actions) == len(demo.returns) > 50
+            policy = learner.model.policy
+            obs = th.as_tensor(demo.obs)
+
+            def errors() -> tuple[float, float]:
+                with th.no_grad():
+                    mean = policy.get_distribution(obs).distribution.mean.numpy()  # noqa: B023
+                    values = policy.predict_values(obs).numpy().ravel()  # noqa: B023
+                return float(np.mean((mean - demo.actions) ** 2)), float(np.mean((values - demo.returns) ** 2))  # noqa: B023
+
+            action_before, value_before = errors()
+            action_loss, value_loss = imitate(learner.model, demo, cfg, seed=0)
+            action_after, value_after = errors()
+            assert action_after < 0.25 * action_before
+            # the values explain much of the returns' spread: more than their mean alone would
+            assert value_after < 0.5 * float(np.var(demo.returns)) < value_before
+            assert action_loss == pytest.approx(action_after, rel=0.5) and value_loss < value_before
+            np.testing.assert_allclose(policy.log_std.detach().numpy(), -1.5)
+
+
+def test_a_warm_started_training_reports_it_and_repeats_to_the_bit(tmp_path: Path) -> None:
+    scenario, world = world_for("ppo")
+    cfg = tiny_config(algorithm="ppo", mode="shared", imitation={"steps": 200, "epochs": 3})
+    a = train(scenario, world, cfg, tmp_path / "a", progress=False)
+    b = train(scenario, world, cfg, tmp_path / "b", progress=False)
+    plain = train(scenario, world, tiny_config(algorithm="ppo", mode="shared"), tmp_path / "c", progress=False)
+    assert a.digest == b.digest != plain.digest
+    assert a.world_steps == plain.world_steps == cfg.total_steps  # the demonstration is not in the budget
+    metrics = a.metrics()
+    assert metrics["train/imitation_world_steps"] == 200.0 and metrics["train/imitation_samples"] > 0
+    state = json.loads((tmp_path / "a" / "checkpoint" / "train.json").read_text())
+    assert state["imitation"]["world_steps"] == 200
+    assert "train/imitation_world_steps" not in plain.metrics()
+
+
+def test_imitation_is_refused_where_it_cannot_run() -> None:
+    with pytest.raises(ConfigError, match=r"imitation\.steps.*0 with algorithm sac \(ppo only\)"):
+        tiny_config(algorithm="sac", imitation={"steps": 100})
+    params = read_yaml(Path(__file__).resolve().parents[2] / "params.yaml")
+    bad = merge(params, {"train": {"algorithm": "ppo", "imitation": {"steps": 100}}, "world": {"observation": "paper"}})
+    with pytest.raises(ConfigError, match=r"world\.observation.*'rich' or 'rich_limits' with train\.imitation\.steps"):
+        from_mapping(Params, bad, "<test>")
+    with pytest.raises(ConfigError, match=r"imitation\.log_std"):
+        from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), {"imitation": {"log_std": 3.0}}), "<test>")
