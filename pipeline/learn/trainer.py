@@ -149,13 +149,15 @@ def _train(
     digest = ""
     selector = Selector(cfg.selection, scenario, world, out_dir)
     models = [learner.model for learner in learners]
+    greedy = greedy_policy(
+        models, cfg.mode, scenario.n_robots, streams.codec.kind == "discrete", streams.codec.n_discrete
+    )
     imitation = None
     if cfg.imitation.steps > 0:  # ppo only (TrainConfig.check)
         imitation = warm_start(worlds, streams, [m for m in models if isinstance(m, PPO)], cfg, progress)
         meta["imitation"] = to_mapping(imitation)
-    greedy = greedy_policy(
-        models, cfg.mode, scenario.n_robots, streams.codec.kind == "discrete", streams.codec.n_discrete
-    )
+        if selector.enabled:
+            selector.offer(0, greedy, models)  # the imitated weights compete for export too
 
     def checkpoint(interrupted: bool = False, final: bool = False) -> str:
         state = {

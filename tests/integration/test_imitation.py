@@ -89,10 +89,12 @@ def test_the_imitated_policy_drives_like_the_controller_and_its_values_follow_th
 
 def test_a_warm_started_training_reports_it_and_repeats_to_the_bit(tmp_path: Path) -> None:
     scenario, world = world_for("ppo")
-    cfg = tiny_config(algorithm="ppo", mode="shared", imitation={"steps": 200, "epochs": 3})
+    selection = {"keep": "best", "every_steps": 120, "episodes": 2}
+    cfg = tiny_config(algorithm="ppo", mode="shared", imitation={"steps": 200, "epochs": 3}, selection=selection)
     a = train(scenario, world, cfg, tmp_path / "a", progress=False)
     b = train(scenario, world, cfg, tmp_path / "b", progress=False)
-    plain = train(scenario, world, tiny_config(algorithm="ppo", mode="shared"), tmp_path / "c", progress=False)
+    plain_cfg = tiny_config(algorithm="ppo", mode="shared", selection=selection)
+    plain = train(scenario, world, plain_cfg, tmp_path / "c", progress=False)
     assert a.digest == b.digest != plain.digest
     assert a.world_steps == plain.world_steps == cfg.total_steps  # the demonstration is not in the budget
     metrics = a.metrics()
@@ -100,6 +102,11 @@ def test_a_warm_started_training_reports_it_and_repeats_to_the_bit(tmp_path: Pat
     state = json.loads((tmp_path / "a" / "checkpoint" / "train.json").read_text())
     assert state["imitation"]["world_steps"] == 200
     assert "train/imitation_world_steps" not in plain.metrics()
+    # the imitated weights are evaluated before PPO's first step, and compete for export
+    evaluated = [line.split(",")[0] for line in (tmp_path / "a" / "selection.csv").read_text().splitlines()[1:]]
+    assert evaluated[0] == "0" and "0" not in [
+        line.split(",")[0] for line in (tmp_path / "c" / "selection.csv").read_text().splitlines()[1:]
+    ]
 
 
 def test_imitation_is_refused_where_it_cannot_run() -> None:
