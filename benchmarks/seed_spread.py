@@ -1,14 +1,15 @@
-"""Settings judged across training seeds: what a new seed of each setting can be expected to reach.
+"""Settings judged across training seeds: what each setting can be expected to reach.
 
 Each run is the ``--out`` folder of ``benchmarks/scenarios.py`` for one seed's policy, given as
 LABEL=FOLDER; runs with the same label are seeds of one setting. For every setting and every world those
 folders hold (``sim_random``: held-out random layouts, ``sim_fixed``: the scenario's own layout,
-``sim_random_randomized``, ...) it prints each seed's robot success, their mean with its two-sided
-Student-t 95 % interval (the expected figure of one more seed; with few seeds it is wide, not
-overconfident), rliable's IQM over seeds x robots with its stratified bootstrap 95 % interval (as the sweep
-reports it; with 3 to 5 seeds that interval covers less than 95 %), the mean team success and the mean
-collision rate. With ``--target WORLD=FRACTION`` it says whether the interval lies above, around or below a
-target. It writes one PNG: each seed's figure and the mean with its interval, a panel per world.
+``sim_random_randomized``, ...) it prints each seed's robot success; their mean with its two-sided
+Student-t 95 % interval, cut to [0, 100] % (for the setting's expected figure over seeds; with few seeds
+it is wide, not overconfident); rliable's IQM over seeds x robots with its stratified bootstrap 95 %
+interval (as the sweep reports it; with 3 to 5 seeds that interval covers less than 95 %); the mean team
+success and the mean collision rate. With ``--target WORLD=FRACTION`` it says whether the interval lies
+above, around or below a target. It writes one PNG: each seed's figure and the mean with its interval,
+a panel per world.
 
     python benchmarks/seed_spread.py --run "ent 0.01=/tmp/b_s0" --run "ent 0.01=/tmp/b_s1" \\
         --run "ent 0=/tmp/c_s0" --target sim_random=0.9 --target sim_fixed=0.95 --out /tmp/seeds.png
@@ -100,6 +101,12 @@ def read_runs(specs: list[str]) -> dict[str, dict[str, list[Seed]]]:
     return settings
 
 
+def _success_interval(values: list[float]) -> tuple[float, float, float]:
+    """The seeds' mean success with its t interval, cut to [0, 1] where success lies (coverage unchanged)."""
+    mean, low, high = mean_interval(values)
+    return mean, (low if math.isnan(low) else max(low, 0.0)), (high if math.isnan(high) else min(high, 1.0))
+
+
 def _pct(x: float) -> str:
     return "-" if math.isnan(x) else f"{100 * x:.1f}"
 
@@ -119,7 +126,7 @@ def summary_lines(settings: dict[str, dict[str, list[Seed]]], targets: dict[str,
     for label, worlds in settings.items():
         for world, runs in worlds.items():
             robot = [s.robot for s in runs]
-            mean, low, high = mean_interval(robot)
+            mean, low, high = _success_interval(robot)
             team, _, _ = mean_interval([s.team for s in runs])
             hits, _, _ = mean_interval([s.collisions for s in runs])
             ((iqm, (iqm_low, iqm_high)),) = iqm_intervals([np.array([s.per_robot for s in runs])], f"{label}/{world}")
@@ -144,7 +151,7 @@ def draw(settings: dict[str, dict[str, list[Seed]]], targets: dict[str, float], 
             if not runs:
                 continue
             robot = [100 * s.robot for s in runs]
-            mean, low, high = mean_interval(robot)
+            mean, low, high = (100 * x for x in _success_interval([s.robot for s in runs]))
             jitter = np.linspace(-0.12, 0.12, len(robot)) if len(robot) > 1 else np.zeros(1)
             ax.scatter(k + jitter, robot, color=f"C{k}", alpha=0.6, s=22)
             if not math.isnan(low):

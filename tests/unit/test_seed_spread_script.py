@@ -60,7 +60,11 @@ def test_the_t_interval_is_the_textbook_one_and_a_single_run_has_none():
 
 def test_settings_are_summarised_per_world_and_drawn(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     a = [(0.7, 0.8, 0.9), (0.6, 0.7, 0.8), (0.8, 0.8, 0.8)]
-    runs = [_seed_folder(tmp_path / f"a{k}", {"sim_random": r, "sim_fixed": (1.0, 1.0, 0.0)}) for k, r in enumerate(a)]
+    fixed = [(1.0, 1.0, 1.0), (1.0, 0.0, 0.0), (1.0, 0.0, 0.0)]
+    runs = [
+        _seed_folder(tmp_path / f"a{k}", {"sim_random": r, "sim_fixed": f})
+        for k, (r, f) in enumerate(zip(a, fixed, strict=True))
+    ]
     low_run = _seed_folder(tmp_path / "b0", {"sim_random": (0.2, 0.3, 0.4), "sim_fixed": (0.0, 0.0, 0.0)})
     out = tmp_path / "fig" / "seeds.png"
     argv = [*(x for r in runs for x in ("--run", f"ent=0.01={r}")), "--run", f"plain={low_run}"]
@@ -78,7 +82,8 @@ def test_settings_are_summarised_per_world_and_drawn(tmp_path: Path, capsys: pyt
     assert high > 0.9 and "the target 90.0 % lies inside the interval" in held_out
     assert "plain | held-out random layouts: 1 seeds (30.0 %); mean 30.0 % [-, -]" in text
     assert "one seed: no interval to hold against 90.0 %" in text
-    assert "ent=0.01 | its fixed layout: 3 seeds (66.7, 66.7, 66.7 %)" in text
+    # the t interval of (100, 33.3, 33.3) % reaches past both ends; success lies in [0, 100] %
+    assert "ent=0.01 | its fixed layout: 3 seeds (100.0, 33.3, 33.3 %); mean 55.6 % [0.0, 100.0] (t 95 %)" in text
     with Image.open(out) as picture:
         assert picture.size[0] > 600 and picture.size[1] > 300
 
