@@ -101,6 +101,12 @@ def read_runs(specs: list[str]) -> dict[str, dict[str, list[Seed]]]:
     return settings
 
 
+def _world_order(world: str) -> tuple[int, str]:
+    """Known worlds in WORLD_NAMES' order, then the others by name."""
+    known = list(WORLD_NAMES)
+    return (known.index(world), "") if world in known else (len(known), world)
+
+
 def _success_interval(values: list[float]) -> tuple[float, float, float]:
     """The seeds' mean success with its t interval, cut to [0, 1] where success lies (coverage unchanged)."""
     mean, low, high = mean_interval(values)
@@ -124,14 +130,14 @@ def _verdict(low: float, high: float, target: float) -> str:
 def summary_lines(settings: dict[str, dict[str, list[Seed]]], targets: dict[str, float]) -> list[str]:
     lines = []
     for label, worlds in settings.items():
-        for world, runs in worlds.items():
+        for world, runs in sorted(worlds.items(), key=lambda item: _world_order(item[0])):
             robot = [s.robot for s in runs]
             mean, low, high = _success_interval(robot)
             team, _, _ = mean_interval([s.team for s in runs])
             hits, _, _ = mean_interval([s.collisions for s in runs])
             ((iqm, (iqm_low, iqm_high)),) = iqm_intervals([np.array([s.per_robot for s in runs])], f"{label}/{world}")
             line = (
-                f"{label} | {WORLD_NAMES.get(world, world)}: {len(runs)} seeds "
+                f"{label} | {WORLD_NAMES.get(world, world)}: {len(runs)} seed{'s' if len(runs) > 1 else ''} "
                 f"({', '.join(_pct(x) for x in robot)} %); mean {_pct(mean)} % [{_pct(low)}, {_pct(high)}] (t 95 %), "
                 f"IQM {_pct(iqm)} % [{_pct(iqm_low)}, {_pct(iqm_high)}] (stratified bootstrap), "
                 f"team {_pct(team)} %, collisions {_pct(hits)} %"
@@ -143,7 +149,7 @@ def summary_lines(settings: dict[str, dict[str, list[Seed]]], targets: dict[str,
 
 
 def draw(settings: dict[str, dict[str, list[Seed]]], targets: dict[str, float], out: Path) -> None:
-    worlds = sorted({w for s in settings.values() for w in s}, key=lambda w: (w not in WORLD_NAMES, w))
+    worlds = sorted({w for s in settings.values() for w in s}, key=_world_order)
     fig, axes = plt.subplots(1, len(worlds), figsize=(4.5 * len(worlds), 4.2), squeeze=False, sharey=True)
     for ax, world in zip(axes[0], worlds, strict=True):
         for k, figures in enumerate(settings.values()):

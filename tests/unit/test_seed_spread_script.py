@@ -72,7 +72,9 @@ def test_settings_are_summarised_per_world_and_drawn(tmp_path: Path, capsys: pyt
     text = capsys.readouterr().out
     seeds = [sum(r) / 3 for r in a]
     mean, low, high = mean_interval(seeds)
-    held_out = next(line for line in text.splitlines() if line.startswith("ent=0.01 | held-out random layouts"))
+    lines = text.splitlines()
+    assert lines[0].startswith("ent=0.01 | held-out random layouts") and lines[1].startswith("ent=0.01 | its fixed")
+    held_out = lines[0]
     assert "3 seeds (80.0, 70.0, 80.0 %)" in held_out
     assert f"mean {100 * mean:.1f} % [{100 * low:.1f}, {100 * high:.1f}] (t 95 %)" in held_out
     iqm = sps.trim_mean(np.ravel(a), 0.25)  # rliable's IQM over seeds x robots
@@ -80,7 +82,7 @@ def test_settings_are_summarised_per_world_and_drawn(tmp_path: Path, capsys: pyt
     assert "team 35.0 %, collisions 16.7 %" in held_out  # the seeds' means of team success and collision rate
     # the t interval reaches past 0.9: the target is inside it, not met, not missed
     assert high > 0.9 and "the target 90.0 % lies inside the interval" in held_out
-    assert "plain | held-out random layouts: 1 seeds (30.0 %); mean 30.0 % [-, -]" in text
+    assert "plain | held-out random layouts: 1 seed (30.0 %); mean 30.0 % [-, -]" in text
     assert "one seed: no interval to hold against 90.0 %" in text
     # the t interval of (100, 33.3, 33.3) % reaches past both ends; success lies in [0, 100] %
     assert "ent=0.01 | its fixed layout: 3 seeds (100.0, 33.3, 33.3 %); mean 55.6 % [0.0, 100.0] (t 95 %)" in text
