@@ -133,8 +133,8 @@ def summary_lines(settings: dict[str, dict[str, list[Seed]]], targets: dict[str,
         for world, runs in sorted(worlds.items(), key=lambda item: _world_order(item[0])):
             robot = [s.robot for s in runs]
             mean, low, high = _success_interval(robot)
-            team, _, _ = mean_interval([s.team for s in runs])
-            hits, _, _ = mean_interval([s.collisions for s in runs])
+            team = float(np.mean([s.team for s in runs]))
+            hits = float(np.mean([s.collisions for s in runs]))
             ((iqm, (iqm_low, iqm_high)),) = iqm_intervals([np.array([s.per_robot for s in runs])], f"{label}/{world}")
             line = (
                 f"{label} | {WORLD_NAMES.get(world, world)}: {len(runs)} seed{'s' if len(runs) > 1 else ''} "
