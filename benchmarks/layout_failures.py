@@ -9,9 +9,10 @@ seeds and sorts every robot-episode that failed:
   in its last 10 s;
 
 then runs the same episodes again with exact odometry (drift 0), which tells how much of the rest is
-the goal vector's odometry error rather than the policy.
+the goal vector's odometry error rather than the policy; and, with `--max-steps N`, once more with a step
+limit of N, which tells how many of the timeouts were only slow: robots that reach their goal later.
 
-    python benchmarks/layout_failures.py --policy models/nominal/policy --episodes 100
+    python benchmarks/layout_failures.py --policy models/nominal/policy --episodes 100 --max-steps 800
 """
 
 from __future__ import annotations
@@ -38,31 +39,36 @@ from pipeline.sim.env import MultiRobotSim
 COLLISION_GAP_M = 0.02
 
 
+def _gaps(layout: Scenario, xy: np.ndarray, i: int) -> list[tuple[float, str, np.ndarray | None]]:
+    """Robot i's body gaps (m) at positions `xy` (n_robots, 2): (gap, wall | box | robot, centre or None)."""
+    radii = layout.radii
+    room = layout.room
+    gaps: list[tuple[float, str, np.ndarray | None]] = [
+        (
+            min(xy[i, 0] - room.x_min_m, room.x_max_m - xy[i, 0], xy[i, 1] - room.y_min_m, room.y_max_m - xy[i, 1])
+            - radii[i],
+            "wall",
+            None,
+        )
+    ]
+    gaps += [
+        (float(box_clearance(b, xy[i : i + 1])[0]) - radii[i], "box", np.array([b.x_m, b.y_m]))
+        for b in layout.obstacles
+    ]
+    gaps += [
+        (float(np.hypot(*(xy[i] - xy[k]))) - radii[i] - radii[k], "robot", xy[k]) for k in range(len(xy)) if k != i
+    ]
+    return gaps
+
+
 def first_contact(
     layout: Scenario, trajectory: np.ndarray, i: int, margin_m: float, period_s: float
 ) -> tuple[str, int, float, float]:
     """(what: wall | box | robot, step, forward speed m/s, bearing of what was hit in degrees, nan for a wall)
     at the first step where robot i's body comes within `margin_m` of something."""
-    radii = layout.radii
-    room = layout.room
     for t in range(1, len(trajectory)):
         xy = trajectory[t, :, :2]
-        gaps: list[tuple[float, str, np.ndarray | None]] = [
-            (
-                min(xy[i, 0] - room.x_min_m, room.x_max_m - xy[i, 0], xy[i, 1] - room.y_min_m, room.y_max_m - xy[i, 1])
-                - radii[i],
-                "wall",
-                None,
-            )
-        ]
-        gaps += [
-            (float(box_clearance(b, xy[i : i + 1])[0]) - radii[i], "box", np.array([b.x_m, b.y_m]))
-            for b in layout.obstacles
-        ]
-        gaps += [
-            (float(np.hypot(*(xy[i] - xy[k]))) - radii[i] - radii[k], "robot", xy[k]) for k in range(len(xy)) if k != i
-        ]
-        gap, what, where = min(gaps, key=lambda g: g[0])
+        gap, what, where = min(_gaps(layout, xy, i), key=lambda g: g[0])
         if gap < margin_m:
             yaw = trajectory[t, i, 2]
             v = (trajectory[t, i, :2] - trajectory[t - 1, i, :2]) / period_s
@@ -75,6 +81,10 @@ def first_contact(
     return "unknown", len(trajectory) - 1, float("nan"), float("nan")
 
 
+STALLED_NEAR_M = 0.5
+"""A stalled robot counts as held up by the nearest wall, box or robot within this body gap at the end."""
+
+
 def sort_failures(
     scenario: Scenario, results: list[EpisodeResult], margin_m: float, period_s: float, random_layouts: bool = True
 ) -> dict[str, object]:
@@ -85,6 +95,7 @@ def sort_failures(
     side = 0
     end_dist: list[float] = []
     stalled = 0
+    stalled_at: Counter[str] = Counter()
     for r in results:
         layout = draw_layout(scenario, r.seed) if random_layouts else scenario
         fields = goal_fields(layout)
@@ -97,7 +108,10 @@ def sort_failures(
         for i in np.flatnonzero(~r.reached & ~r.collided):
             end_dist.append(float(fields.distance(r.trajectory[-1:, :, :2][0])[i]))
             last = r.trajectory[-round(10.0 / period_s) :, i, :2]
-            stalled += float(np.hypot(*np.diff(last, axis=0).T).sum()) < 0.3
+            if float(np.hypot(*np.diff(last, axis=0).T).sum()) < 0.3:
+                stalled += 1
+                gap, what, _ = min(_gaps(layout, r.trajectory[-1, :, :2], int(i)), key=lambda g: g[0])
+                stalled_at[what if gap < STALLED_NEAR_M else "open space"] += 1
     n = sum(len(r.reached) for r in results)
     return {
         "robot_episodes": n,
@@ -109,6 +123,32 @@ def sort_failures(
         "timeouts": len(end_dist),
         "timeouts_within_0_6_m": int(sum(d <= 0.6 for d in end_dist)),
         "timeouts_stalled": stalled,
+        "stalled_at": dict(stalled_at),
+    }
+
+
+def later_arrivals(limited: list[EpisodeResult], longer: list[EpisodeResult], limit_s: float) -> dict[str, object]:
+    """The same episodes played with the world's step limit (`limited`, `limit_s` seconds) and a longer one:
+    how many of the limited run's timeouts reached their goal in the longer run, and when. `agree` counts
+    the robot-episodes whose outcome by `limit_s` is the same in both runs (all of them, for a policy and
+    world that do not see the step limit)."""
+    if [(r.seed, len(r.reached)) for r in limited] != [(r.seed, len(r.reached)) for r in longer]:
+        raise ValueError("the two runs must hold the same episodes, in the same order")
+    times: list[float] = []
+    timeouts = agree = 0
+    for short, long in zip(limited, longer, strict=True):
+        by_limit = long.reached & (np.nan_to_num(long.time_to_goal_s, nan=np.inf) <= limit_s + 1e-9)
+        agree += int(np.sum(by_limit == short.reached))
+        for i in np.flatnonzero(~short.reached & ~short.collided):
+            timeouts += 1
+            if long.reached[i] and long.time_to_goal_s[i] > limit_s:
+                times.append(float(long.time_to_goal_s[i]))
+    return {
+        "timeouts": timeouts,
+        "reached_later": len(times),
+        "later_median_s": float(np.median(times)) if times else float("nan"),
+        "agree": agree,
+        "robot_episodes": sum(len(r.reached) for r in limited),
     }
 
 
@@ -126,6 +166,12 @@ def main(argv: list[str] | None = None) -> int:
         "--scenario", default=None, help="judge in this scenario (the same robots) instead of the policy's own"
     )
     parser.add_argument("--layouts", choices=("random", "fixed"), default=None, help="default: the policy's")
+    parser.add_argument(
+        "--max-steps",
+        type=int,
+        default=0,
+        help="also play the episodes with this step limit (above the world's): how many timeouts were only slow",
+    )
     args = parser.parse_args(argv)
     if args.episodes < 1:
         raise SystemExit("--episodes must be at least 1")
@@ -137,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.layouts is not None:
         world = replace(world, layouts=args.layouts)
     scenario, world = make_world(world=world)
+    if args.max_steps and args.max_steps <= world.max_steps:
+        raise SystemExit(f"--max-steps must be above the world's step limit ({world.max_steps}), got {args.max_steps}")
     sim = MultiRobotSim(scenario, world)
     results = evaluate(sim, runtime.actions, args.episodes, args.seed, progress=True)
     m = summarize(results)
@@ -150,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         f"timeouts {s['timeouts']}: ended within 0.6 m of the goal along the free path {s['timeouts_within_0_6_m']}, "
-        f"moved under 0.3 m in the last 10 s {s['timeouts_stalled']}"
+        f"moved under 0.3 m in the last 10 s {s['timeouts_stalled']} "
+        f"(within {STALLED_NEAR_M} m of: {s['stalled_at']})"
     )
     exact = replace(world, odometry=OdometryConfig(drift_per_m=0.0))
     exact_results = evaluate(MultiRobotSim(scenario, exact), runtime.actions, args.episodes, args.seed, progress=True)
@@ -158,6 +207,19 @@ def main(argv: list[str] | None = None) -> int:
         f"with exact odometry: {_success(summarize(exact_results))} "
         f"(odometry drift {world.odometry.drift_per_m} per m otherwise)"
     )
+    if args.max_steps:
+        longer = replace(world, max_steps=args.max_steps)
+        long_sim = MultiRobotSim(scenario, longer)
+        long_results = evaluate(long_sim, runtime.actions, args.episodes, args.seed, progress=True)
+        limit_s = world.max_steps * world.control_period_s
+        later = later_arrivals(results, long_results, limit_s)
+        print(
+            f"with a step limit of {args.max_steps} ({args.max_steps * world.control_period_s:.0f} s): "
+            f"{_success(summarize(long_results))}; of the {later['timeouts']} timeouts "
+            f"{later['reached_later']} reached the goal later (median {later['later_median_s']:.1f} s, "
+            f"the limit {limit_s:.0f} s); outcomes by {limit_s:.0f} s agree in {later['agree']} of "
+            f"{later['robot_episodes']} robot-episodes"
+        )
     return 0
 
 
