@@ -190,7 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     m = summarize(results)
     s = sort_failures(scenario, results, world.collision_margin_m, world.control_period_s, sim.random_layouts)
     n = s["robot_episodes"]
-    print(f"{scenario.name} ({world.layouts} layouts): {args.episodes} episodes, {n} robot-episodes, world values")
+    kind = "random" if sim.random_layouts else "fixed"
+    print(f"{scenario.name} ({kind} layouts): {args.episodes} episodes, {n} robot-episodes, world values")
     print(_success(m))
     print(
         f"collisions {s['collisions']} ({s['hit']}): reversing {s['reversing']}, in the first 3 s {s['in_first_3_s']}, "
@@ -213,11 +214,12 @@ def main(argv: list[str] | None = None) -> int:
         long_results = evaluate(long_sim, runtime.actions, args.episodes, args.seed, progress=True)
         limit_s = world.max_steps * world.control_period_s
         later = later_arrivals(results, long_results, limit_s)
+        median = f" (median {later['later_median_s']:.1f} s)" if later["reached_later"] else ""
         print(
             f"with a step limit of {args.max_steps} ({args.max_steps * world.control_period_s:.0f} s): "
             f"{_success(summarize(long_results))}; of the {later['timeouts']} timeouts "
-            f"{later['reached_later']} reached the goal later (median {later['later_median_s']:.1f} s, "
-            f"the limit {limit_s:.0f} s); outcomes by {limit_s:.0f} s agree in {later['agree']} of "
+            f"{later['reached_later']} reached the goal later{median}, the limit {limit_s:.0f} s; "
+            f"outcomes by {limit_s:.0f} s agree in {later['agree']} of "
             f"{later['robot_episodes']} robot-episodes"
         )
     return 0
