@@ -141,7 +141,7 @@ def later_arrivals(limited: list[EpisodeResult], longer: list[EpisodeResult], li
         agree += int(np.sum(by_limit == short.reached))
         for i in np.flatnonzero(~short.reached & ~short.collided):
             timeouts += 1
-            if long.reached[i] and long.time_to_goal_s[i] > limit_s:
+            if long.reached[i] and not by_limit[i]:
                 times.append(float(long.time_to_goal_s[i]))
     return {
         "timeouts": timeouts,
