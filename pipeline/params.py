@@ -228,6 +228,7 @@ class WorldConfig:
 
 
 Algorithm = Literal["sac", "dqn", "ppo"]
+Teacher = Literal["scripted", "path"]
 Mode = Literal["independent", "shared", "centralized"]
 
 
@@ -324,6 +325,9 @@ class ImitationConfig:
     """Passes over the controller's samples."""
     log_std: float = setting(-1.0, ge=-5.0, le=1.0)
     """The log standard deviation of the policy's action noise afterwards (actions in [-1, 1]; continuous)."""
+    teacher: Teacher = setting("scripted", optional=True)
+    """The controller imitated: ``scripted`` (go-to-goal, sees what the policy sees) or ``path`` (also told where
+    each robot's free path through the episode's map leads; continuous actions only)."""
 
 
 @dataclass(frozen=True)
@@ -520,6 +524,10 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
                 world.observation,
                 "'rich' or 'rich_limits' with train.imitation.steps > 0 (the scripted controller steers by the goal)",
             )
+        )
+    if train.imitation.steps > 0 and train.imitation.teacher == "path" and kind != "continuous":
+        bad.append(
+            ("world.actions.kind", kind, "'continuous' with train.imitation.teacher 'path' (it drives in reverse)")
         )
     if train.mode == "shared" and world.observation == "paper":
         bad.append(

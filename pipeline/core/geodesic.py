@@ -170,3 +170,14 @@ class GoalFields:
         r, u = np.arange(len(ix)), self.unit
         v = _blend(lambda i, j: u[r, i, j], ix, iy, tx[:, None], ty[:, None])
         return np.asarray(np.arctan2(v[:, 1], v[:, 0]))
+
+    def ahead(self, xy: np.ndarray, goal_xy: np.ndarray, distance_m: float, step_m: float = 0.05) -> np.ndarray:
+        """(n, 2) the point `distance_m` along robot i's free path from xy[i], or its goal (n, 2) if that is nearer:
+        the path is followed down the field in steps of `step_m`."""
+        p = np.array(xy, dtype=np.float64)
+        goal = np.asarray(goal_xy, dtype=np.float64)
+        for _ in range(max(1, round(distance_m / step_m))):
+            at_goal = np.hypot(*(goal - p).T) <= step_m
+            heading = self.direction(p)
+            p = np.where(at_goal[:, None], goal, p + step_m * np.stack([np.cos(heading), np.sin(heading)], axis=1))
+        return p

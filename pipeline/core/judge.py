@@ -124,6 +124,16 @@ class EpisodeJudge:
         d = self.goals - xy
         return np.asarray(np.arctan2(d[:, 1], d[:, 0]))
 
+    def path_point(self, pose: np.ndarray, ahead_m: float) -> np.ndarray:
+        """(n_robots, 2) the point `ahead_m` along each robot's way to its goal: on the free path, or straight at
+        the goal; the goal itself where it is nearer."""
+        xy = np.asarray(pose, dtype=np.float64)[:, :2]
+        if self._fields is not None:
+            return self._fields.ahead(xy, self.goals, ahead_m)
+        d = self.goals - xy
+        gap = np.hypot(d[:, 0], d[:, 1])
+        return np.asarray(xy + d * np.minimum(1.0, ahead_m / np.maximum(gap, 1e-9))[:, None])
+
     def heading_error(self, pose: np.ndarray) -> np.ndarray:
         """(n_robots,) |heading - path direction| in [0, pi] (rad)."""
         err = np.asarray(pose)[:, 2] - self.path_direction(pose)

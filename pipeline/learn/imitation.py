@@ -1,5 +1,9 @@
-"""A warm start for PPO (`train.imitation`): before reinforcement learning, the policy imitates the scripted
-go-to-goal controller (:class:`pipeline.policy.scripted.GoToGoalController`) in the training worlds.
+"""A warm start for PPO (`train.imitation`): before reinforcement learning, the policy imitates a scripted
+controller in the training worlds: `teacher` ``scripted``, the go-to-goal controller
+(:class:`pipeline.policy.scripted.GoToGoalController`, which sees what the policy sees), or ``path``, the
+path-following controller (:class:`pipeline.policy.scripted.PathFollowingController`), which is also told
+where each robot's free path through the episode's map leads; the policy learns from the lidar alone what
+that knowledge made the teacher do.
 
 The controller drives `steps` world steps of training episodes (their layout draws, randomization and start
 perturbations); every learner then fits, on what its streams saw, its action head to the controller's
@@ -22,8 +26,8 @@ from tqdm import tqdm
 
 from pipeline.learn.modes import StreamMap
 from pipeline.learn.worlds import VecWorlds
-from pipeline.params import TrainConfig
-from pipeline.policy.scripted import GoToGoalController
+from pipeline.params import Teacher, TrainConfig
+from pipeline.policy.scripted import GoToGoalController, PathFollowingController
 
 
 @dataclass(frozen=True)
@@ -47,12 +51,24 @@ class ImitationResult:
 
 
 def demonstrate(
-    worlds: VecWorlds, streams: StreamMap, world_steps: int, gamma: float, progress: bool = False
+    worlds: VecWorlds,
+    streams: StreamMap,
+    world_steps: int,
+    gamma: float,
+    progress: bool = False,
+    teacher: Teacher = "scripted",
 ) -> tuple[list[Demonstration], int, int]:
-    """The controller drives every world for `world_steps` world steps (summed over the worlds, as training
-    counts them); per learner its streams' samples with the controller's returns, the world steps driven
-    and the episodes finished."""
-    controller = GoToGoalController(worlds.config.layout(), worlds.codec)
+    """The `teacher` controller drives every world for `world_steps` world steps (summed over the worlds, as
+    training counts them); per learner its streams' samples with the controller's returns, the world steps
+    driven and the episodes finished."""
+    follower = PathFollowingController(worlds.config.layout(), worlds.codec) if teacher == "path" else None
+    scripted = GoToGoalController(worlds.config.layout(), worlds.codec)
+
+    def controller(flat_obs: np.ndarray) -> np.ndarray:
+        if follower is None:
+            return scripted(flat_obs)
+        return follower(flat_obs, worlds.path_bearings(follower.ahead_m).reshape(-1))
+
     obs = worlds.reset()
     n_learners = streams.n_learners
     seen: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
@@ -159,7 +175,9 @@ def warm_start(
 ) -> ImitationResult:
     """Demonstrate, then fit every learner's policy to its share; the worlds are left mid-episode (the caller
     resets them)."""
-    demos, steps, episodes = demonstrate(worlds, streams, cfg.imitation.steps, cfg.gamma, progress)
+    demos, steps, episodes = demonstrate(
+        worlds, streams, cfg.imitation.steps, cfg.gamma, progress, cfg.imitation.teacher
+    )
     losses = [
         imitate(m, d, cfg, cfg.seed + 104729 * i, progress) for i, (m, d) in enumerate(zip(models, demos, strict=True))
     ]

@@ -96,6 +96,10 @@ class _Share:
         """Reset world k (index in the share) with (k, seed, starts or None); the first observations."""
         return [self.sims[k].reset(seed, starts) for k, seed, starts in requests]
 
+    def path_bearings(self, ahead_m: float) -> np.ndarray:
+        """(worlds in the share, n_robots) :meth:`MultiRobotSim.path_bearing` of each world."""
+        return np.stack([sim.path_bearing(ahead_m) for sim in self.sims])
+
     def step(self, actions: np.ndarray) -> _Stepped:
         results = [sim.step(a) for sim, a in zip(self.sims, actions, strict=True)]
         judged = [r.judge for r in results]
@@ -131,7 +135,12 @@ def _serve(conn: Connection, scenario: Scenario, world: WorldConfig, n_worlds: i
         if verb == "close":
             return
         try:
-            conn.send(("ok", share.step(arg) if verb == "step" else share.reset(arg)))
+            if verb == "step":
+                conn.send(("ok", share.step(arg)))
+            elif verb == "bearings":
+                conn.send(("ok", share.path_bearings(arg)))
+            else:
+                conn.send(("ok", share.reset(arg)))
         except Exception:
             conn.send(("error", traceback.format_exc()))
 
@@ -271,6 +280,15 @@ class VecWorlds:
         self._reset_worlds(list(range(self.n_worlds)))
         self._returns[:] = 0.0
         return self._obs.copy()
+
+    def path_bearings(self, ahead_m: float) -> np.ndarray:
+        """(n_worlds, n_robots) the bearing, in each robot's frame, of the point `ahead_m` along its free path to
+        its goal now (:meth:`MultiRobotSim.path_bearing`): the map's knowledge, for a teacher, never a policy."""
+        if self._local is not None:
+            return self._local.path_bearings(ahead_m)
+        for w in self._workers:
+            w.send("bearings", ahead_m)
+        return np.concatenate([w.receive() for w in self._workers])
 
     def _step_all(self, actions: np.ndarray) -> _Stepped:
         if self._local is not None:

@@ -64,3 +64,82 @@ class GoToGoalController:
             + 0.5 * np.abs(table[None, :, 0] - cmd[:, None, 0]) / self.codec.v_max_mps
         )
         return np.asarray(cost.argmin(axis=1))
+
+
+class PathFollowingController:
+    """A teacher that is told where its free path goes: it steers at the point `ahead_m` along the path to its
+    goal (a bearing from the map, :meth:`pipeline.sim.env.MultiRobotSim.path_bearing`), through the lidar's
+    free directions.
+
+    Among directions around the robot it picks the one nearest that bearing whose corridor of half-width
+    `half_width_m` is free of lidar returns up to `ahead_m` (the goal's distance where nearer), turning right
+    rather than left by `right_bias` rad when it must leave the path (so two robots that meet head-on pass each
+    other); it drives there forward or, for a direction behind it, in reverse, with pure-pursuit curvature,
+    slowing for returns in its way. It needs the bearing, which only the simulator knows: training's imitation
+    uses it as a teacher (``train.imitation.teacher: path``); it is not a policy for deployment.
+    """
+
+    def __init__(
+        self,
+        layout: ObservationLayout,
+        codec: ActionCodec,
+        ahead_m: float = 1.0,
+        half_width_m: float = 0.22,
+        right_bias: float = 0.3,
+        n_directions: int = 72,
+    ) -> None:
+        if not layout.has_goal:
+            raise ValueError(
+                f"the path-following controller needs the 'rich' observation layout (goal), got {layout.name!r}"
+            )
+        if codec.kind != "continuous":
+            raise ValueError("the path-following controller drives continuous actions (reverse included)")
+        self.codec = codec
+        self.ahead_m = ahead_m
+        self.half_width_m = half_width_m
+        self.right_bias = right_bias
+        self._slices = layout.slices
+        n = layout.n_beams
+        # a sector's return may lie anywhere across its sector: its centre and both edges stand for it
+        half = math.pi / n
+        self._point_angles = (2 * math.pi * np.arange(n) / n)[:, None] + np.array([-0.95, 0.0, 0.95])[None] * half
+        self._directions = np.linspace(-math.pi, math.pi, n_directions, endpoint=False)
+
+    def commands(self, obs: np.ndarray, bearing: np.ndarray) -> np.ndarray:
+        """(n_robots, 2) (v m/s, w rad/s) for observations (n_robots, layout.size) and path bearings (n_robots,)."""
+        goal = obs[:, self._slices["goal_in_robot"]].astype(np.float64)
+        ranges = obs[:, self._slices["ranges"]].astype(np.float64)
+        m = len(obs)
+        dist = np.hypot(goal[:, 0], goal[:, 1])
+        # near the goal, straight at it (the path's last cells are coarse)
+        phi = np.where(dist < 0.5, np.arctan2(goal[:, 1], goal[:, 0]), np.asarray(bearing, dtype=np.float64))
+        cand = np.concatenate([phi[:, None], np.broadcast_to(self._directions, (m, len(self._directions)))], axis=1)
+        px = (ranges[:, :, None] * np.cos(self._point_angles)[None]).reshape(m, -1)
+        py = (ranges[:, :, None] * np.sin(self._point_angles)[None]).reshape(m, -1)
+        ux, uy = np.cos(cand)[:, :, None], np.sin(cand)[:, :, None]
+        along = ux * px[:, None] + uy * py[:, None]
+        across = np.abs(-uy * px[:, None] + ux * py[:, None])
+        reach = np.minimum(dist, self.ahead_m)[:, None, None]
+        blocked = ((along > -0.05) & (along < reach) & (across < self.half_width_m)).any(axis=2)
+        dev = np.angle(np.exp(1j * (cand - phi[:, None])))
+        cost = np.abs(dev) + self.right_bias * (dev > 0.05) + 10.0 * blocked
+        best = cost.argmin(axis=1)
+        theta = cand[np.arange(m), best]
+        forward = np.abs(theta) <= math.pi / 2 + 0.3
+        alpha = np.where(forward, theta, np.angle(np.exp(1j * (theta - math.pi))))
+        kappa = 2 * np.sin(alpha) / np.clip(np.minimum(dist, self.ahead_m), 0.05, None)
+        v_max, w_max = self.codec.v_max_mps, self.codec.w_max_radps
+        v = np.minimum(v_max, w_max / np.maximum(np.abs(kappa), 1e-9))
+        # far off the driving direction: turn on the spot first
+        v *= np.clip((math.radians(70) - np.abs(alpha)) / math.radians(25), 0.0, 1.0)
+        ahead = np.where(forward, 1.0, -1.0)[:, None] * px
+        free = np.where((ahead > 0) & (np.abs(py) < self.half_width_m), ahead, np.inf).min(axis=1)
+        v *= np.clip((free - 0.2) / 0.35, 0.0, 1.0)
+        v = np.where(blocked.all(axis=1), 0.0, v)
+        w = np.clip(kappa * v, -w_max, w_max)
+        w = np.where(v < 0.05, np.sign(alpha) * w_max, w)
+        return np.stack([np.where(forward, v, -v), w], axis=1)
+
+    def __call__(self, obs: np.ndarray, bearing: np.ndarray) -> np.ndarray:
+        """Actions for the codec: (n, 2) in [-1, 1]."""
+        return np.asarray(self.codec.encode(self.commands(obs, bearing)))

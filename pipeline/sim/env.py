@@ -89,6 +89,14 @@ class MultiRobotSim:
         self.last_cmd = np.zeros((self.n, 2))
         return self._observe().copy()
 
+    def path_bearing(self, ahead_m: float) -> np.ndarray:
+        """(n_robots,) the bearing (rad, robot frame) of the point `ahead_m` along each robot's way to its goal
+        (:meth:`EpisodeJudge.path_point`, from the true poses and the episode's map): what a planner that knows
+        the map would steer at. Training's imitation teacher reads it; no policy does."""
+        truth = self.world.truth
+        d = self.judge.path_point(truth, ahead_m) - truth[:, :2]
+        return np.asarray(np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - truth[:, 2]))))
+
     def step(self, actions: np.ndarray) -> SimStep:
         """Advance one control period with policy actions for every robot (done robots are ignored)."""
         cmd = self.codec.decode(actions)
