@@ -325,6 +325,9 @@ class ImitationConfig:
     """Passes over the controller's samples."""
     log_std: float = setting(-1.0, ge=-5.0, le=1.0)
     """The log standard deviation of the policy's action noise afterwards (actions in [-1, 1]; continuous)."""
+    rounds: int = setting(1, ge=1, le=20, optional=True)
+    """Rounds of demonstration (each `steps` world steps): the controller drives the first; in each further one
+    the policy fitted so far drives and the controller's actions where it goes are the labels (DAgger)."""
     teacher: Teacher = setting("scripted", optional=True)
     """The controller imitated: ``scripted`` (go-to-goal, sees what the policy sees) or ``path`` (also told where
     each robot's free path through the episode's map leads; continuous actions only)."""

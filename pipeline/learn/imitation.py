@@ -10,12 +10,21 @@ perturbations); every learner then fits, on what its streams saw, its action hea
 actions (squared error on the Gaussian mean for continuous actions, cross-entropy on the logits for
 discrete ones) and its value head to the controller's discounted returns, for `epochs` passes in
 minibatches of ``ppo.minibatch_size``. Only samples whose episode ended within the demonstration count: a
-return cut off by the end of the demonstration would be biased. Afterwards the policy's action noise is
-set to ``exp(log_std)``, and PPO goes on from these weights with its own optimizer state, untouched here.
+return cut off by the end of the demonstration would be biased.
+
+With `rounds` > 1 the demonstration goes on as DAgger does: in each further round the policy fitted so far
+drives `steps` more world steps (its action means), the controller's actions in the states the policy itself
+reaches are recorded as the labels, and the policy is fitted again on every round's samples (its value head
+to the returns of whoever drove). A student of a plain demonstration has never seen the states its own
+mistakes lead to; these rounds show it what the teacher does there.
+
+Afterwards the policy's action noise is set to ``exp(log_std)``, and PPO goes on from these weights with its
+own optimizer state, untouched here.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +54,7 @@ class ImitationResult:
     world_steps: int
     samples: int
     episodes: int
+    rounds: int
     action_loss: float
     """Per learner mean, over the last epoch: squared error of the action mean (continuous) or cross-entropy."""
     value_loss: float
@@ -57,10 +67,12 @@ def demonstrate(
     gamma: float,
     progress: bool = False,
     teacher: Teacher = "scripted",
+    driver: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None,
 ) -> tuple[list[Demonstration], int, int]:
     """The `teacher` controller drives every world for `world_steps` world steps (summed over the worlds, as
     training counts them); per learner its streams' samples with the controller's returns, the world steps
-    driven and the episodes finished."""
+    driven and the episodes finished. With a `driver` (per learner observations to per learner actions) the
+    driver steers the worlds and the teacher's actions are only recorded, with the driver's returns."""
     follower = PathFollowingController(worlds.config.layout(), worlds.codec) if teacher == "path" else None
     scripted = GoToGoalController(worlds.config.layout(), worlds.codec)
 
@@ -77,12 +89,13 @@ def demonstrate(
     valid: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
     ends: list[list[np.ndarray]] = [[] for _ in range(n_learners)]
     steps = episodes = 0
-    bar = tqdm(total=world_steps, desc="imitation: controller drives", unit="step", disable=not progress)
+    desc = "imitation: controller drives" if driver is None else "imitation: policy drives, controller labels"
+    bar = tqdm(total=world_steps, desc=desc, unit="step", disable=not progress)
     while steps < world_steps:
         world_actions = controller(obs.reshape(-1, streams.obs_size))
         world_actions = world_actions.reshape(streams.n_worlds, streams.n_robots, *world_actions.shape[1:])
         per_learner = streams.learner_obs(obs)
-        step = worlds.step(world_actions)
+        step = worlds.step(world_actions if driver is None else streams.world_actions(driver(per_learner)))
         for i, (o, a, b) in enumerate(
             zip(per_learner, streams.learner_actions(world_actions), streams.learner_batches(step), strict=True)
         ):
@@ -175,16 +188,37 @@ def warm_start(
 ) -> ImitationResult:
     """Demonstrate, then fit every learner's policy to its share; the worlds are left mid-episode (the caller
     resets them)."""
-    demos, steps, episodes = demonstrate(
-        worlds, streams, cfg.imitation.steps, cfg.gamma, progress, cfg.imitation.teacher
-    )
+    im = cfg.imitation
+    demos, steps, episodes = demonstrate(worlds, streams, im.steps, cfg.gamma, progress, im.teacher)
     losses = [
         imitate(m, d, cfg, cfg.seed + 104729 * i, progress) for i, (m, d) in enumerate(zip(models, demos, strict=True))
     ]
+
+    def students(per_learner: list[np.ndarray]) -> list[np.ndarray]:
+        return [
+            np.asarray(m.policy.predict(o, deterministic=True)[0]) for m, o in zip(models, per_learner, strict=True)
+        ]
+
+    for r in range(1, im.rounds):
+        more, s, e = demonstrate(worlds, streams, im.steps, cfg.gamma, progress, im.teacher, driver=students)
+        demos = [
+            Demonstration(
+                obs=np.concatenate([d.obs, n.obs]),
+                actions=np.concatenate([d.actions, n.actions]),
+                returns=np.concatenate([d.returns, n.returns]),
+            )
+            for d, n in zip(demos, more, strict=True)
+        ]
+        steps, episodes = steps + s, episodes + e
+        losses = [
+            imitate(m, d, cfg, cfg.seed + 104729 * i + 7919 * r, progress)
+            for i, (m, d) in enumerate(zip(models, demos, strict=True))
+        ]
     return ImitationResult(
         world_steps=steps,
         samples=sum(len(d.returns) for d in demos),
         episodes=episodes,
+        rounds=im.rounds,
         action_loss=float(np.mean([a for a, _ in losses])),
         value_loss=float(np.mean([v for _, v in losses])),
     )

@@ -17,6 +17,7 @@ from pipeline.learn.trainer import train
 from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
 from pipeline.params import Params, TrainConfig, world_config
+from pipeline.policy.scripted import GoToGoalController
 from pipeline.sim import make_world
 from tests.integration.test_train_export import tiny_config, world_for
 
@@ -118,3 +119,45 @@ def test_imitation_is_refused_where_it_cannot_run() -> None:
         from_mapping(Params, bad, "<test>")
     with pytest.raises(ConfigError, match=r"imitation\.log_std"):
         from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), {"imitation": {"log_std": 3.0}}), "<test>")
+
+
+def test_in_a_dagger_round_the_driver_steers_and_the_controller_only_labels() -> None:
+    scenario, world = world_for("ppo", n_robots=3, max_steps=30)
+    with VecWorlds(scenario, world, 2, seed=5, start_xy_m=0.3) as worlds:
+        streams = StreamMap("shared", worlds)
+
+        def stand_still(per_learner: list[np.ndarray]) -> list[np.ndarray]:
+            # decoded to (0, 0): the middle of the action range
+            return [np.zeros((len(o), 2), dtype=np.float32) for o in per_learner]
+
+        (demo,), steps, episodes = demonstrate(worlds, streams, 120, gamma=0.99, driver=stand_still)
+    assert steps == 120 and episodes == 4  # 2 worlds, 30-step episodes nobody ends early
+    position = world.layout().slices["position"]
+    # nobody moved: every sample of a robot's episode shows it where it started (lockstep steps 0-29 are the
+    # first episodes, 30-59 the second; 6 streams per step) ...
+    xy = demo.obs[:, position].reshape(60, 2 * scenario.n_robots, 2)
+    for first in (0, 30):
+        np.testing.assert_allclose(xy[first : first + 30], np.broadcast_to(xy[first], (30, 6, 2)), atol=1e-3)
+    assert not np.allclose(xy[0], xy[30], atol=1e-2)  # the second episodes start elsewhere
+    # ... while the labels are what the controller would have done there
+    controller = GoToGoalController(world.layout(), worlds.codec)
+    np.testing.assert_array_equal(demo.actions, controller(demo.obs))
+    assert np.abs(demo.actions).max() > 0.5
+
+
+def test_dagger_rounds_add_samples_from_the_students_driving_and_repeat_to_the_bit(tmp_path: Path) -> None:
+    scenario, world = world_for("ppo")
+    imitation = {"steps": 120, "epochs": 2, "rounds": 3}
+    cfg = tiny_config(algorithm="ppo", mode="shared", imitation=imitation)
+    a = train(scenario, world, cfg, tmp_path / "a", progress=False)
+    b = train(scenario, world, cfg, tmp_path / "b", progress=False)
+    one = train(
+        scenario,
+        world,
+        tiny_config(algorithm="ppo", mode="shared", imitation={**imitation, "rounds": 1}),
+        tmp_path / "c",
+        progress=False,
+    )
+    assert a.digest == b.digest != one.digest
+    assert a.metrics()["train/imitation_world_steps"] == 360.0 and one.metrics()["train/imitation_world_steps"] == 120.0
+    assert a.metrics()["train/imitation_samples"] > 2 * one.metrics()["train/imitation_samples"]
