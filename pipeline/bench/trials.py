@@ -45,6 +45,8 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.steps": 0,
     "train.imitation.epochs": 20,
     "train.imitation.log_std": -1.0,
+    "train.imitation.rounds": 1,
+    "train.imitation.teacher": "scripted",
 }
 """Settings added to params.yaml after trials were first digested, each with the value that behaves as before it
 existed. At that value a setting is left out of a trial's digest, so a trial finished before the setting
