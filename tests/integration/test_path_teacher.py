@@ -130,7 +130,7 @@ def test_the_teacher_that_knows_the_map_brings_robots_home_where_the_go_to_goal_
     assert (cmd[:, 0] <= 0).all()
 
 
-def test_a_warm_start_from_the_path_teacher_learns_its_reversing_and_repeats_to_the_bit(tmp_path: Path) -> None:
+def test_a_warm_start_from_the_path_teacher_records_its_reversing_and_repeats_to_the_bit(tmp_path: Path) -> None:
     scenario, world = in_way_world(max_steps=40)
     cfg = tiny_config(algorithm="ppo", mode="shared", imitation={"steps": 240, "epochs": 2, "teacher": "path"})
     with VecWorlds(scenario, world, 2, seed=1) as worlds:
