@@ -73,13 +73,14 @@ def demonstrate(
     training counts them); per learner its streams' samples with the controller's returns, the world steps
     driven and the episodes finished. With a `driver` (per learner observations to per learner actions) the
     driver steers the worlds and the teacher's actions are only recorded, with the driver's returns."""
-    follower = PathFollowingController(worlds.config.layout(), worlds.codec) if teacher == "path" else None
-    scripted = GoToGoalController(worlds.config.layout(), worlds.codec)
+    controller: Callable[[np.ndarray], np.ndarray]
+    if teacher == "path":
+        follower = PathFollowingController(worlds.config.layout(), worlds.codec)
 
-    def controller(flat_obs: np.ndarray) -> np.ndarray:
-        if follower is None:
-            return scripted(flat_obs)
-        return follower(flat_obs, worlds.path_bearings(follower.ahead_m).reshape(-1))
+        def controller(flat_obs: np.ndarray) -> np.ndarray:
+            return follower(flat_obs, worlds.path_bearings(follower.ahead_m).reshape(-1))
+    else:
+        controller = GoToGoalController(worlds.config.layout(), worlds.codec)
 
     obs = worlds.reset()
     n_learners = streams.n_learners
