@@ -161,3 +161,6 @@ def test_the_path_teacher_is_refused_where_it_cannot_drive() -> None:
     unknown = merge(params, {"train": {"imitation": {"teacher": "planner"}}})
     with pytest.raises(ConfigError, match=r"imitation\.teacher.*'planner'.*'scripted'.*'path'"):
         from_mapping(Params, unknown, "<test>")
+    no_rounds = merge(params, {"train": {"imitation": {"rounds": 0}}})
+    with pytest.raises(ConfigError, match=r"imitation\.rounds"):
+        from_mapping(Params, no_rounds, "<test>")
