@@ -99,7 +99,8 @@ def timing_figures(source: str | os.PathLike[str] | McapLog | Recording) -> Timi
 
     sends = frame.filter(pl.col("kind") == TIMING_CODES["send"])
     skew = (
-        sends.group_by("tick")
+        sends.filter(pl.col("tick") > 0)  # tick 0: an abort's zero commands, sent off the grid
+        .group_by("tick")
         .agg((pl.col("local_ns").max() - pl.col("local_ns").min()).alias("skew"), pl.len().alias("n"))
         .filter(pl.col("n") > 1)["skew"]
         .to_numpy()

@@ -251,6 +251,7 @@ class DeployRunner:
             if problem:
                 self.emitter.clear()
                 self.log.event(self.clock.now_ns(), episode, step, "abort", detail=problem)
+                self.emitter.halt()
                 raise DeployAborted(problem, [])
             if self.emitter.error is not None:
                 raise DeployAborted(f"the emitter failed: {self.emitter.error!r}", [])
@@ -264,6 +265,7 @@ class DeployRunner:
                 t_abort = self.clock.now_ns()
                 for name, why in silent.items():
                     self.log.event(t_abort, episode, step, "abort", name, why)
+                self.emitter.halt()  # the fleet stops now, not at the next tick
                 aborted, reason = True, "; ".join(f"{r}: {why}" for r, why in silent.items())
                 break
             scans, geoms, odom_raw, truth = self.samples.arrays(state)

@@ -71,6 +71,8 @@ class Command:
 Publish = Callable[[str, Any], None]
 """Sends a prepared command (see Prepare) to the robot's cmd_vel."""
 Prepare = Callable[[str, float, float], Any]
+Planned = tuple[str, float, float, int, Any]
+"""One command of a tick: robot, v, w, the stamp it was queued with (0: none), the message ready to publish."""
 """Everything of sending (robot, v m/s, w rad/s) that can be done before the tick's sends."""
 
 
@@ -148,6 +150,19 @@ class EmitterBuffer:
             for q in self._queues.values():
                 q.clear()
 
+    def halt(self) -> dict[str, tuple[float, float]]:
+        """Forget every queued command and send zero velocity to every robot now, off the tick grid.
+
+        An abort stops the fleet at once rather than at the next tick. The sends are recorded like a
+        tick's but carry tick 0 and make no tick event, so the grid's jitter is not disturbed.
+        """
+        with self._sending:
+            with self._lock:
+                for q in self._queues.values():
+                    q.clear()
+            planned = [(robot, 0.0, 0.0, 0, self.prepare(robot, 0.0, 0.0)) for robot in self.robots]
+            return self._send(planned, self.clock.now_ns(), 0)
+
     def current(self, robot: str, now_ns: int) -> Command | None:
         """The newest command of `robot` whose window contains `now_ns`; older ones are dropped."""
         q = self._queues[robot]
@@ -185,11 +200,16 @@ class EmitterBuffer:
             cmd = chosen[robot]
             v, w = (0.0, 0.0) if cmd is None else self.clamp(robot, cmd.v_mps, cmd.w_radps)
             planned.append((robot, v, w, 0 if cmd is None else cmd.stamp_ns, self.prepare(robot, v, w)))
+        return self._send(planned, t, tick)
+
+    def _send(self, planned: list[Planned], t: int, tick: int) -> dict[str, tuple[float, float]]:
+        """Publish the planned commands back to back, then report them (a tick event unless `tick` is 0)."""
         times = []
         for robot, _, _, _, ready in planned:
             self.publish(robot, ready)
             times.append(self.clock.now_ns())
-        self.on_timing(TimingEvent("tick", "", "", t, tick=tick))
+        if tick:
+            self.on_timing(TimingEvent("tick", "", "", t, tick=tick))
         sent = {}
         for (robot, v, w, stamp, _), sent_ns in zip(planned, times, strict=True):
             self._seq += 1

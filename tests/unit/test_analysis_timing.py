@@ -20,13 +20,14 @@ T0 = 1_000_000_000_000
 
 
 def write_session(path: Path, tick_ms: float = 20.0, with_fleet: bool = True) -> dict[str, np.ndarray]:
-    """Two episodes of 50 ticks separated by a 2 s reset pause; returns the planted quantities."""
+    """Two episodes of 50 ticks separated by a 2 s reset pause, each ended by an abort's zero commands sent off
+    the grid (tick 0); returns the planted quantities."""
     rng = np.random.default_rng(3)
     period = round(tick_ms * MS)
     docs = {"fleet": dumps({"timing": {"tick_period_s": tick_ms / 1000.0}})} if with_fleet else {}
     planted: dict[str, list[float]] = {"jitter": [], "skew": [], "age": []}
     with SessionLog(path, ROBOTS, session_metadata("real", "empty", ROBOTS, 0.1), docs) as log:
-        tick = 0
+        tick = 1  # the emitter counts its ticks from 1
         for episode in range(2):
             t = T0 + episode * 3_000 * MS
             for k in range(50):
@@ -49,6 +50,9 @@ def write_session(path: Path, tick_ms: float = 20.0, with_fleet: bool = True) ->
                 tick += 1
             if episode == 1:
                 log.timing(t + 10 * period, "stale", "robot_2", "odom: 0.4 s old", 0, 0, 0)
+            halt = t + 50 * period + 7 * MS
+            for i, robot in enumerate(ROBOTS):
+                log.timing(halt + i * 20_000, "send", robot, f"/{robot}/cmd_vel", 0, 0, 0)
     periods = np.diff(np.array(_ticks(path), dtype=np.float64))
     planted["jitter"] = list(np.abs(periods[periods < 5 * period] - period))
     return {k: np.array(v) for k, v in planted.items()}
@@ -68,8 +72,9 @@ def test_figures_match_the_planted_timing(tmp_path: Path) -> None:
     assert f.tick_jitter_p99_ms == pytest.approx(np.percentile(planted["jitter"], 99) / MS)
     assert f.tick_jitter_p99_ms < 0.6
     assert f.tick_p50_ms == pytest.approx(20.0, abs=0.3)
+    # the two halts, 3 s apart, share tick 0: taken for one tick they would put 3 s into the skew
     assert f.skew_p99_ms == pytest.approx(np.percentile(planted["skew"], 99) / MS)
-    assert f.sends == 300
+    assert f.sends == 306
     assert f.controls == 20
     assert f.receives == 20 * 6
     assert f.age_p99_ms == pytest.approx(np.percentile(planted["age"], 99) / MS)

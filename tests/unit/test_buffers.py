@@ -102,6 +102,22 @@ def test_stop_sends_zero_to_everyone(emitter):
     assert [(r, v, w) for _, r, v, w in sent[-2:]] == [("robot_1", 0.0, 0.0), ("robot_2", 0.0, 0.0)]
 
 
+def test_halt_sends_zero_now_off_the_grid_and_the_next_tick_stays_zero(emitter):
+    """An abort stops every robot at once: zero commands go out before the next tick, their sends are reported
+    with tick 0 and no tick event (the grid's jitter is untouched), and the queued commands are gone."""
+    em, clock, sent, events = emitter
+    em.command_all(0, np.array([[0.3, 0.1], [0.2, -0.1]]))
+    em.tick(0)
+    clock.t = 5 * MS  # between ticks
+    assert em.halt() == {"robot_1": (0.0, 0.0), "robot_2": (0.0, 0.0)}
+    assert [(t, r, v, w) for t, r, v, w in sent[-2:]] == [(5 * MS, "robot_1", 0.0, 0.0), (5 * MS, "robot_2", 0.0, 0.0)]
+    halted = [e for e in events if e.kind == "send"][-2:]
+    assert [e.tick for e in halted] == [0, 0] and [e.local_ns for e in halted] == [5 * MS, 5 * MS]
+    assert [e.tick for e in events if e.kind == "tick"] == [1]
+    em.tick(20 * MS)  # the command of stamp 0 would still be valid: halt forgot it
+    assert [(r, v, w) for _, r, v, w in sent[-2:]] == [("robot_1", 0.0, 0.0), ("robot_2", 0.0, 0.0)]
+
+
 def test_clear_waits_for_a_tick_in_flight():
     """A tick that chose its commands before clear() sends and records them before clear() returns, so
     nothing recorded after clear() carries an old command (an abort's zero commands come after it)."""
