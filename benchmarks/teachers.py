@@ -35,7 +35,7 @@ def teachers(sim: MultiRobotSim) -> dict[str, Callable[[np.ndarray], np.ndarray]
     follower = PathFollowingController(sim.layout, sim.codec)
 
     def path(obs: np.ndarray) -> np.ndarray:
-        return follower(obs, sim.path_bearing(follower.ahead_m))
+        return follower(obs, sim.path_bearing(follower.ahead_m), sim.others_in_frame())
 
     return {"scripted": scripted, "path": path}
 

@@ -78,7 +78,10 @@ def demonstrate(
         follower = PathFollowingController(worlds.config.layout(), worlds.codec)
 
         def controller(flat_obs: np.ndarray) -> np.ndarray:
-            return follower(flat_obs, worlds.path_bearings(follower.ahead_m).reshape(-1))
+            others = worlds.others_in_frame()
+            return follower(
+                flat_obs, worlds.path_bearings(follower.ahead_m).reshape(-1), others.reshape(-1, *others.shape[2:])
+            )
     else:
         controller = GoToGoalController(worlds.config.layout(), worlds.codec)
 

@@ -100,6 +100,10 @@ class _Share:
         """(worlds in the share, n_robots) :meth:`MultiRobotSim.path_bearing` of each world."""
         return np.stack([sim.path_bearing(ahead_m) for sim in self.sims])
 
+    def others_in_frame(self) -> np.ndarray:
+        """(worlds in the share, n_robots, n_robots - 1, 2) :meth:`MultiRobotSim.others_in_frame` of each world."""
+        return np.stack([sim.others_in_frame() for sim in self.sims])
+
     def step(self, actions: np.ndarray) -> _Stepped:
         results = [sim.step(a) for sim, a in zip(self.sims, actions, strict=True)]
         judged = [r.judge for r in results]
@@ -139,6 +143,8 @@ def _serve(conn: Connection, scenario: Scenario, world: WorldConfig, n_worlds: i
                 conn.send(("ok", share.step(arg)))
             elif verb == "bearings":
                 conn.send(("ok", share.path_bearings(arg)))
+            elif verb == "others":
+                conn.send(("ok", share.others_in_frame()))
             else:
                 conn.send(("ok", share.reset(arg)))
         except Exception:
@@ -288,6 +294,15 @@ class VecWorlds:
             return self._local.path_bearings(ahead_m)
         for w in self._workers:
             w.send("bearings", ahead_m)
+        return np.concatenate([w.receive() for w in self._workers])
+
+    def others_in_frame(self) -> np.ndarray:
+        """(n_worlds, n_robots, n_robots - 1, 2) the other robots' positions in each robot's frame
+        (:meth:`MultiRobotSim.others_in_frame`): for a teacher, never a policy."""
+        if self._local is not None:
+            return self._local.others_in_frame()
+        for w in self._workers:
+            w.send("others", None)
         return np.concatenate([w.receive() for w in self._workers])
 
     def _step_all(self, actions: np.ndarray) -> _Stepped:

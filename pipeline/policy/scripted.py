@@ -75,8 +75,11 @@ class PathFollowingController:
     `half_width_m` is free of lidar returns up to `ahead_m` (the goal's distance where nearer), turning right
     rather than left by `right_bias` rad when it must leave the path (so two robots that meet head-on pass each
     other); it drives there forward or, for a direction behind it, in reverse, with pure-pursuit curvature,
-    slowing for returns in its way. It needs the bearing, which only the simulator knows: training's imitation
-    uses it as a teacher (``train.imitation.teacher: path``); it is not a policy for deployment.
+    slowing for returns in its way. Told where the other robots are (`others`), it keeps the `ahead_m` corridor
+    clear of their bodies (`others_radius_m`) and checks the lidar only up to `near_m`: the path already keeps
+    clear of walls and boxes, and a corridor to a point around a box's corner would clip the corner and stall
+    the robot there. It needs the bearing, which only the simulator knows: training's imitation uses it as a
+    teacher (``train.imitation.teacher: path``); it is not a policy for deployment.
     """
 
     def __init__(
@@ -87,6 +90,8 @@ class PathFollowingController:
         half_width_m: float = 0.22,
         right_bias: float = 0.3,
         n_directions: int = 72,
+        near_m: float = 0.6,
+        others_radius_m: float = 0.25,
     ) -> None:
         if not layout.has_goal:
             raise ValueError(
@@ -98,6 +103,8 @@ class PathFollowingController:
         self.ahead_m = ahead_m
         self.half_width_m = half_width_m
         self.right_bias = right_bias
+        self.near_m = near_m
+        self.others_radius_m = others_radius_m
         self._slices = layout.slices
         n = layout.n_beams
         # a sector's return may lie anywhere across its sector: its centre and both edges stand for it
@@ -105,8 +112,9 @@ class PathFollowingController:
         self._point_angles = (2 * math.pi * np.arange(n) / n)[:, None] + np.array([-0.95, 0.0, 0.95])[None] * half
         self._directions = np.linspace(-math.pi, math.pi, n_directions, endpoint=False)
 
-    def commands(self, obs: np.ndarray, bearing: np.ndarray) -> np.ndarray:
-        """(n_robots, 2) (v m/s, w rad/s) for observations (n_robots, layout.size) and path bearings (n_robots,)."""
+    def commands(self, obs: np.ndarray, bearing: np.ndarray, others: np.ndarray | None = None) -> np.ndarray:
+        """(n_robots, 2) (v m/s, w rad/s) for observations (n_robots, layout.size), path bearings (n_robots,) and,
+        optionally, the other robots' positions in each robot's frame (n_robots, n_robots - 1, 2)."""
         goal = obs[:, self._slices["goal_in_robot"]].astype(np.float64)
         ranges = obs[:, self._slices["ranges"]].astype(np.float64)
         m = len(obs)
@@ -119,8 +127,15 @@ class PathFollowingController:
         ux, uy = np.cos(cand)[:, :, None], np.sin(cand)[:, :, None]
         along = ux * px[:, None] + uy * py[:, None]
         across = np.abs(-uy * px[:, None] + ux * py[:, None])
-        reach = np.minimum(dist, self.ahead_m)[:, None, None]
+        reach = np.minimum(dist, self.ahead_m if others is None else self.near_m)[:, None, None]
         blocked = ((along > -0.05) & (along < reach) & (across < self.half_width_m)).any(axis=2)
+        if others is not None:
+            o = np.asarray(others, dtype=np.float64).reshape(m, -1, 2)
+            o_along = ux * o[:, None, :, 0] + uy * o[:, None, :, 1]
+            o_across = np.abs(-uy * o[:, None, :, 0] + ux * o[:, None, :, 1])
+            o_reach = np.minimum(dist, self.ahead_m)[:, None, None] + self.others_radius_m
+            body = self.half_width_m + self.others_radius_m
+            blocked |= ((o_along > -0.05) & (o_along < o_reach) & (o_across < body)).any(axis=2)
         dev = np.angle(np.exp(1j * (cand - phi[:, None])))
         cost = np.abs(dev) + self.right_bias * (dev > 0.05) + 10.0 * blocked
         best = cost.argmin(axis=1)
@@ -140,6 +155,6 @@ class PathFollowingController:
         w = np.where(v < 0.05, np.sign(alpha) * w_max, w)
         return np.stack([np.where(forward, v, -v), w], axis=1)
 
-    def __call__(self, obs: np.ndarray, bearing: np.ndarray) -> np.ndarray:
+    def __call__(self, obs: np.ndarray, bearing: np.ndarray, others: np.ndarray | None = None) -> np.ndarray:
         """Actions for the codec: (n, 2) in [-1, 1]."""
-        return np.asarray(self.codec.encode(self.commands(obs, bearing)))
+        return np.asarray(self.codec.encode(self.commands(obs, bearing, others)))

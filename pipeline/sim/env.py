@@ -97,6 +97,17 @@ class MultiRobotSim:
         d = self.judge.path_point(truth, ahead_m) - truth[:, :2]
         return np.asarray(np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - truth[:, 2]))))
 
+    def others_in_frame(self) -> np.ndarray:
+        """(n_robots, n_robots - 1, 2) where the other robots are (m, robot i's frame, from the true poses), in
+        robot order: what a teacher that sees every robot knows. Training's imitation teacher reads it; no policy
+        does."""
+        truth = self.world.truth
+        n = len(truth)
+        others = np.array([[j for j in range(n) if j != i] for i in range(n)], dtype=np.intp).reshape(n, n - 1)
+        d = truth[others, :2] - truth[:, None, :2]
+        c, s = np.cos(truth[:, 2])[:, None], np.sin(truth[:, 2])[:, None]
+        return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
     def step(self, actions: np.ndarray) -> SimStep:
         """Advance one control period with policy actions for every robot (done robots are ignored)."""
         cmd = self.codec.decode(actions)
