@@ -339,8 +339,9 @@ class TrainConfig:
 
     algorithm: Algorithm = setting("sac")
     mode: Mode = setting("independent")
-    total_steps: int = setting(200_000, ge=1, le=100_000_000)
-    """World control steps summed over the parallel worlds."""
+    total_steps: int = setting(200_000, ge=0, le=100_000_000)
+    """World control steps summed over the parallel worlds; 0 with `imitation.steps` > 0: the imitated policy
+    alone (evaluated, checkpointed and exported as it is, no reinforcement learning)."""
     n_envs: int = setting(4, ge=1, le=256)
     """Parallel worlds stepped in lockstep."""
     world_workers: int = setting(1, ge=1, le=256)
@@ -383,6 +384,8 @@ class TrainConfig:
             bad.append(("observation_scaling", self.observation_scaling, f"'none' with algorithm {self.algorithm}"))
         if self.imitation.steps > 0 and self.algorithm != "ppo":
             bad.append(("imitation.steps", self.imitation.steps, f"0 with algorithm {self.algorithm} (ppo only)"))
+        if self.total_steps == 0 and self.imitation.steps == 0:
+            bad.append(("total_steps", 0, ">= 1, or 0 with imitation.steps > 0 (the imitated policy alone)"))
         return bad
 
 

@@ -10,6 +10,7 @@ import pytest
 import torch as th
 
 from pipeline.errors import ConfigError
+from pipeline.learn.export import export_policy
 from pipeline.learn.imitation import demonstrate, discounted_returns, imitate
 from pipeline.learn.learners import build_learners
 from pipeline.learn.modes import StreamMap
@@ -17,9 +18,10 @@ from pipeline.learn.trainer import train
 from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
 from pipeline.params import Params, TrainConfig, world_config
+from pipeline.policy.runtime import PolicyRuntime
 from pipeline.policy.scripted import GoToGoalController
 from pipeline.sim import make_world
-from tests.integration.test_train_export import tiny_config, world_for
+from tests.integration.test_train_export import golden_from_sim, tiny_config, world_for
 
 pytestmark = pytest.mark.integration
 
@@ -108,6 +110,34 @@ def test_a_warm_started_training_reports_it_and_repeats_to_the_bit(tmp_path: Pat
     assert evaluated[0] == "0" and "0" not in [
         line.split(",")[0] for line in (tmp_path / "c" / "selection.csv").read_text().splitlines()[1:]
     ]
+
+
+def test_with_no_ppo_budget_the_imitated_policy_alone_is_evaluated_and_kept(tmp_path: Path) -> None:
+    """`total_steps: 0` with imitation: the imitated weights are the training's result (no PPO update), evaluated
+    like any and exported from the checkpoint, the same as a training with a budget exports before its first
+    update."""
+    scenario, world = world_for("ppo")
+    selection = {"keep": "best", "every_steps": 120, "episodes": 2}
+    imitation = {"steps": 200, "epochs": 3}
+    alone = tiny_config(algorithm="ppo", mode="shared", imitation=imitation, selection=selection, total_steps=0)
+    result = train(scenario, world, alone, tmp_path / "a", progress=False)
+    assert result.world_steps == 0 and result.episodes == 0 and result.selected_at_steps == 0
+    rows = (tmp_path / "a" / "selection.csv").read_text().splitlines()[1:]
+    assert [row.split(",")[0] for row in rows] == ["0"]
+    state = json.loads((tmp_path / "a" / "checkpoint" / "train.json").read_text())
+    assert state["world_steps"] == 0 and state["imitation"]["world_steps"] == 200 and not state["interrupted"]
+    golden = golden_from_sim(scenario, world)
+    export_policy(result.checkpoint, tmp_path / "policy", golden, tolerance=1e-5)
+    assert PolicyRuntime(tmp_path / "policy").actions(golden[0]).shape == (scenario.n_robots, 2)
+    # the same imitation followed by PPO changes the weights; the imitation alone is what it started from
+    longer = tiny_config(
+        algorithm="ppo", mode="shared", imitation=imitation, selection={**selection, "keep": "last"}, total_steps=240
+    )
+    trained = train(scenario, world, longer, tmp_path / "b", progress=False)
+    assert trained.digest != result.digest
+    assert train(scenario, world, alone, tmp_path / "c", progress=False).digest == result.digest
+    with pytest.raises(ConfigError, match=r"total_steps.*0 with imitation\.steps > 0"):
+        tiny_config(algorithm="ppo", total_steps=0)
 
 
 def test_imitation_is_refused_where_it_cannot_run() -> None:
