@@ -71,9 +71,9 @@ class Command:
 Publish = Callable[[str, Any], None]
 """Sends a prepared command (see Prepare) to the robot's cmd_vel."""
 Prepare = Callable[[str, float, float], Any]
+"""Everything of sending (robot, v m/s, w rad/s) that can be done before the tick's sends."""
 Planned = tuple[str, float, float, int, Any]
 """One command of a tick: robot, v, w, the stamp it was queued with (0: none), the message ready to publish."""
-"""Everything of sending (robot, v m/s, w rad/s) that can be done before the tick's sends."""
 
 
 def _as_is(robot: str, v: float, w: float) -> Any:
@@ -157,9 +157,7 @@ class EmitterBuffer:
         tick's but carry tick 0 and make no tick event, so the grid's jitter is not disturbed.
         """
         with self._sending:
-            with self._lock:
-                for q in self._queues.values():
-                    q.clear()
+            self.clear()
             planned = [(robot, 0.0, 0.0, 0, self.prepare(robot, 0.0, 0.0)) for robot in self.robots]
             return self._send(planned, self.clock.now_ns(), 0)
 

@@ -47,6 +47,10 @@ class MultiRobotSim:
         self.judge = self.mdp.judge
         self._observe_truth = self.mdp.definition.observed_pose == "ground_truth"
         self.n = scenario.n_robots
+        self._others = np.array([[j for j in range(self.n) if j != i] for i in range(self.n)], dtype=np.intp).reshape(
+            self.n, self.n - 1
+        )
+        """Row i: the indices of every robot but i, in order (:meth:`others_in_frame`)."""
         self.obs_low, self.obs_high = self.observer.low, self.observer.high
         self.raw_scan = np.zeros((self.n, world.lidar.sim_beams))
         self.ranges = np.zeros((self.n, world.lidar.beams))
@@ -102,9 +106,7 @@ class MultiRobotSim:
         robot order: what a teacher that sees every robot knows. Training's imitation teacher reads it; no policy
         does."""
         truth = self.world.truth
-        n = len(truth)
-        others = np.array([[j for j in range(n) if j != i] for i in range(n)], dtype=np.intp).reshape(n, n - 1)
-        d = truth[others, :2] - truth[:, None, :2]
+        d = truth[self._others, :2] - truth[:, None, :2]
         c, s = np.cos(truth[:, 2])[:, None], np.sin(truth[:, 2])[:, None]
         return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
 
