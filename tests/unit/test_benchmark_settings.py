@@ -24,7 +24,7 @@ def _flat(mapping: object, prefix: str = "") -> dict[str, object]:
 
 
 def test_there_are_settings_files():
-    assert {p.name for p in SETTINGS} >= {"layouts_dagger.yaml", "ten_dagger.yaml"}
+    assert "layouts_dagger.yaml" in {p.name for p in SETTINGS}
 
 
 @pytest.mark.parametrize("path", SETTINGS, ids=lambda p: p.name)
