@@ -41,7 +41,6 @@ def test_a_settings_file_loads_and_trains_from_the_path_teacher_without_ppo(path
 def test_a_settings_file_differs_from_params_yaml_only_in_training_and_world_keys(path):
     base = _flat(to_mapping(load_params(ROOT / "params.yaml")))
     mine = _flat(to_mapping(load_params(path)))
-    assert base.keys() == mine.keys()
     changed = {k for k in base if base[k] != mine[k]}
     assert changed, path
     assert all(k.split(".")[0] in ("world", "train", "export") for k in changed), changed
