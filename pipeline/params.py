@@ -528,7 +528,7 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
             (
                 "world.observation",
                 world.observation,
-                "'rich' or 'rich_limits' with train.imitation.steps > 0 (the scripted controller steers by the goal)",
+                "'rich', 'rich_limits' or 'rich_memory' with train.imitation.steps > 0 (the teacher steers by it)",
             )
         )
     if train.imitation.steps > 0 and train.imitation.teacher == "path" and kind != "continuous":
@@ -540,7 +540,8 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
             (
                 "world.observation",
                 world.observation,
-                "'rich' for train.mode 'shared' (one network must tell robots apart by their goal)",
+                "'rich', 'rich_limits' or 'rich_memory' for train.mode 'shared' (one network must tell robots apart by "
+                "their goal)",
             )
         )
     return bad

@@ -5,6 +5,9 @@
 (forward, left, m), then N ranges (m). Shared networks need it: it tells robots apart.
 ``rich_limits``: ``rich`` with the robot's own speed limits and body radius (v_max m/s, w_max rad/s,
 radius m) before the ranges: one shared network for a mixed fleet.
+``rich_memory``: ``rich`` with the command the robot was given at the previous control step (v, w as fractions
+of its own limits; zero at an episode's start) before the ranges: one step of memory, so a robot that has started
+round a box on one side can keep to it, and one that has stopped sees that it stopped.
 
 The builder (:class:`ObservationBuilder`) is the one path from raw sensor data to observations, used by
 sim, twin and robots. A world hands over each robot's LaserScan-shaped ranges with their geometry and its odometry
@@ -23,15 +26,16 @@ import numpy as np
 from pipeline.core.scan import Reduction, ScanGeometry, reduce_scan
 from pipeline.core.scenario import Scenario
 
-LayoutName = Literal["paper", "rich", "rich_limits"]
+LayoutName = Literal["paper", "rich", "rich_limits", "rich_memory"]
 ObservedPose = Literal["odometry", "ground_truth"]
 """Where an observation's pose comes from: wheel odometry, or ground truth (motion capture, the simulator)."""
-LAYOUTS: tuple[LayoutName, ...] = ("paper", "rich", "rich_limits")
+LAYOUTS: tuple[LayoutName, ...] = ("paper", "rich", "rich_limits", "rich_memory")
 
 _FIELDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": (("position", 2),),
     "rich": (("position", 2), ("heading", 2), ("goal_in_robot", 2)),
     "rich_limits": (("position", 2), ("heading", 2), ("goal_in_robot", 2), ("limits", 3)),
+    "rich_memory": (("position", 2), ("heading", 2), ("goal_in_robot", 2), ("previous_command", 2)),
 }
 LIMITS_HIGH = (10.0, 50.0, 2.0)
 """Upper bounds of the limits field (v_max m/s, w_max rad/s, radius m), as the scenario's keys allow."""
@@ -74,6 +78,7 @@ class ObservationLayout:
             "heading": ("cos_yaw", "sin_yaw"),
             "goal_in_robot": ("goal_forward_m", "goal_left_m"),
             "limits": ("v_max_mps", "w_max_radps", "radius_m"),
+            "previous_command": ("previous_v_frac", "previous_w_frac"),
             "ranges": tuple(f"range_{k}_m" for k in range(self.n_beams)),
         }
         return tuple(n for name, _ in self.fields for n in per_field[name])
@@ -96,6 +101,7 @@ class ObservationLayout:
             "heading": ([-1.0, -1.0], [1.0, 1.0]),
             "goal_in_robot": ([-span, -span], [span, span]),
             "limits": ([0.0, 0.0, 0.0], list(LIMITS_HIGH)),
+            "previous_command": ([-1.0, -1.0], [1.0, 1.0]),
             "ranges": ([range_min_m] * self.n_beams, [range_max_m] * self.n_beams),
         }
         low = np.concatenate([per_field[n][0] for n, _ in self.fields]).astype(np.float32)
@@ -103,12 +109,22 @@ class ObservationLayout:
         return low, high
 
     @property
+    def has_memory(self) -> bool:
+        """Whether it carries the previous command (the builder then needs every command it gives)."""
+        return self.name == "rich_memory"
+
+    @property
     def has_goal(self) -> bool:
         """Whether the robot's goal is in it (every layout but the paper's)."""
         return self.name != "paper"
 
     def build(
-        self, odom_pose: np.ndarray, ranges: np.ndarray, goals: np.ndarray, limits: np.ndarray | None = None
+        self,
+        odom_pose: np.ndarray,
+        ranges: np.ndarray,
+        goals: np.ndarray,
+        limits: np.ndarray | None = None,
+        previous: np.ndarray | None = None,
     ) -> np.ndarray:
         """Observations (n_robots, size) float32.
 
@@ -116,13 +132,14 @@ class ObservationLayout:
         ranges: (n_robots, n_beams) reduced lidar ranges (m).
         goals: (n_robots, 2) goal centres (m).
         limits: (n_robots, 3) v_max (m/s), w_max (rad/s), body radius (m) (``rich_limits`` only).
+        previous: (n_robots, 2) the previous command, v and w as fractions of the robot's limits (``rich_memory`` only).
         """
         pose = np.asarray(odom_pose, dtype=np.float64)
         r = np.asarray(ranges, dtype=np.float64)
         if r.shape != (pose.shape[0], self.n_beams):
             raise ValueError(f"ranges have shape {r.shape}, the layout needs ({pose.shape[0]}, {self.n_beams})")
         parts = [pose[:, :2]]
-        if self.name in ("rich", "rich_limits"):
+        if self.name in ("rich", "rich_limits", "rich_memory"):
             c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
             d = np.asarray(goals, dtype=np.float64) - pose[:, :2]
             parts += [
@@ -133,6 +150,10 @@ class ObservationLayout:
             if limits is None or np.shape(limits) != (pose.shape[0], 3):
                 raise ValueError(f"the rich_limits layout needs limits of shape ({pose.shape[0]}, 3)")
             parts.append(np.asarray(limits, dtype=np.float64))
+        if self.name == "rich_memory":
+            if previous is None or np.shape(previous) != (pose.shape[0], 2):
+                raise ValueError(f"the rich_memory layout needs previous commands of shape ({pose.shape[0]}, 2)")
+            parts.append(np.asarray(previous, dtype=np.float64))
         parts.append(r)
         return np.concatenate(parts, axis=1).astype(np.float32)
 
@@ -161,6 +182,8 @@ class ObservationBuilder:
         """(n_robots, 2) the goals the observation points at: the layout's, or a pursuit's moving target."""
         self.limits: np.ndarray | None = None
         """(n_robots, 3) v_max, w_max, radius of each robot, for the ``rich_limits`` layout (set by the MDP)."""
+        self.previous = np.zeros((scenario.n_robots, 2))
+        """(n_robots, 2) the last command given, as fractions of each robot's limits (``rich_memory``)."""
         self.layout = layout
         self.range_min_m = range_min_m
         self.range_max_m = range_max_m
@@ -174,6 +197,19 @@ class ObservationBuilder:
         """Observe against `scenario`'s goals (another layout of the same room and robots)."""
         self.scenario = scenario
         self.goals = scenario.goals
+
+    def forget(self) -> None:
+        """An episode starts: no command was given yet."""
+        self.previous = np.zeros((self.scenario.n_robots, 2))
+
+    def remember(self, commands: np.ndarray) -> None:
+        """The commands (n_robots, 2) v (m/s), w (rad/s) just given to the robots, for the next observation."""
+        if not self.layout.has_memory:
+            return
+        if self.limits is None:
+            raise ValueError("the rich_memory layout needs the robots' limits to scale their commands")
+        cmd = np.asarray(commands, dtype=np.float64)
+        self.previous = np.clip(cmd / self.limits[:, :2], -1.0, 1.0)
 
     def reduce(
         self, scans: np.ndarray | Sequence[np.ndarray], geometry: ScanGeometry | Sequence[ScanGeometry]
@@ -199,5 +235,5 @@ class ObservationBuilder:
     ) -> Observed:
         """Observations from scans and odometry poses (n_robots, 3) x, y (m), yaw (rad)."""
         ranges = self.reduce(scans, geometry)
-        obs = self.layout.build(odom_pose, ranges, self.goals, self.limits)
+        obs = self.layout.build(odom_pose, ranges, self.goals, self.limits, self.previous)
         return Observed(ranges=ranges, obs=np.clip(obs, self.low, self.high))

@@ -235,6 +235,7 @@ class DeployRunner:
         odom = self.odometry.to_map(odom_raw)
         self._track()
         self.judge.reset(truth if truth is not None else odom)
+        self.builder.forget()
         tally = EpisodeTally(episode, seed, self.namespaces, self.mdp.definition.control_period_s)
         tally.start(truth if truth is not None else odom)
         done = np.zeros(len(self.namespaces), dtype=bool)
@@ -285,6 +286,7 @@ class DeployRunner:
             # a robot whose data is stale stands still until it is fresh again (or the episode aborts)
             commands[[name in state.stale for name in self.namespaces]] = 0.0
             self.emitter.command_all(next_t, commands)
+            self.builder.remember(commands)
             for i, ns in enumerate(self.namespaces):
                 self.log.observation(t, episode, step, ns, self.runtime.layout.name, observed.obs[i])
                 self.log.action(

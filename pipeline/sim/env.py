@@ -91,6 +91,7 @@ class MultiRobotSim:
         self._track()
         self.judge.reset(self.world.truth)
         self.last_cmd = np.zeros((self.n, 2))
+        self.observer.forget()
         return self._observe().copy()
 
     def path_bearing(self, ahead_m: float) -> np.ndarray:
@@ -115,6 +116,7 @@ class MultiRobotSim:
         cmd = self.codec.decode(actions)
         cmd[self.judge.done] = 0.0
         self.last_cmd = cmd
+        self.observer.remember(cmd)
         self.world.step(cmd)
         self._track()
         obs = self._observe()

@@ -145,7 +145,9 @@ def test_imitation_is_refused_where_it_cannot_run() -> None:
         tiny_config(algorithm="sac", imitation={"steps": 100})
     params = read_yaml(Path(__file__).resolve().parents[2] / "params.yaml")
     bad = merge(params, {"train": {"algorithm": "ppo", "imitation": {"steps": 100}}, "world": {"observation": "paper"}})
-    with pytest.raises(ConfigError, match=r"world\.observation.*'rich' or 'rich_limits' with train\.imitation\.steps"):
+    with pytest.raises(
+        ConfigError, match=r"world\.observation.*'rich', 'rich_limits' or 'rich_memory' with train\.imitation\.steps"
+    ):
         from_mapping(Params, bad, "<test>")
     with pytest.raises(ConfigError, match=r"imitation\.log_std"):
         from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), {"imitation": {"log_std": 3.0}}), "<test>")

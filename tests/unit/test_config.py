@@ -149,7 +149,12 @@ def test_booleans_are_not_numbers():
     [
         ({"algorithm": "sac"}, {"actions": {"kind": "discrete"}}, "world.actions.kind", "'continuous' for"),
         ({"algorithm": "dqn"}, {"actions": {"kind": "continuous"}}, "world.actions.kind", "'discrete' for"),
-        ({"algorithm": "ppo", "mode": "shared"}, {"observation": "paper"}, "world.observation", "'rich' for"),
+        (
+            {"algorithm": "ppo", "mode": "shared"},
+            {"observation": "paper"},
+            "world.observation",
+            "'rich_memory' for train.mode 'shared'",
+        ),
     ],
 )
 def test_training_that_does_not_fit_the_world_is_refused(params_data, write_params, train, world, dotted, allowed):
