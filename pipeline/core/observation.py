@@ -6,8 +6,8 @@
 ``rich_limits``: ``rich`` with the robot's own speed limits and body radius (v_max m/s, w_max rad/s,
 radius m) before the ranges: one shared network for a mixed fleet.
 ``rich_memory``: ``rich`` with the command the robot was given at the previous control step (v, w as fractions
-of its own limits; zero at an episode's start) before the ranges: one step of memory, so a robot that has started
-round a box on one side can keep to it, and one that has stopped sees that it stopped.
+of its own limits; zero at an episode's start) before the ranges: one step of memory. The builder is told
+every command given (:meth:`ObservationBuilder.remember`), by the simulator and the deploy runner alike.
 
 The builder (:class:`ObservationBuilder`) is the one path from raw sensor data to observations, used by
 sim, twin and robots. A world hands over each robot's LaserScan-shaped ranges with their geometry and its odometry
