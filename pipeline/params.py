@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pipeline.core.actions import ActionCodec, ActionKind
 from pipeline.core.judge import ProgressDistance, RewardWeights
-from pipeline.core.observation import LayoutName, ObservationLayout, ObservedPose
+from pipeline.core.observation import LAYOUTS, LayoutName, ObservationLayout, ObservedPose
 from pipeline.core.scan import Reduction
 from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mappings import bounds_text, from_mapping, in_bounds, merge, read_yaml, setting, to_mapping
@@ -515,6 +515,10 @@ def world_config(
     return from_mapping(WorldConfig, merge(data, overrides or {}), source)
 
 
+_GOAL_LAYOUTS = " or ".join(", ".join(repr(n) for n in LAYOUTS if n != "paper").rsplit(", ", 1))
+"""The observation layouts that carry the goal (every one but the paper's), as an error's allowed values."""
+
+
 def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tuple[str, object, str]]:
     """Problems (dotted key, value, allowed) where the algorithm or mode does not fit the world."""
     bad: list[tuple[str, object, str]] = []
@@ -528,7 +532,7 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
             (
                 "world.observation",
                 world.observation,
-                "'rich', 'rich_limits' or 'rich_memory' with train.imitation.steps > 0 (the teacher steers by it)",
+                f"{_GOAL_LAYOUTS} with train.imitation.steps > 0 (the teacher steers by it)",
             )
         )
     if train.imitation.steps > 0 and train.imitation.teacher == "path" and kind != "continuous":
@@ -540,8 +544,7 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
             (
                 "world.observation",
                 world.observation,
-                "'rich', 'rich_limits' or 'rich_memory' for train.mode 'shared' (one network must tell robots apart by "
-                "their goal)",
+                f"{_GOAL_LAYOUTS} for train.mode 'shared' (one network must tell robots apart by their goal)",
             )
         )
     return bad

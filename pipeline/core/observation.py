@@ -139,7 +139,7 @@ class ObservationLayout:
         if r.shape != (pose.shape[0], self.n_beams):
             raise ValueError(f"ranges have shape {r.shape}, the layout needs ({pose.shape[0]}, {self.n_beams})")
         parts = [pose[:, :2]]
-        if self.name in ("rich", "rich_limits", "rich_memory"):
+        if self.has_goal:
             c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
             d = np.asarray(goals, dtype=np.float64) - pose[:, :2]
             parts += [
@@ -183,7 +183,8 @@ class ObservationBuilder:
         self.limits: np.ndarray | None = None
         """(n_robots, 3) v_max, w_max, radius of each robot, for the ``rich_limits`` layout (set by the MDP)."""
         self.previous = np.zeros((scenario.n_robots, 2))
-        """(n_robots, 2) the last command given, as fractions of each robot's limits (``rich_memory``)."""
+        """(n_robots, 2) the last command given, as fractions of each robot's limits (``rich_memory``; see
+        :meth:`forget`, :meth:`remember`)."""
         self.layout = layout
         self.range_min_m = range_min_m
         self.range_max_m = range_max_m
