@@ -331,6 +331,10 @@ class ImitationConfig:
     teacher: Teacher = setting("scripted", optional=True)
     """The controller imitated: ``scripted`` (go-to-goal, sees what the policy sees) or ``path`` (also told where
     each robot's free path through the episode's map leads; continuous actions only)."""
+    memory_dropout: float = setting(0.0, ge=0.0, lt=1.0, optional=True)
+    """With ``world.observation: rich_memory``: the share of samples, drawn afresh in every minibatch of the
+    fits, whose previous command is shown as zero (a robot at rest), so that the student cannot learn to only
+    repeat it (0: off)."""
 
 
 @dataclass(frozen=True)
@@ -538,6 +542,14 @@ def check_training_fits_world(train: TrainConfig, world: WorldConfig) -> list[tu
     if train.imitation.steps > 0 and train.imitation.teacher == "path" and kind != "continuous":
         bad.append(
             ("world.actions.kind", kind, "'continuous' with train.imitation.teacher 'path' (it drives in reverse)")
+        )
+    if train.imitation.memory_dropout > 0 and world.observation != "rich_memory":
+        bad.append(
+            (
+                "train.imitation.memory_dropout",
+                train.imitation.memory_dropout,
+                f"0 with world.observation {world.observation!r} ('rich_memory' only: it drops the previous command)",
+            )
         )
     if train.mode == "shared" and world.observation == "paper":
         bad.append(

@@ -18,6 +18,12 @@ reaches are recorded as the labels, and the policy is fitted again on every roun
 to the returns of whoever drove). A student of a plain demonstration has never seen the states its own
 mistakes lead to; these rounds show it what the teacher does there.
 
+With ``world.observation: rich_memory`` the student sees the command it was given a step before, and a
+teacher's commands change little from one step to the next: repeating the previous one fits most samples,
+and a student that learned only that stays at rest once it stops (the copycat failure). `memory_dropout`
+shows that command as zero (a robot at rest) in a random share of every minibatch's samples, so that at rest,
+too, the action must come from what the robot sees.
+
 Afterwards the policy's action noise is set to ``exp(log_std)``, and PPO goes on from these weights with its
 own optimizer state, untouched here.
 """
@@ -147,10 +153,27 @@ def discounted_returns(
     return returns, known
 
 
+def drop_memory(obs: th.Tensor, memory: slice, obs_size: int, share: float, generator: th.Generator) -> th.Tensor:
+    """`obs` (samples, k * obs_size: k robots' observations side by side) with the `memory` fields of each
+    robot's observation set to zero with probability `share`, independently per sample and robot; a copy."""
+    n = obs.shape[0]
+    blocks = obs.reshape(n, -1, obs_size).clone()
+    drop = th.rand(blocks.shape[:2], generator=generator) < share
+    blocks[:, :, memory] = th.where(drop[:, :, None], 0.0, blocks[:, :, memory])
+    return blocks.reshape(obs.shape)
+
+
 def imitate(
-    model: PPO, demo: Demonstration, cfg: TrainConfig, seed: int, progress: bool = False
+    model: PPO,
+    demo: Demonstration,
+    cfg: TrainConfig,
+    seed: int,
+    progress: bool = False,
+    memory: tuple[slice, int] | None = None,
 ) -> tuple[float, float]:
-    """Fit `model`'s policy to `demo` (see the module); returns the last epoch's (action loss, value loss)."""
+    """Fit `model`'s policy to `demo` (see the module); returns the last epoch's (action loss, value loss).
+    `memory`: the previous command's slice of a robot's observation and that observation's size, where
+    `imitation.memory_dropout` applies (the ``rich_memory`` layout)."""
     policy = model.policy
     optimizer = th.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
     obs = th.as_tensor(demo.obs, dtype=th.float32)
@@ -167,7 +190,10 @@ def imitate(
         totals = np.zeros(2)
         for start in range(0, len(obs), batch):
             idx = order[start : start + batch]
-            features = policy.extract_features(obs[idx])
+            x = obs[idx]
+            if memory is not None and cfg.imitation.memory_dropout > 0:
+                x = drop_memory(x, *memory, cfg.imitation.memory_dropout, generator)
+            features = policy.extract_features(x)
             latent_pi, latent_vf = policy.mlp_extractor(features)
             head = policy.action_net(latent_pi)
             a_loss = F.cross_entropy(head, target[idx]) if discrete else F.mse_loss(head, target[idx])
@@ -193,9 +219,11 @@ def warm_start(
     """Demonstrate, then fit every learner's policy to its share; the worlds are left mid-episode (the caller
     resets them)."""
     im = cfg.imitation
+    memory = (worlds.layout.slices["previous_command"], worlds.obs_size) if worlds.layout.has_memory else None
     demos, steps, episodes = demonstrate(worlds, streams, im.steps, cfg.gamma, progress, im.teacher)
     losses = [
-        imitate(m, d, cfg, cfg.seed + 104729 * i, progress) for i, (m, d) in enumerate(zip(models, demos, strict=True))
+        imitate(m, d, cfg, cfg.seed + 104729 * i, progress, memory)
+        for i, (m, d) in enumerate(zip(models, demos, strict=True))
     ]
 
     def students(per_learner: list[np.ndarray]) -> list[np.ndarray]:
@@ -215,7 +243,7 @@ def warm_start(
         ]
         steps, episodes = steps + s, episodes + e
         losses = [
-            imitate(m, d, cfg, cfg.seed + 104729 * i + 7919 * r, progress)
+            imitate(m, d, cfg, cfg.seed + 104729 * i + 7919 * r, progress, memory)
             for i, (m, d) in enumerate(zip(models, demos, strict=True))
         ]
     return ImitationResult(

@@ -211,6 +211,7 @@ class VecWorlds:
         self.n_worlds = n_worlds
         self.n_robots = scenario.n_robots
         probe = MultiRobotSim(scenario, world)
+        self.layout = probe.layout
         self.obs_size = probe.layout.size
         self.codec = probe.codec
         self.obs_low, self.obs_high = probe.obs_low, probe.obs_high
