@@ -32,7 +32,13 @@ class Evader:
         self.xy = np.array([self.target.start.x_m, self.target.start.y_m])
         self.velocity = np.zeros(2)
 
-    def reset(self) -> None:
+    def reset(self, layout: Scenario | None = None) -> None:
+        """Back to the target's start, at rest; with `layout` (an episode's layout drawn from this scenario) at
+        its start, keeping off its boxes."""
+        if layout is not None:
+            if layout.target is None:
+                raise ValueError(f"layout {layout.name!r} has no target")
+            self.scenario, self.target = layout, layout.target
         self.xy = np.array([self.target.start.x_m, self.target.start.y_m])
         self.velocity = np.zeros(2)
 

@@ -12,6 +12,11 @@ kept when the layout is one the team can succeed in:
   goal square, and at least `min_goal_distance_m` (straight line) from its own goal;
 - every goal reachable from its robot's start along free space (the free-path distance field is finite).
 
+In a pursuit scenario (one with a ``target``) the goal ranges draw the target's start instead of goals: it
+keeps the target's radius plus its `clearance_m` from walls and boxes, each robot's start keeps
+`min_goal_distance_m` (and more than the capture distance) from it, and the target is reachable from every
+start; boxes are not moved onto the robots' way there (`box_in_way_share` is for goals).
+
 Otherwise it is drawn again; after `tries` draws the scenario is refused, naming the reason most draws
 failed for.
 """
@@ -25,7 +30,17 @@ from collections import Counter
 import numpy as np
 
 from pipeline.core.errors import ScenarioError
-from pipeline.core.scenario import Box, LayoutRanges, Point2D, Pose2D, RobotSpec, Scenario, box_clearance, box_corners
+from pipeline.core.scenario import (
+    Box,
+    LayoutRanges,
+    Point2D,
+    Pose2D,
+    RobotSpec,
+    Scenario,
+    Target,
+    box_clearance,
+    box_corners,
+)
 
 LAYOUT_STREAM = 0x1A70
 """Second word of the layout generator's seed, so layouts do not share draws with the noise of the same seed."""
@@ -150,6 +165,8 @@ def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generato
             if problem:
                 return None, problem
             boxes.append(moved)
+    if scenario.target is not None:
+        return _draw_pursuit(scenario, scenario.target, ranges, rng, boxes)
     goals = []
     for _ in scenario.robots:
         g = np.array([_uniform(rng, ranges.goal_x_m), _uniform(rng, ranges.goal_y_m)])
@@ -181,6 +198,45 @@ def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generato
         return None, exc.problem
     if not _reachable(layout):
         return None, "a goal could not be reached from its robot's start along free space"
+    return layout, ""
+
+
+def _draw_pursuit(
+    scenario: Scenario, target: Target, ranges: LayoutRanges, rng: np.random.Generator, boxes: list[Box]
+) -> tuple[Scenario | None, str]:
+    """The rest of a pursuit's draw, after the boxes: the target's start, then the robots' starts."""
+    r = float(scenario.radii.max())
+    c = ranges.clearance_m
+    keep = target.radius_m + target.clearance_m
+    t = np.array([_uniform(rng, ranges.goal_x_m), _uniform(rng, ranges.goal_y_m)])
+    if _wall_gap(scenario, t) < keep or any(box_clearance(b, t[None])[0] < keep for b in boxes):
+        return None, "the target's start came within its radius plus its clearance_m of a wall or box"
+    starts: list[np.ndarray] = []
+    for _ in scenario.robots:
+        s = np.array(
+            [_uniform(rng, ranges.start_x_m), _uniform(rng, ranges.start_y_m), _uniform(rng, ranges.start_yaw_rad)]
+        )
+        xy = s[:2]
+        if _wall_gap(scenario, xy) < r + c or any(box_clearance(b, xy[None])[0] < r + c for b in boxes):
+            return None, "a start came within a robot radius plus clearance_m of a wall or box"
+        if any(math.hypot(*(xy - o[:2])) < 2 * r + c for o in starts):
+            return None, "two starts came within two robot radii plus clearance_m"
+        gap = math.hypot(*(xy - t))
+        if gap < ranges.min_goal_distance_m or gap <= target.capture_distance_m:
+            return None, "a start lay closer than min_goal_distance_m (or the capture distance) to the target's start"
+        starts.append(s)
+    robots = tuple(
+        dataclasses.replace(spec, start=Pose2D(float(s[0]), float(s[1]), float(s[2])))
+        for spec, s in zip(scenario.robots, starts, strict=True)
+    )
+    moved = dataclasses.replace(target, start=Point2D(float(t[0]), float(t[1])))
+    layout = dataclasses.replace(scenario, robots=robots, obstacles=tuple(boxes), target=moved)
+    try:
+        layout.validate()
+    except ScenarioError as exc:
+        return None, exc.problem
+    if not _reachable(layout):
+        return None, "the target could not be reached from a robot's start along free space"
     return layout, ""
 
 

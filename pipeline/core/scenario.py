@@ -96,6 +96,11 @@ class Target:
     clearance_m: float = setting(0.1, ge=0.0, optional=True)
 
 
+def _unplaced(target: Target | None) -> Target | None:
+    """`target` without its start (its body, speed and evasion alone)."""
+    return None if target is None else dataclasses.replace(target, start=Point2D(0.0, 0.0))
+
+
 @dataclass(frozen=True)
 class Box:
     """An obstacle: a box centred at (x, y) with full sizes along its own axes."""
@@ -119,7 +124,8 @@ class LayoutRanges:
     and every box's centre (and yaw) uniformly from these ranges (metres, radians), seeded by the episode's
     seed; boxes keep their sizes. A draw keeps `clearance_m` of free space between bodies, walls and goal
     squares and each goal at least `min_goal_distance_m` from its robot's start; a scenario whose ranges give
-    no such layout in `tries` draws is refused with the reason."""
+    no such layout in `tries` draws is refused with the reason. In a pursuit the goal ranges draw the target's
+    start, which each robot's start keeps `min_goal_distance_m` from."""
 
     start_x_m: Range = setting(min_len=2, max_len=2)
     start_y_m: Range = setting(min_len=2, max_len=2)
@@ -225,9 +231,11 @@ class Scenario:
         differ at most in their name, starts, goals, box poses and layouts ranges (a policy that learned to
         drive in any layout of this room meets nothing new there)."""
         out = []
-        for key in ("room", "robot", "goal_size_m", "target"):
+        for key in ("room", "robot", "goal_size_m"):
             if getattr(self, key) != getattr(other, key):
                 out.append(f"{key} differs")
+        if _unplaced(self.target) != _unplaced(other.target):  # where the target starts is part of the layout
+            out.append("target differs")
         if self.n_robots != other.n_robots:
             out.append(f"{self.n_robots} robots vs {other.n_robots}")
         else:
@@ -267,8 +275,12 @@ class Scenario:
                 self.name, f"{', '.join(missing)} has no goal (only a pursuit scenario, with a target, leaves them out)"
             )
         if self.target is not None:
-            if self.layouts is not None:
-                raise ScenarioError(self.name, "a pursuit scenario cannot draw random layouts (yet)")
+            if self.layouts is not None and self.layouts.box_in_way_share > 0:
+                raise ScenarioError(
+                    self.name,
+                    f"layouts.box_in_way_share is {self.layouts.box_in_way_share:g}: a pursuit scenario must leave "
+                    "it at 0 (boxes go on the way to goals, and a pursuit has none)",
+                )
             self._check_target()
         for name, spec, r in zip(self.robot_names, self.robots, self.radii, strict=True):
             s, g = spec.start, spec.goal if spec.goal is not None else Point2D(*self.goals[0])

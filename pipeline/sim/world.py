@@ -122,7 +122,7 @@ class SimWorld:
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self._qpos] = self.scenario.starts if starts is None else starts
         if self.evader is not None:
-            self.evader.reset()
+            self.evader.reset(self.scenario)  # the episode's layout: its target start and boxes
             self._place_target()
         mujoco.mj_forward(self.model, self.data)
         self._pending.clear()

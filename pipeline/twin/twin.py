@@ -263,7 +263,7 @@ class HardwareTwin:
         self.physics.use_layout(layout)
         self.physics.reset(layout.starts)
         if self.evader is not None:
-            self.evader.reset()
+            self.evader.reset(layout)  # the episode's layout: its target start and boxes
             self.physics.set_target(self.evader.xy)
             self.last_evader_ns = now_ns
         self.driver.reset()

@@ -55,3 +55,35 @@ def test_the_twin_plays_the_target_and_the_runner_tracks_it(tmp_path):
     blind = write_fleet(tmp_path / "blind.yaml", scenario=str(room), timing={"use_ground_truth": False})
     with pytest.raises(PolicyMismatch, match="is a pursuit: the policy needs the target's pose from motion capture"):
         deploy_policy(runtime, load_fleet(blind), str(blind), request)
+
+
+def test_the_twin_starts_the_target_and_robots_at_each_episodes_drawn_layout(tmp_path):
+    from pipeline.core.layouts import draw_layout
+
+    scenario, world = make_world(
+        world=world_config({"scenario": "pursuit_random", "observation": "rich", "max_steps": 20})
+    )
+    cfg = from_mapping(TrainConfig, merge(to_mapping(TrainConfig()), TINY_TRAIN), "<test>")
+    trained = train(scenario, world, cfg, tmp_path / "run", progress=False)
+    export_policy(trained.checkpoint, tmp_path / "policy", golden_observations(scenario, world, 8))
+    fleet_file = write_fleet(tmp_path / "fleet.yaml", scenario="pursuit_random")
+    request = DeployRequest(episodes=2, seed=7, recording=tmp_path / "session.mcap", progress=False)
+    results, _ = deploy_policy(PolicyRuntime(tmp_path / "policy"), load_fleet(fleet_file), str(fleet_file), request)
+    assert [r.seed for r in results] == [7, 8] and not any(r.aborted for r in results)
+
+    log = McapLog(tmp_path / "session.mcap")
+    maps = [m for m in log.messages(["/mrl/map"])]
+    target = [(m.log_time_ns, m.msg) for m in log.messages(["/target/ground_truth"])]
+    truth = [(m.log_time_ns, m.msg) for m in log.messages(["/robot_2/ground_truth"])]
+    assert len(maps) == 2
+    for episode, map_msg in enumerate(maps):
+        layout = draw_layout(scenario, 7 + episode)
+        assert layout.target.start != scenario.target.start
+        boxes = [(mk.pose.position.x, mk.pose.position.y) for mk in map_msg.msg.markers if mk.ns == "boxes"]
+        np.testing.assert_allclose(boxes, [(b.x_m, b.y_m) for b in layout.obstacles], atol=1e-9)
+        # the twin's evader and robot_2 begin the episode where the draw put them
+        first = next(msg for t, msg in target if t >= map_msg.log_time_ns)
+        at = np.array([first.pose.position.x, first.pose.position.y])
+        assert np.hypot(*(at - (layout.target.start.x_m, layout.target.start.y_m))) < 0.05
+        robot = next(msg for t, msg in truth if t >= map_msg.log_time_ns)
+        assert np.hypot(robot.pose.position.x - layout.starts[1, 0], robot.pose.position.y - layout.starts[1, 1]) < 0.05
