@@ -47,6 +47,7 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.log_std": -1.0,
     "train.imitation.rounds": 1,
     "train.imitation.teacher": "scripted",
+    "train.imitation.memory_dropout": 0.0,
 }
 """Settings added to params.yaml after trials were first digested, each with the value that behaves as before it
 existed. At that value a setting is left out of a trial's digest, so a trial finished before the setting
