@@ -137,15 +137,36 @@ def _start_problem(
     c = ranges.clearance_m
     half = scenario.goal_size_m / 2
     xy = s[:2]
-    if _wall_gap(scenario, xy) < r + c or any(box_clearance(b, xy[None])[0] < r + c for b in boxes):
-        return "a start came within a robot radius plus clearance_m of a wall or box"
-    if any(math.hypot(*(xy - o[:2])) < 2 * r + c for o in starts):
-        return "two starts came within two robot radii plus clearance_m"
+    problem = _start_clear(scenario, xy, starts, boxes, r, c)
+    if problem:
+        return problem
     if any(abs(xy[0] - g[0]) < half + r + c and abs(xy[1] - g[1]) < half + r + c for g in goals):
         return "a start came within a robot radius plus clearance_m of a goal square"
     if math.hypot(*(xy - goal)) < ranges.min_goal_distance_m:
         return "a goal lay closer than min_goal_distance_m to its robot's start"
     return ""
+
+
+def _start_clear(
+    scenario: Scenario, xy: np.ndarray, starts: list[np.ndarray], boxes: list[Box], r: float, c: float
+) -> str:
+    """Why a robot may not start at `xy` among walls, `boxes` and the other `starts` ('' when it may)."""
+    if _wall_gap(scenario, xy) < r + c or any(box_clearance(b, xy[None])[0] < r + c for b in boxes):
+        return "a start came within a robot radius plus clearance_m of a wall or box"
+    if any(math.hypot(*(xy - o[:2])) < 2 * r + c for o in starts):
+        return "two starts came within two robot radii plus clearance_m"
+    return ""
+
+
+def _kept(layout: Scenario, unreachable: str) -> tuple[Scenario | None, str]:
+    """`layout` when it is a valid scenario whose goals its robots can reach, else None and why not."""
+    try:
+        layout.validate()
+    except ScenarioError as exc:
+        return None, exc.problem
+    if not _reachable(layout):
+        return None, unreachable
+    return layout, ""
 
 
 def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generator) -> tuple[Scenario | None, str]:
@@ -192,13 +213,7 @@ def _draw_once(scenario: Scenario, ranges: LayoutRanges, rng: np.random.Generato
         for s, g in zip(starts, goals, strict=True)
     )
     layout = dataclasses.replace(scenario, robots=robots, obstacles=tuple(boxes))
-    try:
-        layout.validate()
-    except ScenarioError as exc:
-        return None, exc.problem
-    if not _reachable(layout):
-        return None, "a goal could not be reached from its robot's start along free space"
-    return layout, ""
+    return _kept(layout, "a goal could not be reached from its robot's start along free space")
 
 
 def _draw_pursuit(
@@ -217,10 +232,9 @@ def _draw_pursuit(
             [_uniform(rng, ranges.start_x_m), _uniform(rng, ranges.start_y_m), _uniform(rng, ranges.start_yaw_rad)]
         )
         xy = s[:2]
-        if _wall_gap(scenario, xy) < r + c or any(box_clearance(b, xy[None])[0] < r + c for b in boxes):
-            return None, "a start came within a robot radius plus clearance_m of a wall or box"
-        if any(math.hypot(*(xy - o[:2])) < 2 * r + c for o in starts):
-            return None, "two starts came within two robot radii plus clearance_m"
+        problem = _start_clear(scenario, xy, starts, boxes, r, c)
+        if problem:
+            return None, problem
         gap = math.hypot(*(xy - t))
         if gap < ranges.min_goal_distance_m or gap <= target.capture_distance_m:
             return None, "a start lay closer than min_goal_distance_m (or the capture distance) to the target's start"
@@ -231,13 +245,7 @@ def _draw_pursuit(
     )
     moved = dataclasses.replace(target, start=Point2D(float(t[0]), float(t[1])))
     layout = dataclasses.replace(scenario, robots=robots, obstacles=tuple(boxes), target=moved)
-    try:
-        layout.validate()
-    except ScenarioError as exc:
-        return None, exc.problem
-    if not _reachable(layout):
-        return None, "the target could not be reached from a robot's start along free space"
-    return layout, ""
+    return _kept(layout, "the target could not be reached from a robot's start along free space")
 
 
 def _boxes_in_the_way(
