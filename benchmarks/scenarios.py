@@ -54,12 +54,15 @@ def _line(label: str, metrics: dict[str, float], prefix: str) -> str:
     robots = sorted(
         k.split("/")[1]
         for k in metrics
-        if k.startswith(f"{prefix}/robot_") and k.endswith("_success") and k != f"{prefix}/robot_success"
+        if k.startswith(f"{prefix}/robot_")
+        and k.endswith("_success")
+        and k not in (f"{prefix}/robot_success", f"{prefix}/robot_success_completed")
     )
     per_robot = " ".join(f"{r.removesuffix('_success')}={100 * metrics[f'{prefix}/{r}']:.0f}%" for r in robots)
     return (
-        f"{label}: robot success {figure('robot_success')}, team {figure('team_success')}, "
-        f"{metrics[f'{prefix}/episodes']:.0f} episodes ({metrics.get(f'{prefix}/aborted_episodes', 0):.0f} aborted), "
+        f"{label}: robot success {figure('robot_success')}, team {figure('team_success')} over every episode, "
+        f"{metrics[f'{prefix}/episodes']:.0f} episodes ({metrics.get(f'{prefix}/aborted_episodes', 0):.0f} aborted; "
+        f"completed only {100 * metrics.get(f'{prefix}/robot_success_completed', float('nan')):.1f} %), "
         f"mean time to goal {metrics.get(f'{prefix}/mean_time_to_goal_s', float('nan')):.1f} s; {per_robot}"
     )
 

@@ -1,7 +1,8 @@
 """Command-line plumbing shared by the dvc stage scripts: arguments, signals, exit codes.
 
-Exit codes: 0 success, 2 bad input (an MrlError: its message names the file, key or topic),
-130 interrupted (Ctrl-C or SIGTERM; what was recorded so far is kept).
+Exit codes: 0 success, 2 bad input (an MrlError: its message names the file, key or topic), 3 runtime fault
+(a RuntimeFault: a twin or driver gone, a robot blind past its outage limit, a clash on the domain), 130
+interrupted (Ctrl-C or SIGTERM; what was recorded so far is kept).
 """
 
 from __future__ import annotations
@@ -14,13 +15,15 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from pipeline.errors import MrlError
+from pipeline.core.episode import ABORT_KINDS
+from pipeline.errors import MrlError, RuntimeFault
 
 if TYPE_CHECKING:
     from pipeline.rollout.deployment import DeploymentOutcome
 
 ROUNDS = ("nominal", "calibrated")
 EXIT_BAD_INPUT = 2
+EXIT_RUNTIME_FAULT = 3
 EXIT_INTERRUPTED = 130
 
 
@@ -46,7 +49,9 @@ def run_stage(name: str, body: Callable[[], int]) -> int:
         return body()
     except MrlError as exc:
         print(f"{name}: {exc}", file=sys.stderr)
-        return EXIT_INTERRUPTED if getattr(exc, "interrupted", False) else EXIT_BAD_INPUT
+        if getattr(exc, "interrupted", False):
+            return EXIT_INTERRUPTED
+        return EXIT_RUNTIME_FAULT if isinstance(exc, RuntimeFault) else EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -58,12 +63,32 @@ def operator_reset(episode: int) -> None:
 
 
 def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
-    """One line on a finished deployment: robot and team success with 95 % intervals, episodes, where it went."""
-    metrics = outcome.metrics
+    """Lines on a finished deployment: success over every episode with 95 % intervals, the completed-only rate beside
+    it, aborted episodes by reason, stale seconds per robot, where it went."""
+    return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}) -> {out}"
+
+
+def session_summary(metrics: dict[str, float], world: str) -> str:
+    """What happened in a session, from its metrics (``<world>/...``): episodes, aborted (and why), robot and team
+    success over every episode with 95 % intervals, the completed-only robot rate, stale seconds per robot."""
     nan = float("nan")
+
+    def get(key: str) -> float:
+        return metrics.get(f"{world}/{key}", nan)
+
+    def rate(key: str) -> str:
+        return f"{get(key):.3f} [{get(key + '_ci_low'):.3f}, {get(key + '_ci_high'):.3f}]"
+
+    why = ", ".join(f"{get('aborted_' + k):.0f} {k}" for k in ABORT_KINDS if get("aborted_" + k) > 0)
+    robots = sorted(
+        k.split("/")[1][: -len("_stale_s")]
+        for k in metrics
+        if k.startswith(f"{world}/robot_") and k.endswith("_stale_s")
+    )
+    stale = ", ".join(f"{r} {get(r + '_stale_s'):.1f} s" for r in robots)
     return (
-        f"robot success {metrics.get('real/robot_success', nan):.3f} "
-        f"[{metrics.get('real/robot_success_ci_low', nan):.3f}, {metrics.get('real/robot_success_ci_high', nan):.3f}], "
-        f"team success {metrics.get('real/team_success', nan):.3f} over {len(outcome.results)} episodes "
-        f"({metrics['real/aborted_episodes']:.0f} aborted) on {target} ({outcome.profile}) -> {out}"
+        f"{get('episodes'):.0f} episodes, {get('aborted_episodes'):.0f} aborted{f' ({why})' if why else ''}: "
+        f"robot success {rate('robot_success')}, team success {rate('team_success')} over every episode; "
+        f"completed episodes only {get('robot_success_completed'):.3f} robot, "
+        f"{get('team_success_completed'):.3f} team; stale {stale or 'none'}"
     )

@@ -9,6 +9,11 @@ class MrlError(Exception):
     """Root of every error the pipeline raises on purpose."""
 
 
+class RuntimeFault(MrlError):
+    """The world failed while running, not the input: a twin or driver gone, a robot blind past its outage limit,
+    robots that never answered, a foreign writer on the domain. Commands exit with code 3 on it."""
+
+
 class ConfigError(MrlError):
     """A parameter file or override holds keys or values that are not allowed.
 

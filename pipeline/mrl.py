@@ -61,6 +61,7 @@ EPISODE_COLUMNS = (
     "collided",
     "timeout",
     "aborted",
+    "stale_s",
     "time_to_goal_s",
     "path_length_m",
     "steps",
@@ -296,7 +297,8 @@ def _summary(table: Any, world: str) -> str:
 
     return (
         f"{metrics.get(f'{world}/episodes', 0):.0f} episodes ({metrics.get(f'{world}/aborted_episodes', 0):.0f} "
-        f"aborted): robot success {rate('robot_success')}, team success {rate('team_success')}, "
+        f"aborted): robot success {rate('robot_success')}, team success {rate('team_success')} over every "
+        f"episode; completed episodes only: robot success {rate('robot_success_completed')}; "
         f"collisions {rate('collision_rate')}"
     )
 

@@ -55,6 +55,44 @@ class OdometryConfig:
 
 
 @dataclass(frozen=True)
+class NetworkConfig:
+    """The network between the robots' sensors and the policy, as the simulator plays it (a fleet has its own).
+
+    Scans and odometry are produced at their rates, lost in bursts, delayed and jittered
+    (:class:`pipeline.core.network.MessageStream`); a robot whose latest scan or odometry arrived longer ago than
+    its staleness limit stands still, as on a fleet (the limits are the fleet file's defaults). The defaults are
+    an ideal link: one scan and one odometry message per control step, nothing lost, nothing late.
+    """
+
+    scan_rate_hz: float = setting(0.0, ge=0.0, le=100.0, optional=True)
+    """Scans per second; 0: one per control step."""
+    odom_rate_hz: float = setting(0.0, ge=0.0, le=1000.0, optional=True)
+    """Odometry messages per second; 0: one per control step."""
+    loss_prob: float = setting(0.0, ge=0.0, le=0.5, optional=True)
+    """Share of messages lost (each stream, each robot)."""
+    burst_len: float = setting(1.0, ge=1.0, le=50.0, optional=True)
+    """Mean length (messages) of a run of lost messages; 1: independent losses."""
+    delay_s: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    """Latency of every message (s)."""
+    jitter_s: float = setting(0.0, ge=0.0, le=0.5, optional=True)
+    """Spread of the latency: a half-normal extra delay of this standard deviation (s)."""
+    scan_stale_s: float = setting(0.5, gt=0.0, le=10.0, optional=True)
+    odom_stale_s: float = setting(0.3, gt=0.0, le=10.0, optional=True)
+    stale_scan: Literal["hold", "blank"] = setting("hold", optional=True)
+    """What the policy observes of a stale robot's scan: the last one held, or no return on any beam. A fleet
+    deploying the policy does the same (:func:`pipeline.core.network.observed_scans`)."""
+    clock_offset_s: float = setting(0.0, ge=-1e9, le=1e9, optional=True)
+    """The robots' clock against the controller's (s): the stamps of the simulated sensor messages."""
+    clock_drift_ppm: float = setting(0.0, ge=-1e4, le=1e4, optional=True)
+    """How fast the robots' clock runs against the controller's (parts per million): the stamps again."""
+
+    @property
+    def plays(self) -> bool:
+        """Whether anything is played at all (else the sensors reach the policy at once, every control step)."""
+        return bool(self.scan_rate_hz or self.odom_rate_hz or self.loss_prob or self.delay_s or self.jitter_s)
+
+
+@dataclass(frozen=True)
 class ActuationConfig:
     """How the simulated base follows (v, w) commands: delay, first-order lag, gains."""
 
@@ -104,6 +142,16 @@ class OdometryRanges:
 
 
 @dataclass(frozen=True)
+class NetworkRanges:
+    scan_rate_hz: Range = setting((), max_len=2, optional=True)
+    odom_rate_hz: Range = setting((), max_len=2, optional=True)
+    loss_prob: Range = setting((), max_len=2, optional=True)
+    burst_len: Range = setting((), max_len=2, optional=True)
+    delay_s: Range = setting((), max_len=2, optional=True)
+    jitter_s: Range = setting((), max_len=2, optional=True)
+
+
+@dataclass(frozen=True)
 class RandomizeConfig:
     """Domain randomization: per episode, each key with a [low, high] range is drawn uniformly from it.
 
@@ -114,6 +162,7 @@ class RandomizeConfig:
     lidar: LidarRanges = setting(LidarRanges(), optional=True)
     actuation: ActuationRanges = setting(ActuationRanges(), optional=True)
     odometry: OdometryRanges = setting(OdometryRanges(), optional=True)
+    network: NetworkRanges = setting(NetworkRanges(), optional=True)
 
     def entries(self) -> list[tuple[str, Range]]:
         """(dotted world key, range as given) of every key, in a fixed order."""
@@ -175,6 +224,7 @@ class WorldConfig:
     lidar: LidarConfig = setting(LidarConfig())
     odometry: OdometryConfig = setting(OdometryConfig())
     actuation: ActuationConfig = setting(ActuationConfig())
+    network: NetworkConfig = setting(NetworkConfig(), optional=True)
     actions: ActionConfig = setting(ActionConfig())
     reward: RewardWeights = setting(RewardWeights())
     randomize: RandomizeConfig = setting(RandomizeConfig(), optional=True)

@@ -4,9 +4,13 @@ Input are episodes tables (:func:`pipeline.analysis.tables.episodes_table`, one 
 robot), several sessions of one world concatenated, keyed by a label (e.g. ``nominal`` and
 ``calibrated`` rounds). Each label present in both worlds is compared sim against real.
 
-Trials: aborted episodes (operator or watchdog aborts, recordings that stop inside an episode) are
-not trials; they are counted apart (``aborted_episodes``) and left out of every rate. A robot trial
-succeeds when the robot reached its goal without colliding; a team trial when every robot did.
+Trials: every episode. An aborted episode (a robot blind past the outage limit, a driver or twin gone,
+an operator's stop, a recording that stops inside it) is a trial like any other: a robot succeeds only
+if it reached its goal without colliding before the abort, and the team fails. The aborted episodes are
+also counted apart (``aborted_episodes``), and the rates over the completed episodes alone stand beside
+the headline rates under names that say so (``robot_success_completed``, ``team_success_completed``).
+A robot trial succeeds when the robot reached its goal without colliding; a team trial when every robot
+did in an episode that was not aborted.
 Differences are sim - real (a positive success gap: sim is more optimistic than reality).
 """
 
@@ -22,6 +26,7 @@ import polars as pl
 from scipy import stats as sps
 
 from pipeline.analysis.errors import TableError
+from pipeline.core.episode import ABORT_KINDS
 from pipeline.core.stats import Z_95, newcombe_interval, two_proportion_z_test, wilson_interval
 
 WORLDS = ("sim", "real")
@@ -96,28 +101,47 @@ class _Counts:
     collision_k: int
     timeout_k: int
     times: np.ndarray
+    completed_robot_k: int = 0
+    completed_robot_n: int = 0
+    completed_team_k: int = 0
+    completed_team_n: int = 0
 
 
 def _counts(table: pl.DataFrame) -> tuple[_Counts, int, int]:
-    """Counts over the trials of `table`, plus its episode count and aborted-episode count."""
+    """Counts over every episode of `table` (and over its completed ones), its episode and aborted-episode counts."""
     keys = _session_keys(table)
     episodes = table.group_by(keys).agg(
         pl.col("aborted").any().alias("aborted"), pl.col("team_success").all().alias("team_success")
     )
-    trials = table.filter(~pl.col("aborted"))
-    team = episodes.filter(~pl.col("aborted"))
-    success = trials["success"].cast(pl.Boolean)
-    times = trials.filter(pl.col("success"))["time_to_goal_s"].drop_nulls().to_numpy().astype(np.float64)
+    team = episodes["team_success"] & ~episodes["aborted"]
+    success = table["success"].cast(pl.Boolean)
+    completed = table.filter(~pl.col("aborted"))
+    times = table.filter(pl.col("success"))["time_to_goal_s"].drop_nulls().to_numpy().astype(np.float64)
     counts = _Counts(
         robot_k=int(success.sum()),
-        robot_n=trials.height,
-        team_k=int(team["team_success"].sum()),
-        team_n=team.height,
-        collision_k=int(trials["collided"].sum()),
-        timeout_k=int(trials["timeout"].sum()) if "timeout" in trials.columns else 0,
+        robot_n=table.height,
+        team_k=int(team.sum()),
+        team_n=episodes.height,
+        collision_k=int(table["collided"].sum()),
+        timeout_k=int(table["timeout"].sum()) if "timeout" in table.columns else 0,
         times=times[np.isfinite(times)],
+        completed_robot_k=int(completed["success"].cast(pl.Boolean).sum()),
+        completed_robot_n=completed.height,
+        completed_team_k=int(team.filter(~episodes["aborted"]).sum()),
+        completed_team_n=int((~episodes["aborted"]).sum()),
     )
     return counts, episodes.height, int(episodes["aborted"].sum())
+
+
+def _abort_kinds(table: pl.DataFrame) -> dict[str, int]:
+    """Aborted episodes of `table` by kind (``aborted_<kind>``; all zero for tables without an abort_kind column)."""
+    out = {f"aborted_{kind}": 0 for kind in ABORT_KINDS}
+    if "abort_kind" not in table.columns:
+        return out
+    episodes = table.group_by(_session_keys(table)).agg(pl.col("abort_kind").first())
+    for kind in ABORT_KINDS:
+        out[f"aborted_{kind}"] = int((episodes["abort_kind"] == kind).sum())
+    return out
 
 
 def _rate(k: int, n: int, z: float) -> tuple[float, float, float]:
@@ -134,6 +158,11 @@ def _summary(counts: _Counts, z: float, team: bool = True) -> dict[str, Any]:
         rate, low, high = _rate(counts.team_k, counts.team_n, z)
         out.update(team_trials=counts.team_n, team_successes=counts.team_k)
         out.update(team_success=rate, team_success_ci_low=low, team_success_ci_high=high)
+    rate, low, high = _rate(counts.completed_robot_k, counts.completed_robot_n, z)
+    out.update(robot_success_completed=rate, robot_success_completed_ci_low=low, robot_success_completed_ci_high=high)
+    if team:
+        rate, low, high = _rate(counts.completed_team_k, counts.completed_team_n, z)
+        out.update(team_success_completed=rate, team_success_completed_ci_low=low, team_success_completed_ci_high=high)
     rate, low, high = _rate(counts.collision_k, counts.robot_n, z)
     out.update(
         collisions=counts.collision_k, collision_rate=rate, collision_rate_ci_low=low, collision_rate_ci_high=high
@@ -203,15 +232,21 @@ def compare(sim: Tables | None, real: Tables | None, *, z: float = Z_95) -> Comp
             _check(table, world, label)
             c, episodes, aborted = _counts(table)
             counts[(world, label)] = c
-            summary = {"episodes": episodes, "aborted_episodes": aborted, **_summary(c, z)}
+            summary = {"episodes": episodes, "aborted_episodes": aborted, **_abort_kinds(table), **_summary(c, z)}
             group_rows.append({"world": world, "label": label, **summary})
             for name, value in summary.items():
                 metrics[_key(world, label, name)] = float(value)
             for robot in sorted(table["robot"].unique().to_list()):
                 rc, _, _ = _counts(table.filter(pl.col("robot") == robot))
                 row = _summary(rc, z, team=False)
+                row["stale_s"] = (
+                    float(table.filter(pl.col("robot") == robot)["stale_s"].fill_null(0.0).sum())
+                    if "stale_s" in table.columns
+                    else 0.0
+                )
                 robot_rows.append({"world": world, "label": label, "robot": robot, **row})
                 metrics[_key(world, label, f"{robot}_success")] = float(row["robot_success"])
+                metrics[_key(world, label, f"{robot}_stale_s")] = float(row["stale_s"])
     gap_rows: list[dict[str, Any]] = []
     for label in worlds["sim"]:
         if label not in worlds["real"]:
@@ -284,6 +319,9 @@ _RATE_COLUMNS: dict[str, Any] = {
     "robot_success": pl.Float64,
     "robot_success_ci_low": pl.Float64,
     "robot_success_ci_high": pl.Float64,
+    "robot_success_completed": pl.Float64,
+    "robot_success_completed_ci_low": pl.Float64,
+    "robot_success_completed_ci_high": pl.Float64,
 }
 _TEAM_COLUMNS: dict[str, Any] = {
     "team_trials": pl.Int64,
@@ -291,6 +329,9 @@ _TEAM_COLUMNS: dict[str, Any] = {
     "team_success": pl.Float64,
     "team_success_ci_low": pl.Float64,
     "team_success_ci_high": pl.Float64,
+    "team_success_completed": pl.Float64,
+    "team_success_completed_ci_low": pl.Float64,
+    "team_success_completed_ci_high": pl.Float64,
 }
 _OTHER_COLUMNS: dict[str, Any] = {
     "collisions": pl.Int64,
@@ -309,6 +350,7 @@ _GROUP_SCHEMA: dict[str, Any] = {
     "label": pl.String,
     "episodes": pl.Int64,
     "aborted_episodes": pl.Int64,
+    **{f"aborted_{kind}": pl.Int64 for kind in ABORT_KINDS},
     **_RATE_COLUMNS,
     **_TEAM_COLUMNS,
     **_OTHER_COLUMNS,
@@ -319,6 +361,7 @@ _ROBOT_SCHEMA: dict[str, Any] = {
     "robot": pl.String,
     **_RATE_COLUMNS,
     **_OTHER_COLUMNS,
+    "stale_s": pl.Float64,
 }
 _GAP_SCHEMA: dict[str, Any] = {
     "label": pl.String,

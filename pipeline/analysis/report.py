@@ -29,6 +29,7 @@ from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.plots import plot_learning_curves, plot_success_rates, plot_trajectories, success_panels
 from pipeline.analysis.tables import Recording
 from pipeline.analysis.timing import TIMING_TOPIC, TimingFigures, timing_figures, timing_markdown
+from pipeline.core.episode import ABORT_KINDS
 
 REPORT_NAME = "report.md"
 METRICS_NAME = "metrics.json"
@@ -234,7 +235,7 @@ def _markdown(
                 "world": row["world"],
                 "label": row["label"],
                 "episodes": row["episodes"],
-                "aborted": row["aborted_episodes"],
+                "aborted": _aborted_text(row),
                 "robot success [95 % CI]": _rate_text(
                     row["robot_success"],
                     row["robot_success_ci_low"],
@@ -249,6 +250,7 @@ def _markdown(
                     row["team_successes"],
                     row["team_trials"],
                 ),
+                "robot success, completed episodes only": _cell(row["robot_success_completed"]),
                 "collision rate [95 % CI]": _rate_text(
                     row["collision_rate"],
                     row["collision_rate_ci_low"],
@@ -266,8 +268,12 @@ def _markdown(
     parts += [
         "## Success",
         "",
-        "Aborted episodes are not trials. Robot success: reached its goal square without colliding; team "
-        "success: every robot did. Intervals: Wilson score (rates), t (mean time to goal).",
+        "Every episode counts: a robot of an aborted episode succeeds only if it had reached its goal before the "
+        "abort, and the team fails (the completed-only rate stands beside, named so). Robot success: reached its "
+        "goal square without colliding; team success: every robot did. Intervals: Wilson score (rates), t (mean "
+        "time to goal). Aborted: outage (a robot blind past the fleet's outage limit), fault (a twin, driver or "
+        "emitter gone), clash (a foreign writer on the domain), interrupted (an operator's stop), cut_off (the "
+        "recording stops inside the episode).",
         "",
         markdown_table(summary),
         "",
@@ -297,8 +303,16 @@ def _markdown(
         "collision_rate",
         "timeout_rate",
         "mean_time_to_goal_s",
+        "stale_s",
     )
-    parts += ["## Per robot", "", markdown_table(robots), ""]
+    parts += [
+        "## Per robot",
+        "",
+        "stale_s: the seconds the robot stood still for want of fresh data (between its `stale` and `fresh` events).",
+        "",
+        markdown_table(robots),
+        "",
+    ]
     if timing:
         parts += [
             "## Deployment timing",
@@ -315,6 +329,12 @@ def _markdown(
     if extra_markdown.strip():
         parts += [f"## {extra_title}", "", extra_markdown.strip(), ""]
     return "\n".join(parts)
+
+
+def _aborted_text(row: Mapping[str, Any]) -> str:
+    """The aborted episodes with their kinds, e.g. ``3 (2 outage, 1 fault)``."""
+    kinds = [f"{row[f'aborted_{k}']} {k}" for k in ABORT_KINDS if row.get(f"aborted_{k}")]
+    return f"{row['aborted_episodes']}" + (f" ({', '.join(kinds)})" if kinds else "")
 
 
 def _mean_text(mean: float, low: float, high: float) -> str:

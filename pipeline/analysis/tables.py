@@ -70,6 +70,8 @@ EPISODES_SCHEMA: dict[str, Any] = {
     "team_success": pl.Boolean,
     "end": pl.String,
     "abort_reason": pl.String,
+    "abort_kind": pl.String,
+    "stale_s": pl.Float64,
     "start_ns": pl.Int64,
     "end_ns": pl.Int64,
     "salvaged": pl.Boolean,
@@ -102,6 +104,42 @@ class _Episode:
     team_success: bool  # a team-level success or an end 'team_success', and not aborted
     max_step: int
     robot_events: Mapping[str, Mapping[str, tuple[int, int]]]  # robot -> event -> (t, step) of its first
+    abort_kind: str  # outage | fault | clash | interrupted | cut_off; '' when not aborted
+    stale_s: Mapping[str, float]  # robot -> seconds between its stale and fresh events (to the end when open)
+
+
+def _abort_kind(w: EpisodeWindow, aborted: bool) -> str:
+    """Why an episode was aborted, from its events (see :data:`pipeline.core.episode.ABORT_KINDS`)."""
+    if not aborted:
+        return ""
+    aborts = [e for e in w.events if e.event == "abort"]
+    if w.outcome == "unfinished" and not aborts:
+        return "cut_off"
+    if any(e.robot for e in aborts):
+        return "outage"
+    details = " ".join(e.detail for e in aborts)
+    if "interrupted" in details:
+        return "interrupted"
+    if "DDS domain" in details or "foreign" in details:
+        return "clash"
+    return "fault"
+
+
+def _stale_seconds(w: EpisodeWindow) -> dict[str, float]:
+    """Per robot, the seconds from each ``stale`` event to the next ``fresh`` one (or to the episode's end)."""
+    since: dict[str, int] = {}
+    total: dict[str, float] = {}
+    last_t = w.start_ns
+    for e in w.events:
+        last_t = max(last_t, e.t_ns)
+        if e.event == "stale" and e.robot:
+            since.setdefault(e.robot, e.t_ns)
+        elif e.event == "fresh" and e.robot in since:
+            total[e.robot] = total.get(e.robot, 0.0) + (e.t_ns - since.pop(e.robot)) / NS_PER_S
+    end = w.end_ns if w.end_ns is not None else last_t
+    for robot, t in since.items():
+        total[robot] = total.get(robot, 0.0) + (end - t) / NS_PER_S
+    return total
 
 
 def _episode(w: EpisodeWindow) -> _Episode:
@@ -113,11 +151,21 @@ def _episode(w: EpisodeWindow) -> _Episode:
     team = w.end_detail == "team_success" or any(e.event == "success" and not e.robot for e in w.events)
     robot_events: dict[str, dict[str, tuple[int, int]]] = {}
     for e in w.events:
-        if e.robot and e.event != "abort":
+        if e.robot and e.event not in ("abort", "stale", "fresh"):
             robot_events.setdefault(e.robot, {}).setdefault(e.event, (e.t_ns, e.step))
     end = {"finished": w.end_detail, "aborted": "aborted", "unfinished": ""}[w.outcome]
     max_step = max(e.step for e in w.events)
-    return _Episode(w, aborted, "; ".join(reasons), end, team and not aborted, max_step, robot_events)
+    return _Episode(
+        w,
+        aborted,
+        "; ".join(reasons),
+        end,
+        team and not aborted,
+        max_step,
+        robot_events,
+        _abort_kind(w, aborted),
+        _stale_seconds(w),
+    )
 
 
 class Recording:
@@ -466,6 +514,8 @@ class Recording:
                         e.team_success,
                         e.end,
                         e.abort_reason,
+                        e.abort_kind,
+                        e.stale_s.get(robot, 0.0),
                         w.start_ns,
                         w.end_ns,
                         self.salvaged,
@@ -583,8 +633,10 @@ def episodes_table(source: Source) -> pl.DataFrame:
     the robot has no ground truth, as ``path_source`` says), steps (control steps of the end or
     abort event; without either, estimated from the last pose), team_success (all robots reached
     their goals and the episode was not aborted), end (the end event's detail, ``aborted`` after a
-    team-level abort, empty when the file stops inside the episode), abort_reason,
-    start_ns and end_ns (log times; end_ns null when the file stops inside the episode), salvaged.
+    team-level abort, empty when the file stops inside the episode), abort_reason, abort_kind (outage,
+    fault, clash, interrupted, or cut_off for a file that stops inside the episode), stale_s (seconds between
+    the robot's ``stale`` and ``fresh`` events), start_ns and end_ns (log times; end_ns null when the file
+    stops inside the episode), salvaged.
 
     Raises:
         MissingTopicError: no ``/mrl/episode``, or a robot with neither ground truth nor odometry.

@@ -27,7 +27,7 @@ import yaml
 
 from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mappings import from_mapping, merge, to_mapping
-from pipeline.params import Params
+from pipeline.params import NetworkConfig, NetworkRanges, Params
 
 ALGORITHMS = ("sac", "dqn", "ppo")
 MODES = ("independent", "shared", "centralized")
@@ -48,6 +48,8 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.rounds": 1,
     "train.imitation.teacher": "scripted",
     "train.imitation.memory_dropout": 0.0,
+    **{f"world.network.{k}": v for k, v in to_mapping(NetworkConfig()).items()},
+    **{f"world.randomize.network.{k}": v for k, v in to_mapping(NetworkRanges()).items()},
 }
 """Settings added to params.yaml after trials were first digested, each with the value that behaves as before it
 existed. At that value a setting is left out of a trial's digest, so a trial finished before the setting
@@ -57,6 +59,21 @@ existed stays finished; at any other value the trial differs and runs. A new set
 def action_kind(algorithm: str) -> str:
     """The action space an algorithm trains on: DQN's are discrete, SAC's and PPO's continuous."""
     return "discrete" if algorithm == "dqn" else "continuous"
+
+
+SECTIONS_ADDED = ("world.network", "world.randomize.network")
+"""Sections added whole after trials were run: with each of their keys at its neutral value they are left out."""
+
+
+def _prune_empty(settings: dict[str, Any]) -> None:
+    """Remove the sections of :data:`SECTIONS_ADDED` that hold nothing (every key at its neutral value)."""
+    for section in SECTIONS_ADDED:
+        *path, leaf = section.split(".")
+        node = settings
+        for part in path:
+            node = node.get(part, {})
+        if node.get(leaf) == {}:
+            del node[leaf]
 
 
 @dataclass(frozen=True)
@@ -98,6 +115,7 @@ class Trial:
                 node = node[part]
             if node.get(leaf) == neutral:
                 del node[leaf]
+        _prune_empty(settings)
         text = json.dumps(settings, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -264,8 +282,7 @@ def run_trial(
     runtime = PolicyRuntime(folder / "policy")
     results = evaluate(MultiRobotSim(scenario, world), runtime.actions, eval_episodes, seed=EVAL_SEED, progress=False)
     summary = summarize(results, prefix="eval")
-    finished = [r for r in results if not r.aborted]
-    per_robot = np.stack([r.success for r in finished]).mean(axis=0)
+    per_robot = np.stack([r.success for r in results]).mean(axis=0)  # every episode counts
     fixed: dict[str, float] = {}
     if scenario.layouts is not None and world.layouts == "random":  # held-out layouts above; the own one too
         own = MultiRobotSim(scenario, replace(world, layouts="fixed"))
@@ -288,7 +305,7 @@ def run_trial(
         converged_at_episode=result.converged_at_episode,
         converged_at_steps=result.converged_at_steps,
         wall_to_convergence_s=converged_wall,
-        eval_episodes=len(finished),
+        eval_episodes=len(results),
         robot_success=summary["eval/robot_success"],
         team_success=summary["eval/team_success"],
         collision_rate=summary["eval/collision_rate"],

@@ -73,7 +73,24 @@ RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
     "actuation.angular_gain": (0.01, 5.0),
     "odometry.drift_per_m": (0.0, 1.0),
     "actuation.deadband_radps": (0.0, 50.0),
+    "network.scan_rate_hz": (0.0, 100.0),
+    "network.odom_rate_hz": (0.0, 1000.0),
+    "network.loss_prob": (0.0, 0.5),
+    "network.burst_len": (1.0, 50.0),
+    "network.jitter_s": (0.0, 0.5),
 }
+NETWORK_SOURCES: dict[str, str] = {
+    "scan_rate_hz": "lidar.rate_hz",
+    "odom_rate_hz": "odometry.rate_hz",
+    "loss_prob": "network.loss_prob",
+    "burst_len": "network.burst_len",
+    "jitter_s": "network.jitter_s",
+    "clock_offset_s": "clock.offset_s",
+    "clock_drift_ppm": "clock.drift_ppm",
+}
+"""The simulator's network keys (``world.network``) and the estimates they take: the rates at which scans and odometry
+arrive, how they are lost and jittered, and the robots' clock; the calibrated round trains on them, randomized
+within their intervals (the clock keys, which move only the sensors' stamps, at their values)."""
 """The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
 
 
@@ -253,6 +270,11 @@ class Calibration:
             if limit.limit.value is not None:
                 out.setdefault("actuation", {})[key] = _short(limit.limit.value)
         put("odometry", "drift_per_m", "odometry.drift_per_m")
+        for key, source in NETWORK_SOURCES.items():
+            est = self.values.get(source)
+            low, high = RANDOMIZE_BOUNDS.get(f"network.{key}", (-math.inf, math.inf))
+            if est is not None and est.value is not None and low <= est.value <= high:  # else the simulator's own
+                put("network", key, source)
         ranges = self.randomize_ranges()
         if ranges:
             out["randomize"] = dict(ranges)
@@ -269,6 +291,7 @@ class Calibration:
         sources.update({f"actuation.{k}": f"actuation.{k}" for k in PROFILE_KEYS["actuation"]})
         sources["odometry.drift_per_m"] = "odometry.drift_per_m"
         sources["actuation.deadband_radps"] = "base.deadband_radps"
+        sources.update({f"network.{k}": v for k, v in NETWORK_SOURCES.items() if not k.startswith("clock_")})
         for world_key, source in sources.items():
             est = self.values.get(source)
             if est is None or not est.ok or est.value is None or est.interval is None:

@@ -1,12 +1,23 @@
-"""Episode outcomes and their summary, shared by sim evaluation and deployment."""
+"""Episode outcomes and their summary, shared by sim evaluation and deployment.
+
+Every episode counts. An aborted episode (a robot blind past the fleet's outage limit, a driver or
+twin gone, a foreign writer on the domain, an operator's stop, a recording cut inside it) is a trial
+like any other: its robots succeed only if they had reached their goal without colliding before the
+abort, and its team fails. The rates over the completed episodes alone stand beside the headline
+rates under names that say so (``*_completed``).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from pipeline.core.stats import wilson_interval
+
+ABORT_KINDS = ("outage", "fault", "clash", "interrupted", "cut_off")
+"""Why an episode was aborted: a robot blind past the outage limit; a driver, twin or emitter gone; a writer the
+run did not discover on the domain; an operator's stop (Ctrl-C, SIGTERM); a recording that stops inside it."""
 
 
 @dataclass(frozen=True)
@@ -24,43 +35,68 @@ class EpisodeResult:
     trajectory: np.ndarray  # (steps + 1, n_robots, 3) ground-truth poses
     aborted: bool = False
     abort_reason: str = ""
+    abort_kind: str = ""
+    """One of :data:`ABORT_KINDS` when aborted, else empty."""
+    stale_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(n_robots,) seconds each robot spent stale (standing still for want of fresh data); empty: none measured."""
+
+    def __post_init__(self) -> None:
+        if self.aborted and self.abort_kind not in ABORT_KINDS:
+            raise ValueError(f"abort_kind {self.abort_kind!r} is not one of {ABORT_KINDS}")
+        if not self.aborted and self.abort_kind:
+            raise ValueError("abort_kind is only set on aborted episodes")
 
     @property
     def success(self) -> np.ndarray:
+        """(n_robots,) reached the goal without colliding (before the abort, for an aborted episode)."""
         return np.asarray(self.reached & ~self.collided)
+
+    @property
+    def team(self) -> bool:
+        """The team succeeded: every robot in its goal, and the episode was not aborted."""
+        return bool(self.team_success and not self.aborted)
+
+    @property
+    def stale_per_robot_s(self) -> np.ndarray:
+        """(n_robots,) stale seconds, zeros where none were measured."""
+        return self.stale_s if self.stale_s.size else np.zeros(len(self.reached))
+
+
+def _rates(prefix: str, k: int, n: int, out: dict[str, float]) -> None:
+    low, high = wilson_interval(k, n) if n else (float("nan"), float("nan"))
+    out[prefix] = k / n if n else float("nan")
+    out[f"{prefix}_ci_low"] = low
+    out[f"{prefix}_ci_high"] = high
 
 
 def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, float]:
-    """Robot- and team-level success with 95 % Wilson intervals, collisions, time to goal.
-
-    Aborted episodes (a robot went silent, the session was stopped) are counted but are not
-    trials: the rates are over the finished episodes.
-    """
+    """Robot- and team-level success over every episode with 95 % Wilson intervals, and beside them the same rates
+    over the completed (not aborted) episodes only (``*_completed``; NaN when none completed); aborted episodes by
+    kind, stale seconds per robot, collisions and time to goal."""
     if not results:
         raise ValueError("no episodes to summarise")
-    aborted = sum(r.aborted for r in results)
-    finished = [r for r in results if not r.aborted]
-    if not finished:
-        return {f"{prefix}/episodes": float(len(results)), f"{prefix}/aborted_episodes": float(aborted)}
-    results = finished
     success = np.stack([r.success for r in results])
     collided = np.stack([r.collided for r in results])
-    team = np.array([r.team_success for r in results])
+    team = np.array([r.team for r in results])
+    aborted = np.array([r.aborted for r in results])
+    stale = np.stack([r.stale_per_robot_s for r in results])
     times = np.concatenate([r.time_to_goal_s[r.success] for r in results])
-    robot_k, robot_n = int(success.sum()), int(success.size)
-    team_k, team_n = int(team.sum()), int(team.size)
-    out = {
-        "episodes": float(len(results) + aborted),
-        "aborted_episodes": float(aborted),
-        "robot_success": robot_k / robot_n,
-        "robot_success_ci_low": wilson_interval(robot_k, robot_n)[0],
-        "robot_success_ci_high": wilson_interval(robot_k, robot_n)[1],
-        "team_success": team_k / team_n,
-        "team_success_ci_low": wilson_interval(team_k, team_n)[0],
-        "team_success_ci_high": wilson_interval(team_k, team_n)[1],
-        "collision_rate": float(collided.mean()),
-        "mean_time_to_goal_s": float(times.mean()) if times.size else float("nan"),
+    out: dict[str, float] = {
+        "episodes": float(len(results)),
+        "aborted_episodes": float(aborted.sum()),
+        "completed_episodes": float((~aborted).sum()),
     }
+    for kind in ABORT_KINDS:
+        out[f"aborted_{kind}"] = float(sum(r.abort_kind == kind for r in results))
+    _rates("robot_success", int(success.sum()), int(success.size), out)
+    _rates("team_success", int(team.sum()), int(team.size), out)
+    done = success[~aborted]
+    _rates("robot_success_completed", int(done.sum()), int(done.size), out)
+    _rates("team_success_completed", int(team[~aborted].sum()), int((~aborted).sum()), out)
+    out["collision_rate"] = float(collided.mean())
+    out["mean_time_to_goal_s"] = float(times.mean()) if times.size else float("nan")
+    out["stale_s"] = float(stale.sum())
     for i in range(success.shape[1]):
         out[f"robot_{i + 1}_success"] = float(success[:, i].mean())
+        out[f"robot_{i + 1}_stale_s"] = float(stale[:, i].sum())
     return {f"{prefix}/{k}": v for k, v in out.items()}

@@ -210,6 +210,8 @@ EVENT_CODES: dict[str, int] = {
     "success": 4,
     "abort": 5,
     "end": 6,
+    "stale": 7,
+    "fresh": 8,
 }
 EVENT_NAMES: dict[int, str] = {v: k for k, v in EVENT_CODES.items()}
 

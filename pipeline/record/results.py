@@ -35,26 +35,35 @@ def write_metrics(path: Path, metrics: dict[str, float]) -> None:
     path.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
 
+EPISODES_CSV_COLUMNS = (
+    "episode",
+    "seed",
+    "robot",
+    "success",
+    "reached",
+    "collided",
+    "aborted",
+    "abort_kind",
+    "abort_reason",
+    "stale_s",
+    "time_to_goal_s",
+    "path_length_m",
+    "steps",
+    "team_success",
+)
+"""The columns of every episodes.csv (sim evaluation, scripted evaluation, deployment), in order. success: the robot
+reached its goal without colliding (before the abort, in an aborted episode); team_success: every robot did and the
+episode was not aborted; stale_s: the seconds the robot stood still for want of fresh data."""
+
+
 def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
-    """One row per (episode, robot): seed, success, collision, time to goal, path length."""
+    """One row per (episode, robot) with the columns of :data:`EPISODES_CSV_COLUMNS`."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="", encoding="utf-8") as f:
         out = csv.writer(f)
-        out.writerow(
-            [
-                "episode",
-                "seed",
-                "robot",
-                "success",
-                "reached",
-                "collided",
-                "time_to_goal_s",
-                "path_length_m",
-                "steps",
-                "team_success",
-            ]
-        )
+        out.writerow(EPISODES_CSV_COLUMNS)
         for r in results:
+            stale = r.stale_per_robot_s
             for i in range(len(r.reached)):
                 t = r.time_to_goal_s[i]
                 out.writerow(
@@ -65,10 +74,14 @@ def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
                         int(r.success[i]),
                         int(r.reached[i]),
                         int(r.collided[i]),
+                        int(r.aborted),
+                        r.abort_kind,
+                        r.abort_reason,
+                        f"{stale[i]:.3f}",
                         "" if np.isnan(t) else f"{t:.3f}",
                         f"{r.path_length_m[i]:.4f}",
                         r.steps,
-                        int(r.team_success),
+                        int(r.team),
                     ]
                 )
 

@@ -356,9 +356,10 @@ def deploy_session(
     """A deployment into `out_dir`: session.mcap (+ rosbag2 metadata.yaml), episodes.csv and metrics.json.
 
     The session is recorded in a staging folder and moved into place with its results when at least
-    one episode finished; a deployment that stops partway publishes the finished episodes and then
-    raises DeployAborted. One that stops before its first episode leaves `out_dir` as it was (an
-    episode under way is kept in ``interrupted-<time>``, the staging folder of a killed run too).
+    one episode ran; a deployment that stops partway publishes the episodes run (the one cut short counted
+    as aborted, its robots failed unless they had arrived) and then raises DeployAborted. One that stops
+    before its first episode leaves `out_dir` as it was (an episode under way is kept in
+    ``interrupted-<time>``, the staging folder of a killed run too).
     """
     scenario = load_scenario(fleet.scenario, len(fleet.robots))
     check_policy_fits_fleet(runtime, fleet, scenario)
@@ -376,13 +377,17 @@ def deploy_session(
         _drop(folder)
         raise
     metrics = summarize(results, prefix="real")
+    metrics["real/requested_episodes"] = float(request.episodes)
     write_metrics(folder.staged("metrics.json"), metrics)
     write_episodes(folder.staged("episodes.csv"), results)
     write_rosbag2_metadata(folder.staged("session.mcap"))
     files = folder.publish()
     if failure is not None:
         raise DeployAborted(
-            f"{failure.reason}; the {len(results)} finished episode(s) are in {out_dir}", results, failure.interrupted
+            f"{failure.reason}; the {len(results)} episode(s) run (the last counted as aborted where it was cut short) "
+            f"are in {out_dir}",
+            results,
+            failure.interrupted,
         ) from failure
     return DeploymentOutcome(results, profile, metrics, files)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pipeline.core.episode import EpisodeResult
-from pipeline.errors import MrlError
+from pipeline.errors import MrlError, RuntimeFault
 
 
 class EvaluationInterrupted(MrlError):
@@ -16,21 +16,22 @@ class EvaluationInterrupted(MrlError):
         super().__init__(f"evaluation interrupted after {len(results)} finished episode(s); the recording is kept")
 
 
-class DeployAborted(MrlError):
-    """The deployment stopped early; robots were sent zero velocity and the recording was closed."""
+class DeployAborted(RuntimeFault):
+    """The deployment stopped early; robots were sent zero velocity and the recording was closed. `results` holds
+    every episode run, the one cut short included (counted as aborted)."""
 
     def __init__(self, reason: str, results: list[EpisodeResult], interrupted: bool = False) -> None:
         self.reason = reason
         self.results = results
         self.interrupted = interrupted
-        super().__init__(f"deployment stopped after {len(results)} finished episode(s): {reason}")
+        super().__init__(f"deployment stopped after {len(results)} episode(s): {reason}")
 
 
-class FleetNotReady(MrlError):
+class FleetNotReady(RuntimeFault):
     """Robots did not appear, did not confirm a reset, or sent no data in time; names them."""
 
 
-class FleetConflict(MrlError):
+class FleetConflict(RuntimeFault):
     """Robots that this deployment did not start publish on the fleet's topics (a stray twin, another user)."""
 
     def __init__(self, domain_id: int, seen: list[str], hint: str) -> None:

@@ -8,10 +8,12 @@ same episode judge as in sim, and counted by the same tally (:mod:`pipeline.roll
 
 Its parts, each with tests of its own: the transport side (:mod:`pipeline.rollout.link`: what is
 heard and said, all of it recorded), the reset handshake (:mod:`pipeline.rollout.handshake`), the
-staleness rule and odometry rebasing (:mod:`pipeline.rollout.watch`). A robot whose data stays
-stale aborts the episode (zero commands, an ``abort`` event naming it); a dying twin, Ctrl-C or an
-emitter failure stop every robot, mark the episode aborted, close the recording and raise
-DeployAborted.
+staleness rule and odometry rebasing (:mod:`pipeline.rollout.watch`). A robot whose data is stale
+stands still (zero commands; ``stale`` and ``fresh`` events bound the interval) while the others drive
+on and the episode's time keeps running; one blind past the fleet's outage limit aborts the episode (an
+``abort`` event naming it) and the next episode starts. A dying twin or driver, Ctrl-C or an emitter
+failure stop every robot, count the episode under way as aborted (its robots fail unless they had
+arrived), close the recording and raise DeployAborted with every episode run, that one included.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from tqdm import tqdm
 
 from pipeline.core.episode import EpisodeResult
 from pipeline.core.layouts import draw_layout
+from pipeline.core.network import observed_scans, stand_still
 from pipeline.core.scan import uncovered_beams
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
@@ -43,7 +46,12 @@ from pipeline.ros.clock import Clock, ScaledClock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Transport
 
-__all__ = ["DeployRunner", "odom_sample", "scan_sample"]
+__all__ = ["DeployRunner", "odom_sample", "scan_sample", "stale_rows"]
+
+
+def stale_rows(namespaces: list[str], stale: dict[str, str]) -> np.ndarray:
+    """(n_robots,) True for the robots whose data is stale: they stand still."""
+    return np.array([name in stale for name in namespaces], dtype=bool)
 
 
 class DeployRunner:
@@ -79,6 +87,8 @@ class DeployRunner:
         self.period_ns = self.mdp.period_ns
         self.use_truth = fleet.timing.use_ground_truth
         self.observe_truth = self.mdp.definition.observed_pose == "ground_truth"
+        self.stale_scan = runtime.spec.world.network.stale_scan
+        """What the policy observes of a stale robot's scan, as in the world it was trained in."""
         self.handshake = ResetHandshake(
             lambda episode, seed: self.link.publish_reset(episode, seed),
             fleet.timing.reset_timeout_s,
@@ -89,7 +99,11 @@ class DeployRunner:
         self.link = FleetLink(fleet, transport, clock, log, self.handshake.confirmed, target=self.pursuit)
         self.receiver = self.link.receiver
         self.emitter = self.link.emitter
-        self.staleness = StalenessWatch(round(fleet.timing.abort_after_s * NS_PER_S))
+        self.staleness = StalenessWatch(round(fleet.timing.outage_limit_s * NS_PER_S), self.namespaces)
+        self._tally: EpisodeTally | None = None
+        """The episode under way (between its start event and its result), None between episodes."""
+        self._fatal: DeployAborted | None = None
+        """Set when an episode ended on a fault that stops the deployment (a twin or driver gone, the emitter)."""
         self.samples = LatestSamples(self.namespaces, self.use_truth)
         self.odometry = OdometryFrame(len(self.namespaces))
 
@@ -238,10 +252,11 @@ class DeployRunner:
         self.builder.forget()
         tally = EpisodeTally(episode, seed, self.namespaces, self.mdp.definition.control_period_s)
         tally.start(truth if truth is not None else odom)
+        self._tally = tally
         done = np.zeros(len(self.namespaces), dtype=bool)
         step = 0
         next_t = t_start
-        aborted, reason = False, ""
+        aborted, reason, kind = False, "", ""
         while True:
             self._step = step
             if not self.clock.sleep_until(next_t):
@@ -249,27 +264,37 @@ class DeployRunner:
             t = self.clock.now_ns()
             self.link.timing(TimingEvent("control", "", "", t, tick=step))
             problem = self.fleet_alive()
+            if problem is None and self.emitter.error is not None:
+                problem = f"the emitter failed: {self.emitter.error!r}"
             if problem:
                 self.emitter.clear()
                 self.log.event(self.clock.now_ns(), episode, step, "abort", detail=problem)
                 self.emitter.halt()
-                raise DeployAborted(problem, [])
-            if self.emitter.error is not None:
-                raise DeployAborted(f"the emitter failed: {self.emitter.error!r}", [])
+                self._fatal = DeployAborted(problem, [])
+                aborted, reason, kind = True, problem, "fault"
+                break
             state = self.receiver.joint_state(t)
             for name in self.namespaces:
                 if name in state.stale:
                     self.link.timing(TimingEvent("stale", name, state.stale[name], t, tick=step))
-            silent = self.staleness.update(t, state.stale)
-            if silent:
+            change = self.staleness.update(t, state.stale)
+            for name, why in change.began.items():
+                self.log.event(t, episode, step, "stale", name, why)
+            for name, seconds in change.ended.items():
+                self.log.event(t, episode, step, "fresh", name, f"{seconds:.3f} s stale")
+            if change.outage:
                 self.emitter.clear()  # waits for a tick in flight: every command recorded after the event is zero
                 t_abort = self.clock.now_ns()
-                for name, why in silent.items():
-                    self.log.event(t_abort, episode, step, "abort", name, why)
+                limit = self.fleet.timing.outage_limit_s
+                for name, why in change.outage.items():
+                    self.log.event(t_abort, episode, step, "abort", name, f"blind for {limit:g} s: {why}")
                 self.emitter.halt()  # the fleet stops now, not at the next tick
-                aborted, reason = True, "; ".join(f"{r}: {why}" for r, why in silent.items())
+                reason = "; ".join(f"{r}: blind for {limit:g} s ({why})" for r, why in change.outage.items())
+                aborted, kind = True, "outage"
                 break
+            stale = stale_rows(self.namespaces, state.stale)
             scans, geoms, odom_raw, truth = self.samples.arrays(state)
+            scans = observed_scans(scans, stale, self.stale_scan)  # the simulator's rule, the same function
             odom = self.odometry.to_map(odom_raw)
             self._track()
             observed = self.builder.build(scans, geoms, truth if self.observe_truth and truth is not None else odom)
@@ -283,8 +308,8 @@ class DeployRunner:
             actions = self.runtime.actions(observed.obs)
             commands = self.runtime.codec.decode(actions)
             commands[done] = 0.0
-            # a robot whose data is stale stands still until it is fresh again (or the episode aborts)
-            commands[[name in state.stale for name in self.namespaces]] = 0.0
+            # a robot whose data is stale stands still until it is fresh again (or blind past the outage limit)
+            stand_still(commands, stale)
             self.emitter.command_all(next_t, commands)
             self.builder.remember(commands)
             for i, ns in enumerate(self.namespaces):
@@ -296,26 +321,50 @@ class DeployRunner:
             step += 1
             next_t += self.period_ns
         self.emitter.clear()
-        self.log.event(self.clock.now_ns(), episode, step, "end", detail=tally.outcome(aborted))
-        return tally.result(self.judge, aborted, reason)
+        t_end = self.clock.now_ns()
+        self.log.event(t_end, episode, step, "end", detail=tally.outcome(aborted))
+        self._tally = None
+        return tally.result(self.judge, aborted, reason, kind, self.staleness.stale_s(t_end))
+
+    def _cut_short(self, why: str, kind: str) -> EpisodeResult | None:
+        """The episode under way, if any, ended now as aborted (`kind`), with an ``abort`` and an ``end`` event."""
+        tally, self._tally = self._tally, None
+        if tally is None:
+            return None
+        t = self.clock.now_ns()
+        self.log.event(t, self._episode, self._step, "abort", detail=why)
+        self.log.event(t, self._episode, self._step, "end", detail="aborted")
+        return tally.result(self.judge, True, why, kind, self.staleness.stale_s(t))
 
     def run(self, episodes: int, seed: int, progress: bool = True) -> list[EpisodeResult]:
-        """Run `episodes` episodes with seeds seed, seed+1, ...; the emitter ticks throughout."""
+        """Run `episodes` episodes with seeds seed, seed+1, ...; the emitter ticks throughout.
+
+        Raises DeployAborted with every episode run (the one a fault or Ctrl-C cut short counted as aborted)
+        when the deployment cannot go on."""
         results: list[EpisodeResult] = []
         bar = tqdm(range(episodes), desc="deploy", unit="ep", disable=not progress, mininterval=1.0)
+        self._fatal = None
         self.emitter.start()
         try:
             for k in bar:
                 results.append(self.run_episode(k, seed + k))
+                if self._fatal is not None:
+                    raise self._fatal
                 rate = np.mean([r.success.mean() for r in results])
                 bar.set_postfix(robot_success=f"{rate:.3f}", aborted=sum(r.aborted for r in results))
         except DeployAborted as exc:
-            raise DeployAborted(exc.reason, results, exc.interrupted) from None
-        except MrlError as exc:  # e.g. a reset the fleet never confirmed: the finished episodes still count
-            raise DeployAborted(str(exc), results) from exc
+            cut = self._cut_short(exc.reason, "fault")
+            raise DeployAborted(exc.reason, results + ([cut] if cut else []), exc.interrupted) from None
+        except MrlError as exc:  # e.g. a reset the fleet never confirmed: the episodes run still count
+            self.emitter.halt()
+            cut = self._cut_short(str(exc), "fault")
+            raise DeployAborted(str(exc), results + ([cut] if cut else [])) from exc
         except KeyboardInterrupt:
-            self.log.event(self.clock.now_ns(), self._episode, self._step, "abort", detail="interrupted")
-            raise DeployAborted("interrupted", results, interrupted=True) from None
+            self.emitter.halt()
+            cut = self._cut_short("interrupted", "interrupted")
+            if cut is None:
+                self.log.event(self.clock.now_ns(), self._episode, self._step, "abort", detail="interrupted")
+            raise DeployAborted("interrupted", results + ([cut] if cut else []), interrupted=True) from None
         finally:
             bar.close()
             self.emitter.stop(send_zero=True)

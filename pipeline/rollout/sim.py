@@ -66,6 +66,9 @@ def run_episode(
     tally = EpisodeTally(episode, seed, names, sim.world_config.control_period_s)
     tally.start(sim.world.truth)
     step = 0
+    stale_steps = np.zeros(len(names))
+    was_stale = sim.stale.copy()
+    since = np.zeros(len(names), dtype=np.int64)
     if log is not None:
         log.start_episode(t0_ns, episode, seed)
         log.map(t0_ns, sim.episode_layout)
@@ -84,13 +87,23 @@ def run_episode(
                 log.cmd_vel(t_ns, ns, *cmd)
             _record_state(log, sim, t_ns + period_ns)
         tally.log_events(log, t_ns + period_ns, step, result.judge)
+        stale_steps += sim.stale
+        if log is not None and (sim.stale != was_stale).any():
+            for i in (int(k) for k in np.flatnonzero(sim.stale != was_stale)):
+                if sim.stale[i]:
+                    since[i] = step
+                    log.event(t_ns + period_ns, episode, step, "stale", names[i], "no fresh scan or odometry")
+                else:
+                    seconds = (step - since[i]) * sim.world_config.control_period_s
+                    log.event(t_ns + period_ns, episode, step, "fresh", names[i], f"{seconds:.3f} s stale")
+        was_stale = sim.stale.copy()
         obs = result.obs
         tally.judged(result.judge, sim.judge.steps, sim.world.truth)
         if result.judge.done.all() or result.judge.truncated:
             break
     if log is not None:
         log.event(t0_ns + step * period_ns, episode, step, "end", detail=tally.outcome())
-    return tally.result(sim.judge)
+    return tally.result(sim.judge, stale_s=stale_steps * sim.world_config.control_period_s)
 
 
 def evaluate(

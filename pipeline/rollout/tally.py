@@ -56,7 +56,15 @@ class EpisodeTally:
             return "aborted"
         return "team_success" if self.team_success else "incomplete"
 
-    def result(self, judge: EpisodeJudge, aborted: bool = False, abort_reason: str = "") -> EpisodeResult:
+    def result(
+        self,
+        judge: EpisodeJudge,
+        aborted: bool = False,
+        abort_reason: str = "",
+        abort_kind: str = "",
+        stale_s: np.ndarray | None = None,
+    ) -> EpisodeResult:
+        """The episode's result; an aborted one keeps the goals reached before the abort, and its team fails."""
         traj = np.stack(self.poses)
         steps_xy = np.diff(traj[:, :, :2], axis=0)
         return EpisodeResult(
@@ -67,8 +75,10 @@ class EpisodeTally:
             collided=judge.collided.copy(),
             time_to_goal_s=self.arrival.copy(),
             path_length_m=np.hypot(steps_xy[..., 0], steps_xy[..., 1]).sum(axis=0),
-            team_success=self.team_success,
+            team_success=self.team_success and not aborted,
             trajectory=traj,
             aborted=aborted,
             abort_reason=abort_reason,
+            abort_kind=abort_kind if aborted else "",
+            stale_s=np.zeros(len(self.names)) if stale_s is None else np.asarray(stale_s, dtype=float).copy(),
         )

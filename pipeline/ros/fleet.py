@@ -82,8 +82,10 @@ class FleetTiming:
     odom_stale_s: float = setting(0.3, gt=0.0, le=10.0)
     truth_stale_s: float = setting(0.3, gt=0.0, le=10.0)
     """Ground truth staleness; used when use_ground_truth is true."""
-    abort_after_s: float = setting(1.0, ge=0.0, le=60.0)
-    """A robot stale this long aborts the episode; until then it is commanded zero velocity."""
+    outage_limit_s: float = setting(5.0, gt=0.0, le=600.0)
+    """A robot blind (stale) this long without a break aborts the episode; until then it stands still (zero
+    commands) and the other robots drive on. 5 s: a Wi-Fi link's loss bursts last tens to hundreds of ms and a
+    roaming hand-over 1-3 s; a robot that has missed five seconds of scans is lost to its operator."""
     use_ground_truth: bool = setting(True)
     """Judge goals and collisions on /<ns>/ground_truth (motion capture or twin); else odometry and lidar."""
 
@@ -109,6 +111,18 @@ class Fleet:
                 seen.add(value)
         if self.timing.command_validity_s < self.timing.tick_period_s:
             bad.append(("timing.command_validity_s", self.timing.command_validity_s, "at least timing.tick_period_s"))
+        limits = {"timing.scan_stale_s": self.timing.scan_stale_s, "timing.odom_stale_s": self.timing.odom_stale_s}
+        if self.timing.use_ground_truth:
+            limits["timing.truth_stale_s"] = self.timing.truth_stale_s
+        key, longest = max(limits.items(), key=lambda kv: kv[1])
+        if self.timing.outage_limit_s < longest:
+            bad.append(
+                (
+                    "timing.outage_limit_s",
+                    self.timing.outage_limit_s,
+                    f"at least the longest staleness limit ({key} = {longest:g} s): a robot is blind only once stale",
+                )
+            )
         return bad
 
     @property

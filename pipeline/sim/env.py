@@ -19,10 +19,15 @@ from pettingzoo import ParallelEnv
 
 from pipeline.core.judge import JudgeStep
 from pipeline.core.layouts import draw_layout
+from pipeline.core.network import LinkSettings, MessageStream, observed_scans, stand_still
 from pipeline.core.scenario import Scenario
+from pipeline.core.timebase import NS_PER_S
 from pipeline.mdp import mdp_parts
 from pipeline.params import WorldConfig
 from pipeline.sim.world import SimWorld
+
+NETWORK_STREAM = 0x6E6574
+"""Mixed into an episode's seed for the network's own generator."""
 
 
 @dataclass(frozen=True)
@@ -31,6 +36,61 @@ class SimStep:
 
     obs: np.ndarray
     judge: JudgeStep
+
+
+class NetworkedSensors:
+    """Each robot's scans and odometry through the world's network (:class:`pipeline.core.network.MessageStream`),
+    with its own generator (seeded from the episode's seed), so that an ideal link leaves every other draw as it
+    was. What a stale robot observes and does is core's rule, the same as on a fleet."""
+
+    def __init__(self, n_robots: int, world: WorldConfig) -> None:
+        self.n = n_robots
+        self.period_ns = round(world.control_period_s * NS_PER_S)
+        self.plays = world.network.plays or any(k.startswith("network.") for k in world.randomize.ranges())
+        self.settings = world.network
+        self.rng = np.random.default_rng(0)
+        self.stale = np.zeros(n_robots, dtype=bool)
+        self.t_ns = 0
+        self.scans: MessageStream | None = None
+        self.odometry: MessageStream | None = None
+
+    def reset(self, world: WorldConfig, seed: int | None) -> None:
+        """A new episode in `world` (its draw, when the network is randomized)."""
+        if not self.plays:
+            return
+        if seed is not None:
+            self.rng = np.random.default_rng([seed, NETWORK_STREAM])
+        net = world.network
+        self.settings = net
+        link = {
+            "loss_prob": net.loss_prob,
+            "burst_len": net.burst_len,
+            "delay_s": net.delay_s,
+            "jitter_s": net.jitter_s,
+        }
+        self.scans = MessageStream(LinkSettings(net.scan_rate_hz, **link), self.n, self.period_ns)
+        self.odometry = MessageStream(LinkSettings(net.odom_rate_hz, **link), self.n, self.period_ns)
+        self.stale = np.zeros(self.n, dtype=bool)
+        self.t_ns = 0
+
+    def receive(self, scans: np.ndarray, pose: np.ndarray, first: bool) -> tuple[list[np.ndarray], np.ndarray]:
+        """The scans (as the policy observes them) and poses (n, 3) that have reached the controller now, given the
+        sensors' readings now; `first`: the episode's start, when every robot's data is fresh."""
+        assert self.scans is not None and self.odometry is not None
+        if first:
+            self.scans.reset(0, list(scans), self.rng)
+            self.odometry.reset(0, list(pose), self.rng)
+        else:
+            self.t_ns += self.period_ns
+            self.scans.step(self.t_ns, list(scans), self.rng)
+            self.odometry.step(self.t_ns, list(pose), self.rng)
+        net = self.settings
+        self.stale = (self.scans.ages_ns(self.t_ns) > round(net.scan_stale_s * NS_PER_S)) | (
+            self.odometry.ages_ns(self.t_ns) > round(net.odom_stale_s * NS_PER_S)
+        )
+        latest = [s for s in self.scans.latest if s is not None]
+        poses = np.stack([p for p in self.odometry.latest if p is not None])
+        return observed_scans(latest, self.stale, net.stale_scan), poses
 
 
 class MultiRobotSim:
@@ -57,6 +117,10 @@ class MultiRobotSim:
         self.obs = np.zeros((self.n, self.layout.size), dtype=np.float32)
         self.last_cmd = np.zeros((self.n, 2))
         self._seeded = False
+        self.network = NetworkedSensors(self.n, world)
+        """The network between the sensors and the policy (:mod:`pipeline.core.network`); idle on an ideal link."""
+        self.stale = np.zeros(self.n, dtype=bool)
+        """(n_robots,) robots whose latest scan or odometry is older than its staleness limit: they stand still."""
         self.random_layouts = scenario.layouts is not None and world.layouts == "random"
         """Each episode draws its layout from the scenario's ranges, by its seed (:mod:`pipeline.core.layouts`)."""
         self.episode_layout = scenario
@@ -68,10 +132,14 @@ class MultiRobotSim:
         if target is not None:
             self.mdp.track(target)
 
-    def _observe(self) -> np.ndarray:
+    def _observe(self, first: bool = False) -> np.ndarray:
         self.raw_scan = self.world.scan()
         pose = self.world.truth if self._observe_truth else self.world.odometry.pose
-        observed = self.observer.build(self.raw_scan, self.world.scan_geometry, pose)
+        scans: np.ndarray | list[np.ndarray] = self.raw_scan
+        if self.network.plays:
+            scans, pose = self.network.receive(self.raw_scan, pose, first)
+            self.stale = self.network.stale
+        observed = self.observer.build(scans, self.world.scan_geometry, pose)
         self.ranges, self.obs = observed.ranges, observed.obs
         return self.obs
 
@@ -88,11 +156,13 @@ class MultiRobotSim:
             self.world.use_layout(self.episode_layout)
             self.mdp.use_layout(self.episode_layout)
         self.world.reset(seed, starts)
+        self.network.reset(self.world.world, seed)  # the episode's draw of the network, when it is randomized
+        self.stale = np.zeros(self.n, dtype=bool)
         self._track()
         self.judge.reset(self.world.truth)
         self.last_cmd = np.zeros((self.n, 2))
         self.observer.forget()
-        return self._observe().copy()
+        return self._observe(first=True).copy()
 
     def path_bearing(self, ahead_m: float) -> np.ndarray:
         """(n_robots,) the bearing (rad, robot frame) of the point `ahead_m` along each robot's way to its goal
@@ -115,6 +185,7 @@ class MultiRobotSim:
         """Advance one control period with policy actions for every robot (done robots are ignored)."""
         cmd = self.codec.decode(actions)
         cmd[self.judge.done] = 0.0
+        stand_still(cmd, self.stale)  # as on a fleet: a robot without fresh data waits for it
         self.last_cmd = cmd
         self.observer.remember(cmd)
         self.world.step(cmd)

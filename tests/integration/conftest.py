@@ -64,7 +64,7 @@ def write_fleet(path: Path, **changes: object) -> Path:
             "scan_stale_s": 0.5,
             "odom_stale_s": 0.3,
             "truth_stale_s": 0.3,
-            "abort_after_s": 1.0,
+            "outage_limit_s": 5.0,
             "use_ground_truth": True,
         },
     }

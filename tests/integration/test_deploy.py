@@ -7,10 +7,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import polars as pl
 import psutil
 import pytest
 import yaml
 
+from pipeline.analysis.tables import episodes_table
 from pipeline.core.scenario import load_scenario
 from pipeline.errors import ConfigError
 from pipeline.messages.convert import EVENT_NAMES
@@ -66,25 +68,33 @@ def test_a_robot_that_never_appears_is_named(tiny_policy, tmp_path):
     assert not McapLog(tmp_path / "session.mcap").salvaged
 
 
-def test_a_robot_going_silent_aborts_the_episode_with_zero_commands(tiny_policy, tmp_path):
-    fleet = write_fleet(tmp_path / "fleet.yaml")
+def test_a_robot_blind_past_the_outage_limit_aborts_the_episode_with_zero_commands(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml", timing={"outage_limit_s": 1.0})
     results, _ = deploy(tiny_policy, fleet, tmp_path, twin_extra_args=["--silence", "robot_2@0.3"])
-    assert results[0].aborted and "robot_2" in results[0].abort_reason
+    assert results[0].aborted and results[0].abort_kind == "outage" and "robot_2" in results[0].abort_reason
+    assert not results[0].team and results[0].stale_s[1] >= 1.0 and results[0].stale_s[0] == 0.0
     recorded = events(tmp_path / "session.mcap")
     aborts = [(robot, detail) for e, robot, detail in recorded if e == "abort"]
-    assert aborts and aborts[0][0] == "robot_2" and "old" in aborts[0][1]
+    assert aborts and aborts[0][0] == "robot_2" and "blind for 1 s" in aborts[0][1] and "old" in aborts[0][1]
+    assert [robot for e, robot, _ in recorded if e == "stale"] == ["robot_2"]
     assert recorded[-1][0] == "end" and recorded[-1][2] == "aborted"
     # after the abort every robot was commanded zero velocity
     log = McapLog(tmp_path / "session.mcap")
     abort_t = next(m.log_time_ns for m in log.messages(["/mrl/episode"]) if EVENT_NAMES[m.msg.event] == "abort")
     later = [m.msg for m in log.messages(["/robot_1/cmd_vel", "/robot_3/cmd_vel"], start_ns=abort_t + 1)]
     assert later and all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in later)
+    # the aborted episode counts: its robots that had not arrived fail
+    table = episodes_table(tmp_path / "session.mcap")
+    assert table["aborted"].all() and set(table["abort_kind"]) == {"outage"}
+    assert table.filter(pl.col("robot") == "robot_2")["stale_s"][0] >= 1.0
 
 
-def test_a_short_silence_stops_the_robot_without_aborting(tiny_policy, tmp_path):
+def test_a_silence_shorter_than_the_outage_limit_stops_that_robot_and_the_others_drive_on(tiny_policy, tmp_path):
     fleet = write_fleet(tmp_path / "fleet.yaml")
-    results, _ = deploy(tiny_policy, fleet, tmp_path, twin_extra_args=["--silence", "robot_2@0.4+0.8"])
+    # 1.5 s blind: longer than the staleness limit, shorter than the 5 s outage limit
+    results, _ = deploy(tiny_policy, fleet, tmp_path, twin_extra_args=["--silence", "robot_2@0.4+1.5"])
     assert not results[0].aborted
+    assert results[0].stale_s[1] > 0.8 and results[0].stale_s[0] == 0.0 and results[0].stale_s[2] == 0.0
     log = McapLog(tmp_path / "session.mcap")
     stale = [m for m in log.messages(["/mrl/timing"]) if m.msg.kind == 4]
     assert stale and {m.msg.robot for m in stale} == {"robot_2"} and "old" in stale[0].msg.topic
@@ -92,6 +102,16 @@ def test_a_short_silence_stops_the_robot_without_aborting(tiny_policy, tmp_path)
     # while robot_2 was stale its commands were zero; the others kept driving
     during = [m.msg for m in log.messages(["/robot_2/cmd_vel"], start_ns=first + 150_000_000, end_ns=last)]
     assert during and all(m.linear.x == 0.0 and m.angular.z == 0.0 for m in during)
+    others = [m.msg for m in log.messages(["/robot_1/cmd_vel", "/robot_3/cmd_vel"], start_ns=first, end_ns=last)]
+    assert any(m.linear.x != 0.0 or m.angular.z != 0.0 for m in others)
+    # the interval is bounded by a stale and a fresh event of robot_2, and the table counts its seconds
+    recorded = events(tmp_path / "session.mcap")
+    marks = [(e, robot) for e, robot, _ in recorded if e in ("stale", "fresh")]
+    assert marks == [("stale", "robot_2"), ("fresh", "robot_2")]
+    table = episodes_table(tmp_path / "session.mcap")
+    seconds = table.filter(pl.col("robot") == "robot_2")["stale_s"][0]
+    assert seconds == pytest.approx(results[0].stale_s[1], abs=0.11)
+    assert not table["aborted"].any()
 
 
 def test_ten_percent_loss_completes_and_shows_in_the_log(tiny_policy, tmp_path):
@@ -128,9 +148,12 @@ def test_a_dying_twin_stops_the_robots_and_finalizes_the_recording(tiny_policy, 
 
     killer = threading.Thread(target=kill_twin_later, daemon=True)
     killer.start()
-    with pytest.raises(DeployAborted, match="hardware twin exited"):
+    with pytest.raises(DeployAborted, match="hardware twin exited") as err:
         deploy(tiny_policy, fleet, tmp_path, episodes=20)
     killer.join()
+    # the episode under way counts, as aborted on a fault: its robots that had not arrived fail
+    cut = err.value.results[-1]
+    assert cut.aborted and cut.abort_kind == "fault" and not cut.team
     log = McapLog(tmp_path / "session.mcap")
     assert not log.salvaged
     assert any(e == "abort" for e, _, _ in events(tmp_path / "session.mcap"))

@@ -130,7 +130,8 @@ def test_robots_that_this_deploy_did_not_start_are_refused(tiny_policy, tmp_path
         assert not (tmp_path / "out" / "session.mcap").exists() and not (tmp_path / "out" / STAGING).exists()
         # the stage says the same in one line, without a traceback
         done = run_stage(stage_params(tmp_path, tiny_policy, fleet))
-        assert done.returncode == 2 and f"DDS domain {domain}" in done.stderr and "Traceback" not in done.stderr
+        # a clash on the domain is a runtime fault (exit 3), not bad input
+        assert done.returncode == 3 and f"DDS domain {domain}" in done.stderr and "Traceback" not in done.stderr
     finally:
         stray.send_signal(signal.SIGINT)
         stray.communicate(timeout=20)
@@ -186,16 +187,20 @@ def test_a_bad_profile_after_a_good_session_leaves_that_session_in_place(tiny_po
 
 def test_a_deployment_that_stops_partway_publishes_its_finished_episodes(tiny_policy, tmp_path):
     out = tmp_path / "out"
-    # robot_2 falls silent for good: episode 0 aborts, the reset of episode 1 never gets its data
-    fleet = write_fleet(tmp_path / "fleet.yaml", timing={"reset_timeout_s": 2.0})
-    with pytest.raises(DeployAborted, match=r"after 1 finished episode.*robot_2.*finished episode\(s\) are in") as err:
+    # robot_2 falls silent for good: episode 0 aborts on the outage, the reset of episode 1 never gets its data
+    fleet = write_fleet(tmp_path / "fleet.yaml", timing={"reset_timeout_s": 2.0, "outage_limit_s": 1.0})
+    with pytest.raises(DeployAborted, match=r"after 1 episode.*robot_2.*episode\(s\) run") as err:
         deploy_into(tiny_policy, fleet, out, episodes=3, twin_extra_args=["--silence", "robot_2@0.3"])
     assert len(err.value.results) == 1 and err.value.results[0].aborted
+    assert err.value.results[0].abort_kind == "outage"
     with (out / "episodes.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert {r["episode"] for r in rows} == {"0"} and len(rows) == 3
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["real/aborted_episodes"] == 1
+    assert metrics["real/aborted_episodes"] == 1 and metrics["real/aborted_outage"] == 1
+    assert metrics["real/episodes"] == 1 and metrics["real/requested_episodes"] == 3
+    assert metrics["real/team_success"] == 0.0 and metrics["real/robot_2_stale_s"] >= 1.0
+    assert {r["aborted"] for r in rows} == {"1"} and {r["abort_kind"] for r in rows} == {"outage"}
     log = McapLog(out / "session.mcap")
     assert not log.salvaged
     events = [(EVENT_NAMES[m.msg.event], m.msg.episode, m.msg.step) for m in log.messages(["/mrl/episode"])]
@@ -227,8 +232,11 @@ def test_an_interrupted_deploy_records_the_step_it_stopped_at(tiny_policy, tmp_p
     aborts = [(ep, step) for e, ep, step in events if e == "abort"]
     assert aborts and aborts[-1][0] == starts[-1]
     with (out / "episodes.csv").open() as f:
-        finished = {int(r["episode"]) for r in csv.DictReader(f)}
-    assert finished == set(range(len(finished))) and len(finished) >= 1
+        rows = list(csv.DictReader(f))
+    run = {int(r["episode"]) for r in rows}
+    assert run == set(range(len(run))) and len(run) >= 1
+    # the interrupted episode counts, as aborted
+    assert {r["abort_kind"] for r in rows if int(r["episode"]) == starts[-1]} == {"interrupted"}
     # the abort names the step the interrupted episode was at: its last recorded control step or the next
     steps = [m.msg.step for m in log.messages(["/mrl/action"]) if m.msg.episode == starts[-1]]
     assert aborts[-1][1] in ({max(steps), max(steps) + 1} if steps else {0})

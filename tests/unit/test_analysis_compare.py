@@ -15,7 +15,8 @@ from pipeline.core.stats import newcombe_interval, two_proportion_z_test, wilson
 
 
 def table(outcomes: list[tuple[bool, bool]], times: list[float], aborted: tuple[int, ...] = ()) -> pl.DataFrame:
-    """Episodes of two robots; outcomes[e] = (robot_1 succeeded, robot_2 succeeded); failures collide.
+    """Episodes of two robots; outcomes[e] = (robot_1 succeeded, robot_2 succeeded); failures collide, except in
+    aborted episodes, where a robot that had not arrived simply had not arrived yet.
 
     Successful robots take the next value of `times` as their time to goal.
     """
@@ -30,7 +31,7 @@ def table(outcomes: list[tuple[bool, bool]], times: list[float], aborted: tuple[
                     "robot": robot,
                     "success": ok,
                     "reached": ok,
-                    "collided": not ok,
+                    "collided": not ok and e not in aborted,
                     "timeout": False,
                     "aborted": e in aborted,
                     "time_to_goal_s": next(clock) if ok else None,
@@ -46,9 +47,9 @@ def wilson_scipy(k: int, n: int) -> tuple[float, float]:
 
 
 SIM = [(True, True)] * 15 + [(True, False)] * 3 + [(False, True)] * 2  # robot 35/40, team 15/20
-REAL = [(True, True)] * 6 + [(True, False)] * 6 + [(False, False)] * 6 + [(True, True)] * 2  # last 2 aborted
+REAL = [(True, True)] * 6 + [(True, False)] * 6 + [(False, False)] * 6 + [(True, False)] * 2  # last 2 aborted
 SIM_TIMES = list(np.linspace(8.0, 12.0, 35))
-REAL_TIMES = list(np.linspace(9.0, 16.0, 22))
+REAL_TIMES = list(np.linspace(9.0, 16.0, 20))
 
 
 @pytest.fixture(scope="module")
@@ -59,37 +60,43 @@ def result():
 def test_rates_and_wilson_intervals(result):
     m = result.metrics
     assert m["sim/robot_trials"] == 40 and m["sim/robot_successes"] == 35
-    assert m["real/robot_trials"] == 36 and m["real/robot_successes"] == 18  # aborted episodes are not trials
+    # every episode is a trial: the aborted ones' robots count, robot_1 (arrived before the abort) as a success
+    assert m["real/robot_trials"] == 40 and m["real/robot_successes"] == 20
     assert m["real/aborted_episodes"] == 2 and m["real/episodes"] == 20
     assert m["sim/robot_success"] == 35 / 40 and m["real/robot_success"] == 0.5
-    for key, (k, n) in {"sim/robot_success": (35, 40), "real/robot_success": (18, 36)}.items():
+    assert m["real/robot_success_completed"] == 18 / 36 and m["real/team_success_completed"] == 6 / 18
+    low, high = wilson_scipy(18, 36)
+    assert (m["real/robot_success_completed_ci_low"], m["real/robot_success_completed_ci_high"]) == pytest.approx(
+        (low, high), abs=1e-12
+    )
+    for key, (k, n) in {"sim/robot_success": (35, 40), "real/robot_success": (20, 40)}.items():
         low, high = wilson_scipy(k, n)
         assert m[f"{key}_ci_low"] == pytest.approx(low, abs=1e-12)
         assert m[f"{key}_ci_high"] == pytest.approx(high, abs=1e-12)
-    assert m["sim/team_success"] == 15 / 20 and m["real/team_success"] == 6 / 18
-    low, high = wilson_scipy(6, 18)
+    assert m["sim/team_success"] == 15 / 20 and m["real/team_success"] == 6 / 20  # the aborted episodes' teams fail
+    low, high = wilson_scipy(6, 20)
     assert (m["real/team_success_ci_low"], m["real/team_success_ci_high"]) == pytest.approx((low, high), abs=1e-12)
-    assert m["sim/collision_rate"] == 5 / 40 and m["real/collision_rate"] == 18 / 36
-    assert m["sim/robot_1_success"] == 18 / 20 and m["real/robot_2_success"] == 6 / 18
+    assert m["sim/collision_rate"] == 5 / 40 and m["real/collision_rate"] == 18 / 40
+    assert m["sim/robot_1_success"] == 18 / 20 and m["real/robot_2_success"] == 6 / 20
 
 
 def test_success_gap_tests(result):
     m = result.metrics
     assert m["gap/robot_success"] == pytest.approx(35 / 40 - 0.5)
-    fisher = sps.fisher_exact([[35, 5], [18, 18]], alternative="two-sided").pvalue
+    fisher = sps.fisher_exact([[35, 5], [20, 20]], alternative="two-sided").pvalue
     assert m["gap/robot_success_p_value"] == pytest.approx(fisher, rel=1e-12)
-    p1, p2 = 35 / 40, 18 / 36
-    pooled = (35 + 18) / 76
-    z = (p1 - p2) / math.sqrt(pooled * (1 - pooled) * (1 / 40 + 1 / 36))
+    p1, p2 = 35 / 40, 20 / 40
+    pooled = (35 + 20) / 80
+    z = (p1 - p2) / math.sqrt(pooled * (1 - pooled) * (1 / 40 + 1 / 40))
     assert m["gap/robot_success_z_p_value"] == pytest.approx(2 * sps.norm.sf(abs(z)), rel=1e-9)
     l1, u1 = wilson_scipy(35, 40)
-    l2, u2 = wilson_scipy(18, 36)
+    l2, u2 = wilson_scipy(20, 40)
     low = (p1 - p2) - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2)
     high = (p1 - p2) + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2)
     assert (m["gap/robot_success_ci_low"], m["gap/robot_success_ci_high"]) == pytest.approx((low, high), abs=1e-12)
-    team = sps.fisher_exact([[15, 5], [6, 12]], alternative="two-sided").pvalue
+    team = sps.fisher_exact([[15, 5], [6, 14]], alternative="two-sided").pvalue
     assert m["gap/team_success_p_value"] == pytest.approx(team, rel=1e-12)
-    assert m["gap/collision_rate"] == pytest.approx(5 / 40 - 0.5)
+    assert m["gap/collision_rate"] == pytest.approx(5 / 40 - 18 / 40)
     gaps = result.gaps
     assert gaps["metric"].to_list() == ["robot_success", "team_success", "collision_rate", "mean_time_to_goal_s"]
     assert gaps["test"].to_list() == ["fisher_exact"] * 3 + ["mann_whitney_u"]
@@ -98,11 +105,11 @@ def test_success_gap_tests(result):
 def test_time_to_goal(result):
     m = result.metrics
     sim = np.array(SIM_TIMES)
-    real = np.array(REAL_TIMES[:18])  # the aborted episodes' times are not counted
+    real = np.array(REAL_TIMES)  # robot_1 of the aborted episodes had arrived: its times count
     assert m["sim/mean_time_to_goal_s"] == pytest.approx(sim.mean())
     low, high = sps.t.interval(0.95, len(sim) - 1, loc=sim.mean(), scale=sps.sem(sim))
     assert (m["sim/mean_time_to_goal_s_ci_low"], m["sim/mean_time_to_goal_s_ci_high"]) == pytest.approx((low, high))
-    assert m["real/goals"] == 18 and m["real/median_time_to_goal_s"] == pytest.approx(np.median(real))
+    assert m["real/goals"] == 20 and m["real/median_time_to_goal_s"] == pytest.approx(np.median(real))
     p = sps.mannwhitneyu(sim, real, alternative="two-sided").pvalue
     assert m["gap/mean_time_to_goal_s_p_value"] == pytest.approx(p)
     assert m["gap/mean_time_to_goal_s"] == pytest.approx(sim.mean() - real.mean())
@@ -121,7 +128,7 @@ def test_frames_have_one_row_per_group_and_robot(result):
         ("real", "robot_2"),
     ]
     real_1 = result.robots.row(2, named=True)
-    assert (real_1["robot_successes"], real_1["robot_trials"]) == (12, 18)
+    assert (real_1["robot_successes"], real_1["robot_trials"]) == (14, 20)
 
 
 def test_labels_key_the_metrics_and_only_shared_labels_are_compared():

@@ -74,8 +74,9 @@ def test_report_folder(recordings, tmp_path):
     raw = report.metrics.read_text()
     assert "NaN" not in raw
     metrics = json.loads(raw)
-    assert metrics["sim/nominal/robot_trials"] == 4  # two complete episodes of two robots; three were aborted
-    assert metrics["sim/nominal/aborted_episodes"] == 3
+    # every episode counts: two complete and three aborted episodes of two robots
+    assert metrics["sim/nominal/robot_trials"] == 10 and metrics["sim/nominal/aborted_episodes"] == 3
+    assert metrics["sim/nominal/robot_success_completed"] is not None
     assert "gap/nominal/robot_success_p_value" in metrics
     assert metrics["gap/nominal/robot_success"] == 0.0
     assert "## Deployment timing" not in text  # the real recording has no /mrl/timing

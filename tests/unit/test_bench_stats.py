@@ -184,6 +184,12 @@ def test_a_setting_added_later_leaves_trials_finished_before_it_finished():
 
     trial = Trial("ppo", "shared", "obstacles", 1)
     base = _base()
+    for key, neutral in DIGEST_KEYS_ADDED.items():  # every added setting at the value that behaves as before
+        *path, leaf = key.split(".")
+        node = base
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = neutral
     before = to_mapping(trial.params(base))  # the settings as a trial saw them before the added ones existed
     before["train"].pop("world_workers")
     for key in DIGEST_KEYS_ADDED:
@@ -192,9 +198,15 @@ def test_a_setting_added_later_leaves_trials_finished_before_it_finished():
         for part in path:
             node = node[part]
         del node[leaf]
+    before["world"].pop("network")  # a section that did not exist: gone, not empty
+    before["world"]["randomize"].pop("network")
     digest_before = hashlib.sha256(json.dumps(before, sort_keys=True, default=str).encode()).hexdigest()[:16]
     assert trial.digest(base) == digest_before
-    for changed in ({"world": {"observed_pose": "ground_truth"}}, {"world": {"reward": {"proximity": -0.5}}}):
+    for changed in (
+        {"world": {"observed_pose": "ground_truth"}},
+        {"world": {"reward": {"proximity": -0.5}}},
+        {"world": {"randomize": {"network": {"loss_prob": [0.0, 0.06]}}}},
+    ):
         assert trial.digest(merge(copy.deepcopy(base), changed)) != digest_before
 
 

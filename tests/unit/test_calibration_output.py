@@ -91,6 +91,20 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
         "linear_gain": [0.855, 1.045],
     }
     assert randomize["lidar"]["noise_sigma_m"] == [0.0189, 0.0231]
+    # the network's estimates (and the sensors' rates) reach the simulator, randomized within their intervals, at
+    # least +-10 % of the value
+    assert randomize["network"] == {
+        "scan_rate_hz": [9.0, 11.0],
+        "odom_rate_hz": [45.0, 55.0],
+        "loss_prob": [0.01, 0.014],
+        "jitter_s": [0.004, 0.008],
+    }
+    assert data["world"].pop("network") == {
+        "scan_rate_hz": 10.0,
+        "odom_rate_hz": 50.0,
+        "loss_prob": 0.012,
+        "jitter_s": 0.006,
+    }
     assert data["world"] == {
         "lidar": {
             "noise_sigma_m": 0.021,
@@ -111,6 +125,8 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
     assert world.lidar.sim_beams == 360 and world.lidar.noise_sigma_m == 0.021
     assert world.actuation.delay_s == 0.04 and world.actuation.angular_gain == WorldConfig().actuation.angular_gain
     assert world.odometry.drift_per_m == 0.041
+    assert world.network.loss_prob == 0.012 and world.network.jitter_s == 0.006 and world.network.plays
+    assert world.randomize.network.loss_prob == (0.01, 0.014)
     assert world.randomize.actuation.delay_s == (0.036, 0.044) and world.randomize.actuation.angular_gain == ()
     # the report sits next to it (no fits here: a table and no plots)
     report = (tmp_path / "calibration.md").read_text()

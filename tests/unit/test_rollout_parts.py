@@ -25,20 +25,26 @@ MS = 1_000_000
 # -- staleness ------------------------------------------------------------------------------------
 
 
-def test_a_robot_aborts_only_after_staying_stale_for_the_limit():
-    watch = StalenessWatch(abort_after_ns=500 * MS)
-    assert watch.update(0, {"robot_1": "scan 300 ms old"}) == {}
-    assert watch.update(400 * MS, {"robot_1": "scan 700 ms old"}) == {}
-    assert watch.update(500 * MS, {"robot_1": "scan 800 ms old"}) == {"robot_1": "scan 800 ms old"}
+def test_a_robot_aborts_only_after_staying_stale_for_the_outage_limit():
+    watch = StalenessWatch(outage_ns=500 * MS, robots=("robot_1",))
+    first = watch.update(0, {"robot_1": "scan 300 ms old"})
+    assert first.began == {"robot_1": "scan 300 ms old"} and first.outage == {} and first.ended == {}
+    assert watch.update(400 * MS, {"robot_1": "scan 700 ms old"}).outage == {}
+    later = watch.update(500 * MS, {"robot_1": "scan 800 ms old"})
+    assert later.outage == {"robot_1": "scan 800 ms old"} and later.began == {}
 
 
-def test_fresh_data_restarts_the_count_and_a_reset_forgets_it():
-    watch = StalenessWatch(abort_after_ns=500 * MS)
+def test_fresh_data_ends_the_interval_counts_its_seconds_and_a_reset_forgets_it():
+    watch = StalenessWatch(outage_ns=500 * MS, robots=("robot_1", "robot_2"))
     watch.update(0, {"robot_1": "old", "robot_2": "old"})
-    watch.update(300 * MS, {"robot_2": "old"})  # robot_1 fresh again
-    assert watch.update(600 * MS, {"robot_1": "old", "robot_2": "old"}) == {"robot_2": "old"}
+    back = watch.update(300 * MS, {"robot_2": "old"})  # robot_1 fresh again
+    assert back.ended == {"robot_1": 0.3} and back.began == {}
+    again = watch.update(600 * MS, {"robot_1": "old", "robot_2": "old"})
+    assert again.outage == {"robot_2": "old"} and again.began == {"robot_1": "old"}
+    assert watch.stale_s(700 * MS) == pytest.approx([0.3 + 0.1, 0.7])
     watch.reset()
-    assert watch.update(700 * MS, {"robot_2": "old"}) == {}
+    assert watch.update(700 * MS, {"robot_2": "old"}).outage == {}
+    assert watch.stale_s(700 * MS) == pytest.approx([0.0, 0.0])
 
 
 # -- odometry frame -------------------------------------------------------------------------------
