@@ -449,8 +449,9 @@ class ExportConfig:
 
     golden_observations: int = setting(64, ge=1, le=100_000)
     """Observations (drawn from the simulated world) on which ONNX must equal torch."""
-    tolerance: float = setting(1e-5, gt=0.0, le=1e-2)
-    """Largest allowed |ONNX - torch| on continuous actions."""
+    tolerance: float = setting(1e-3, gt=0.0, le=1e-2)
+    """Largest allowed difference of the ONNX graph's continuous commands from torch's, as a share of each robot's
+    limit on each channel (after decoding: what reaches a robot)."""
     opset: int = setting(17, ge=13, le=23)
     out_dir: str = setting("models")
 

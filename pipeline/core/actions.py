@@ -108,6 +108,14 @@ class ActionCodec:
             axis=-1,
         )
 
+    def command_difference(self, a: np.ndarray, b: np.ndarray) -> float:
+        """The largest difference of the commands (n_robots, 2) that two continuous action sets decode to, as a share
+        of the robot's limit on that channel: what reaches a robot, not the raw outputs, which decoding clips."""
+        ones = np.ones((len(np.asarray(a)), 2))
+        scale = np.maximum(np.abs(self.decode(ones)), np.abs(self.decode(-ones)))
+        diff = np.abs(self.decode(a) - self.decode(b)) / np.where(scale > 0, scale, 1.0)
+        return float(diff.max()) if diff.size else 0.0
+
     def decode(self, actions: np.ndarray) -> np.ndarray:
         """(n_robots, 2) (v, w) from (n_robots, 2) continuous or (n_robots,) discrete actions."""
         a = np.asarray(actions)

@@ -122,6 +122,7 @@ class PolicyRuntime:
             obs = np.asarray(golden["observations"], dtype=np.float32)
             expected = np.asarray(golden["actions"])
             tol = float(golden["tolerance"])
+            on_commands = golden.get("compared", "actions") == "commands"
         except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise PolicyError(str(path), f"missing or malformed golden set ({exc})") from exc
         want = (len(obs), self.n_robots) + ((2,) if self.codec.kind == "continuous" else ())
@@ -139,6 +140,17 @@ class PolicyRuntime:
                         str(path),
                         f"golden observation {k}: the ONNX graph picks actions {got.tolist()}, "
                         f"golden.json has {expected[k].tolist()}",
+                    )
+                continue
+            if on_commands:  # as a share of the robots' limits, after decoding (what reaches a robot)
+                if not np.isfinite(got).all():
+                    raise PolicyError(str(path), f"golden observation {k}: the ONNX graph's actions are not finite")
+                share = self.codec.command_difference(got, expected[k])
+                if share > tol:
+                    raise PolicyError(
+                        str(path),
+                        f"golden observation {k}: the ONNX graph's commands differ from golden.json's by {share:.3g} "
+                        f"of the robots' limits, beyond its tolerance {tol:g}",
                     )
                 continue
             diff = np.nan_to_num(np.abs(got - expected[k]), nan=np.inf)

@@ -34,11 +34,21 @@ Policy = Callable[[np.ndarray], np.ndarray]
 """Maps observations (n_robots, obs_size) to actions for the action codec."""
 
 
+def robot_stamp(t_ns: int, world: WorldConfig) -> int:
+    """The robots' clock at controller time `t_ns` (``world.network.clock_offset_s`` ahead, running
+    ``clock_drift_ppm`` fast): what their sensor messages are stamped with; never before zero."""
+    net = world.network
+    return max(0, t_ns + round(net.clock_offset_s * NS_PER_S) + round(t_ns * net.clock_drift_ppm * 1e-6))
+
+
 def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
     world = sim.world
+    stamp = robot_stamp(t_ns, world.world)  # the episode's draw
     for i, ns in enumerate(sim.scenario.robot_names):
-        log.scan(t_ns, ns, sim.raw_scan[i], world.scan_geometry)
-        log.odom(t_ns, ns, world.odometry.pose[i], (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1])))
+        log.scan(t_ns, ns, sim.raw_scan[i], world.scan_geometry, stamp_ns=stamp)
+        log.odom(
+            t_ns, ns, world.odometry.pose[i], (float(sim.last_cmd[i, 0]), float(sim.last_cmd[i, 1])), stamp_ns=stamp
+        )
         log.ground_truth(t_ns, ns, world.truth[i])
     target = world.target_xy
     if target is not None:  # a pursuit's target, as motion capture on a fleet shows it

@@ -262,3 +262,40 @@ def test_a_fixed_layout_policy_in_another_scenario_is_refused_before_anything_mo
     with pytest.raises(PolicyMismatch, match=r"trained in scenario 'obstacles'.*'obstacles_random'.*one fixed layout"):
         deploy_session(PolicyRuntime(tiny_policy), load_fleet(fleet), str(fleet), request, tmp_path / "real")
     assert not (tmp_path / "session.mcap").exists()
+
+
+def test_a_twin_that_dies_mid_episode_is_a_runtime_fault_and_its_episode_counts_as_failed(tiny_policy, tmp_path):
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    params = stage_params(tmp_path, tiny_policy, fleet, episodes=50)
+    stage = subprocess.Popen(
+        [sys.executable, "stages/deploy.py", "--params", str(params)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    runner = psutil.Process(stage.pid)
+    staged = tmp_path / "real" / "nominal" / STAGING / "session.mcap"
+    deadline = time.monotonic() + 120
+    twins: list[psutil.Process] = []
+    while time.monotonic() < deadline and not (twins and staged.exists() and staged.stat().st_size > 0):
+        twins = twins or twins_of(runner)
+        time.sleep(0.1)
+    assert twins, "the deploy stage never started its twin"
+    time.sleep(4.0)  # an episode or two at 2x, and part of the next
+    for twin in twins:
+        twin.kill()
+    _, err = stage.communicate(timeout=60)
+    # a runtime fault, not bad input: exit 3, one line, no traceback
+    assert stage.returncode == 3, err
+    assert "hardware twin exited" in err and "Traceback" not in err
+    out = tmp_path / "real" / "nominal"
+    assert not McapLog(out / "session.mcap").salvaged
+    with (out / "episodes.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    last = max(int(r["episode"]) for r in rows)
+    cut = [r for r in rows if int(r["episode"]) == last]
+    assert {r["aborted"] for r in cut} == {"1"} and {r["abort_kind"] for r in cut} == {"fault"}
+    assert {r["team_success"] for r in cut} == {"0"}
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["real/episodes"] == last + 1 and metrics["real/aborted_fault"] == 1

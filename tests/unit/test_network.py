@@ -142,3 +142,14 @@ def test_the_simulator_and_the_deploy_runner_observe_the_same_from_the_same_deli
         if result.judge.done.all() or result.judge.truncated:
             break
     assert checked > 50 and stale_seen > 0
+
+
+def test_the_robots_clock_stamps_the_simulated_sensor_messages():
+    from pipeline.rollout.sim import robot_stamp
+
+    _, world = make_world()
+    assert robot_stamp(5 * 10**9, world) == 5 * 10**9  # the ideal clock: the controller's
+    skewed = replace(world, network=replace(world.network, clock_offset_s=0.035, clock_drift_ppm=40.0))
+    assert robot_stamp(10 * 10**9, skewed) == 10 * 10**9 + 35_000_000 + 400_000
+    early = replace(world, network=replace(world.network, clock_offset_s=-2.0))
+    assert robot_stamp(10**9, early) == 0
