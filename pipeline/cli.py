@@ -65,7 +65,8 @@ def operator_reset(episode: int) -> None:
 def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
     """Lines on a finished deployment: success over every episode with 95 % intervals, the completed-only rate beside
     it, aborted episodes by reason, stale seconds per robot, where it went."""
-    return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}) -> {out}"
+    kept = f"; earlier sessions kept beside it: {', '.join(p.name for p in outcome.kept)}" if outcome.kept else ""
+    return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}) -> {out}{kept}"
 
 
 def session_summary(metrics: dict[str, float], world: str) -> str:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import os
 import re
 import sys
 import tempfile
@@ -265,6 +266,33 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- outputs ------------------------------------------------------------------------------------
+
+
+def output_folder(text: str, option: str = "--out") -> Path:
+    """`text` as a folder the verb can write, checked before any work starts (nothing is created): CommandError
+    names the option and what is in the way (a file, a file among its parents, a place that cannot be written)."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise CommandError(f"{option} {text}: a file is in the way; give a folder (it is created if need be)")
+    _check_writable_parent(path, text, option)
+    return path
+
+
+def _check_writable_parent(path: Path, text: str, option: str) -> None:
+    """The nearest existing folder of `path` is a folder and accepts new entries (probed, then removed)."""
+    ancestor = path
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise CommandError(f"{option} {text}: {ancestor} is a file, not a folder")
+    try:
+        probe = tempfile.mkdtemp(prefix=".mrl-probe-", dir=ancestor)
+        os.rmdir(probe)
+    except OSError as exc:
+        raise CommandError(f"{option} {text}: cannot write in {ancestor} ({exc.strerror or exc})") from exc
+
+
 # -- episodes -----------------------------------------------------------------------------------
 
 
@@ -274,6 +302,9 @@ def _table_path(text: str | None) -> Path | None:
     path = Path(text)
     if path.suffix.lower() not in TABLE_SUFFIXES:
         raise CommandError(f"--out {text}: the file name must end in .csv or .parquet (that picks the format)")
+    if path.is_dir():
+        raise CommandError(f"--out {text}: a folder is in the way; give a file name ending in .csv or .parquet")
+    _check_writable_parent(path.parent, text, "--out")
     return path
 
 
@@ -340,7 +371,7 @@ def _episodes(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from pipeline.analysis.report import write_report
 
-    out = Path(args.out)
+    out = output_folder(args.out)
     with _imported(args, [args.sim, args.real]) as (sim, real):
         report = write_report(
             out, [("", "sim", sim.path), ("", "real", real.path)], trajectory_episodes=args.trajectory_episodes
@@ -377,10 +408,16 @@ def _parts(text: str) -> list[str]:
 def _calibrate(args: argparse.Namespace) -> int:
     from pipeline.calibration import PARTS, calibrate, calibration_settings, write_calibration
 
+    output_folder(args.out)
     options: dict[str, Any] = {"parts": list(args.parts or PARTS), "scenario": args.scenario}
     options.update({k: v for k, v in (("bootstrap", args.bootstrap), ("seed", args.seed)) if v is not None})
     options.update(
-        {"pose_source": args.pose_source, "map_file": args.map or "", "initial_pose": args.initial_pose or []}
+        {
+            "pose_source": args.pose_source,
+            "map_file": args.map or "",
+            "initial_pose": args.initial_pose or [],
+            "pool": args.pool,
+        }
     )
     settings = calibration_settings(options, source="command-line options")
     with _imported(args, args.bags) as bags:
@@ -398,6 +435,16 @@ def _calibrate(args: argparse.Namespace) -> int:
               f"{poses.median_score:.2f} (fraction of scan endpoints on the map)")  # fmt: skip
     print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
     return 0
+
+
+def _domain_id(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 232:
+        raise argparse.ArgumentTypeError(f"{text!r}: a DDS domain id, an integer from 0 to 232")
+    return value
 
 
 def _pose(text: str) -> list[float]:
@@ -419,6 +466,7 @@ def _replay(args: argparse.Namespace) -> int:
     from pipeline.params import ReplayConfig, calibrated_world
     from pipeline.policy.runtime import PolicyRuntime
 
+    out = output_folder(args.out)
     cfg = from_mapping(
         ReplayConfig,
         merge(
@@ -444,10 +492,13 @@ def _replay(args: argparse.Namespace) -> int:
             cfg.max_episodes,
             cfg.tolerance,
         )
-    metrics = write_replay(result, label, Path(args.out))
+    try:
+        metrics = write_replay(result, label, out)
+    except OSError as exc:
+        raise CommandError(f"--out {out}: cannot write ({exc.strerror or exc})") from exc
     for key, value in sorted(metrics.items()):
         print(f"replay: {key} = {value}")
-    print(f"replay: {Path(args.out) / 'replay.md'}")
+    print(f"replay: {out / 'replay.md'}")
     return 0
 
 
@@ -467,12 +518,14 @@ def _deploy(args: argparse.Namespace) -> int:
     from pipeline.rollout.deployment import DeployRequest, deploy_session
     from pipeline.ros.fleet import load_fleet
 
+    out = output_folder(args.out)
     options = {"fleet": args.fleet, "episodes": args.episodes, "seed": args.seed, "out_dir": args.out}
     options.update(time_scale=args.time_scale, profile=args.profile)
     cfg = from_mapping(DeployConfig, merge(to_mapping(DeployConfig()), options), "command-line options")
     fleet = load_fleet(cfg.fleet)
+    if args.domain_id is not None:  # another DDS domain than the fleet file's, without writing a fleet file
+        fleet = replace(fleet, network=replace(fleet.network, domain_id=args.domain_id))
     runtime = PolicyRuntime(args.policy)
-    out = Path(cfg.out_dir)
     request = DeployRequest(
         episodes=cfg.episodes,
         seed=cfg.seed,
@@ -494,6 +547,7 @@ def _eval(args: argparse.Namespace) -> int:
     from pipeline.rollout.sim import evaluate_session
     from pipeline.sim import make_world
 
+    output_folder(args.out)
     options = {"episodes": args.episodes, "seed": args.seed, "out_dir": args.out}
     cfg = from_mapping(EvalSimConfig, merge(to_mapping(EvalSimConfig()), options), "command-line options")
     runtime = PolicyRuntime(args.policy)
@@ -591,7 +645,14 @@ def build_parser() -> argparse.ArgumentParser:
         "calibration.yaml (read by training) and a fit\n"
         "report (calibration.md with plots) in --out.",
     )
-    calibrate.add_argument("bags", nargs="+", metavar="BAG", help=BAG_HELP + "; several are pooled")
+    calibrate.add_argument(
+        "bags", nargs="+", metavar="BAG", help=BAG_HELP + "; several of one kind and one fleet are pooled"
+    )
+    calibrate.add_argument(
+        "--pool",
+        action="store_true",
+        help="pool recordings of different kinds (sim, twin, real) or of different robots (refused without it)",
+    )
     calibrate.add_argument(
         "--scenario",
         default="",
@@ -703,6 +764,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     deploy.add_argument("--profile", default="", metavar="P", help="the twin's reality profile (default: the fleet's)")
     deploy.add_argument("--out", default="deployment", metavar="DIR", help="the output folder (default: deployment)")
+    deploy.add_argument(
+        "--domain-id",
+        type=_domain_id,
+        default=None,
+        metavar="N",
+        help="the DDS domain id (0-232) instead of the fleet file's, e.g. to run beside another deployment",
+    )
     _live_options(deploy)
 
     evaluate = _verb(
@@ -810,7 +878,7 @@ def _sweep(args: argparse.Namespace) -> int:
     if not any(key == "train.world_workers" for key, _ in settings):  # a trial's worlds use the CPUs it holds
         settings.append(("train.world_workers", max(1, int(args.cpus_per_trial))))
     base = with_settings(base_mapping(params), settings)
-    out = Path(args.out)
+    out = output_folder(args.out)
     command = "mrl sweep " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["sweep"] else "mrl sweep"
     if args.report_only:
         rows = collect(out, trials, base)

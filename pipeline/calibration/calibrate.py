@@ -17,6 +17,7 @@ the recordings.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -94,6 +95,53 @@ within their intervals (the clock keys, which move only the sensors' stamps, at 
 """The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
 
 
+PHYSICAL_KEYS: dict[str, str] = {
+    **{f"lidar.{k}": f"lidar.{k}" for k in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad")},
+    **{f"actuation.{k}": f"actuation.{k}" for k in ("delay_s", "time_constant_s", "linear_gain", "angular_gain")},
+    "odometry.drift_per_m": "odometry.drift_per_m",
+    "base.deadband_radps": "actuation.deadband_radps",
+    "base.wheel_radius_left_m": "actuation.wheel_radius_m",
+    "base.wheel_radius_right_m": "actuation.wheel_radius_m",
+    "base.wheel_separation_m": "actuation.wheel_separation_m",
+}
+"""Estimates that become simulator settings, and the setting (``world.<key>``) whose bounds are their physical range
+(``lidar.noise_per_m``, which reads slightly negative where noise does not grow with range, is drawn at 0 instead)."""
+
+
+def within_physical_ranges(values: dict[str, Estimate]) -> dict[str, Estimate]:
+    """`values` with every estimate that lies outside its physical range, or whose 95 % interval is wider than that
+    range, made unidentifiable, the reason carrying the raw figure: what the data cannot show is not a setting (the
+    simulator keeps its nominal value), and the other keys stand."""
+    from dataclasses import fields as dataclass_fields
+
+    from pipeline.mappings import bounds_text, in_bounds
+    from pipeline.params import WorldConfig
+
+    out = dict(values)
+    for key, world_key in {**PHYSICAL_KEYS, **{v: f"network.{k}" for k, v in NETWORK_SOURCES.items()}}.items():
+        est = out.get(key)
+        if est is None or not est.ok or est.value is None:
+            continue
+        group, name = world_key.split(".")
+        default = getattr(WorldConfig(), group)
+        meta = next(f.metadata for f in dataclass_fields(default) if f.name == name)
+        low, high = meta.get("ge", meta.get("gt")), meta.get("le", meta.get("lt"))
+        raw = f"{est.value:.6g} {est.unit}".strip()
+        if not in_bounds(est.value, meta):
+            reason = f"the estimate {raw} lies outside its physical range ({bounds_text(meta)})"
+        elif (
+            est.interval is not None
+            and low is not None
+            and high is not None
+            and (est.interval[1] - est.interval[0] > high - low)
+        ):
+            reason = f"the estimate {raw} has a 95 % interval wider than its whole physical range ({bounds_text(meta)})"
+        else:
+            continue
+        out[key] = Estimate.unidentifiable(f"{reason}: the data cannot show it", est.unit, est.n)
+    return out
+
+
 def arc_per_m(values: dict[str, Estimate]) -> float | None:
     """Yaw rate (rad/s) per m/s that unequal wheels add to a straight command: (r_right - r_left) / (r_nominal b).
 
@@ -139,11 +187,16 @@ def split_key(key: str) -> tuple[str, str, tuple[int, ...]]:
 
 @dataclass(frozen=True)
 class Source:
-    """One calibrated recording: its path and its ``session`` metadata."""
+    """One calibrated recording: its path, its ``session`` metadata, its kind (sim, twin, real), its robots, the
+    SHA-256 of its bytes, and what salvaging it lost ('' for a file read as written)."""
 
     path: str
     session: dict[str, str]
     episodes: int
+    kind: str = ""
+    robots: tuple[str, ...] = ()
+    sha256: str = ""
+    salvage: str = ""
 
 
 @dataclass(frozen=True)
@@ -562,6 +615,7 @@ def calibrate(
         if scenario is not None and data.scenario.name != scenario.name:
             raise ScenarioMismatchError(str(path), data.scenario.name, scenario.name)
         scenario = data.scenario
+        check_poolable([*sessions[:1], data], settings.pool)  # before any long work
         if data.pose_source == "scans":
             data, source = _localized(data, settings, floor)
         else:
@@ -649,6 +703,7 @@ def calibrate(
         actuation = estimate_actuation(tracks, settings, rng)
         for key in PROFILE_KEYS["actuation"]:
             values[f"actuation.{key}"] = getattr(actuation, key)
+        values = within_physical_ranges(values)
     if "odometry" in parts:
         values["odometry.rate_hz"] = rate_estimate(odom_stamps)
         wheels = estimate_wheels(episodes, settings)
@@ -689,7 +744,19 @@ def calibrate(
     for key in ("lidar.rate_hz", "odometry.rate_hz"):
         if key in values:
             values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
-    sources = tuple(Source(str(d.path), dict(d.session), len(d.episodes)) for d in sessions)
+    values = within_physical_ranges(values)
+    sources = tuple(
+        Source(
+            str(d.path),
+            dict(d.session),
+            len(d.episodes),
+            d.kind,
+            tuple(r.name for r in d.robots),
+            _sha256(d.path),
+            d.salvage,
+        )
+        for d in sessions
+    )
     return Calibration(
         scenario.name,
         sources,
@@ -705,6 +772,36 @@ def calibrate(
         randomization=randomization,
         pose_source=_merged(pose_sources),
     )
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def check_poolable(sessions: Sequence[SessionData], pool: bool) -> None:
+    """Refuse to pool recordings of different kinds (sim, twin, real) or of different robots unless `pool`."""
+    if pool or len(sessions) < 2:
+        return
+    first = sessions[0]
+    robots = tuple(r.name for r in first.robots)
+    for other in sessions[1:]:
+        if other.kind != first.kind:
+            raise CalibrationError(
+                str(other.path),
+                f"a {other.kind} recording, but {first.path} is a {first.kind} recording: pooling them would mix "
+                "two worlds into one estimate; calibrate them apart, or pool them on purpose (--pool)",
+            )
+        theirs = tuple(r.name for r in other.robots)
+        if theirs != robots:
+            raise CalibrationError(
+                str(other.path),
+                f"robots {', '.join(theirs)}, but {first.path} has {', '.join(robots)}: pooling them would mix "
+                "different robots into one estimate; calibrate them apart, or pool them on purpose (--pool)",
+            )
 
 
 def _merged(sources: Sequence[PoseSource]) -> PoseSource:

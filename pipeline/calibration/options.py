@@ -27,6 +27,8 @@ class CalibrationSettings:
     and odometry against the map (``scans``), or ``auto``: ground truth where every robot has it, else scans."""
     map_file: str = setting("", allow_empty=True)
     """A ROS map_server map (YAML) to localize in; empty: the scenario's walls and boxes."""
+    pool: bool = setting(False, optional=True)
+    """Pool recordings of different kinds (sim, twin, real) or of different robots; without it they are refused."""
     initial_pose: tuple[float, ...] = setting(())
     """x, y (m), yaw (rad) of the (single) robot at the start of the recording, for localization; empty: global."""
     truth_position_sigma_m: float = setting(0.002, gt=0.0, le=1.0)

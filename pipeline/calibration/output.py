@@ -17,13 +17,14 @@ Layout of ``calibration.yaml``:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from pipeline.calibration.calibrate import Calibration, split_key
+from pipeline.calibration.calibrate import Calibration, split_key, within_physical_ranges
 from pipeline.calibration.errors import CalibrationError
 from pipeline.errors import ConfigError
 from pipeline.mappings import to_mapping
@@ -34,7 +35,9 @@ REPORT_FILE = "calibration.md"
 
 
 def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
-    """The content of ``calibration.yaml`` as plain mappings (see the module's description)."""
+    """The content of ``calibration.yaml`` as plain mappings (see the module's description). An estimate outside its
+    physical range is written as unidentified with its raw figure, never as a setting (the others still are)."""
+    calibration = replace(calibration, values=within_physical_ranges(calibration.values))
     uncertainty: dict[str, dict[str, Any]] = {}
     for key, est in calibration.values.items():
         group, name, indices = split_key(key)
@@ -59,7 +62,16 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             },
             "source": {
                 "recordings": [
-                    {"path": s.path, "episodes": s.episodes, "session": s.session} for s in calibration.sources
+                    {
+                        "path": s.path,
+                        "kind": s.kind,
+                        "robots": list(s.robots),
+                        "sha256": s.sha256,
+                        "episodes": s.episodes,
+                        "salvaged": s.salvage,
+                        "session": s.session,
+                    }
+                    for s in calibration.sources
                 ],
                 "settings": to_mapping(calibration.settings),
                 "poses": calibration.pose_source.to_mapping(),

@@ -160,6 +160,16 @@ class SessionData:
     """(values, log times) int ns of the ``/clock`` messages the recorder followed (a time-scaled fleet), else None."""
     pose_source: PoseSourceKind = "ground_truth"
     """Where the robots' poses (`truth`) come from: motion capture, or scans and odometry (localized by the caller)."""
+    salvage: str = ""
+    """What salvaging a damaged file lost, in words; '' for a file read as written."""
+
+    @property
+    def kind(self) -> str:
+        """What the recording is of: ``sim`` (the simulator), ``twin`` (the hardware twin) or ``real`` (robots, or a
+        bag recorded elsewhere)."""
+        if self.session.get("world") == "sim":
+            return "sim"
+        return "twin" if self.session.get("target") == "twin" else "real"
 
     @property
     def windows(self) -> list[tuple[int, int]]:
@@ -459,7 +469,18 @@ def read_session(
     if TF_STATIC_TOPIC in topics:
         statics = _static_transforms(log)
         robot_data = [replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data]
-    return SessionData(p, session, scen, tuple(robot_data), tuple(episodes), has_episodes, notes, followed, pose_source)
+    return SessionData(
+        p,
+        session,
+        scen,
+        tuple(robot_data),
+        tuple(episodes),
+        has_episodes,
+        notes,
+        followed,
+        pose_source,
+        log.salvage_note,
+    )
 
 
 CLOCK_TOPIC = "/clock"

@@ -329,6 +329,7 @@ class McapLog:
         self._metadata: dict[str, dict[str, str]] = {}
         self._counts: dict[int, int] | None = None
         self._salvaged = False
+        self._salvage_note = ""
         self._lost: list[LostRange] = []
         self._hidden: frozenset[int] = frozenset()  # channel ids used in the file whose definitions were lost
         self._decoders: dict[int, Callable[[bytes], Any]] = {}
@@ -564,6 +565,7 @@ class McapLog:
                 else f"the file ends between two records at byte {size}, the rest was never written"
             )
         told += notes
+        self._salvage_note = "; ".join(told)
         kind = TruncatedLogWarning if not notes and len(self._lost) == int(cut) else DamagedLogWarning
         warnings.warn(kind(f"{self._where}: {'; '.join(told)}"), stacklevel=4)
 
@@ -651,6 +653,11 @@ class McapLog:
         """True when the file could not be read as written: no usable summary (read up to its last
         complete chunk), or damage that :attr:`lost` lists (or that was read around)."""
         return self._salvaged
+
+    @property
+    def salvage_note(self) -> str:
+        """What salvaging the file found and lost, in words ('' for a file read as written)."""
+        return self._salvage_note
 
     @property
     def lost(self) -> tuple[LostRange, ...]:

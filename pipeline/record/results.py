@@ -10,6 +10,7 @@ one untouched.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -89,10 +90,12 @@ def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
 class SessionFolder:
     """The output folder of one session, written through a staging folder.
 
-    ``staged(name)`` is where a file of the new session is written; ``publish()`` moves every staged
-    file into the folder (``os.replace``: each file is replaced atomically) and removes files of
-    `owned` that the new session did not write, so nothing of an older session stays beside it.
-    A staging folder left by a killed run is kept under ``interrupted-<time>`` rather than reused.
+    ``staged(name)`` is where a file of the new session is written; ``publish()`` moves the previous
+    session's files (those of `owned`) aside into ``previous-<time of its recording>`` and then every
+    staged file into the folder, so the folder always holds one session, the latest, and no run removes
+    or replaces a recording that an earlier run finished. A staging folder left by a killed run is kept
+    under ``interrupted-<time>`` rather than reused. A session that never starts leaves the folder as it
+    was (one it had to create is removed again).
     """
 
     def __init__(self, out_dir: str | Path, owned: Iterable[str] = ()) -> None:
@@ -100,10 +103,20 @@ class SessionFolder:
         self.staging = self.out_dir / STAGING
         self.owned = tuple(owned)
         self.kept_interrupted: Path | None = None
+        self.kept_previous: Path | None = None
+        self._created = False
+
+    def kept(self) -> list[Path]:
+        """The earlier sessions kept aside in the folder (``previous-*`` and ``interrupted-*``), oldest first."""
+        if not self.out_dir.is_dir():
+            return []
+        found = [p for p in self.out_dir.iterdir() if p.is_dir() and p.name.startswith(("previous-", "interrupted-"))]
+        return sorted(found, key=lambda p: p.stat().st_mtime)
 
     def open(self) -> SessionFolder:
         """Create the staging folder (keeping one left by a killed run)."""
         try:
+            self._created = not self.out_dir.exists()
             if self.staging.exists():
                 self.keep_as_interrupted()
             self.staging.mkdir(parents=True)
@@ -126,12 +139,26 @@ class SessionFolder:
     def staged(self, name: str) -> Path:
         return self.staging / name
 
+    def _keep_previous(self) -> None:
+        """Move the previous session's files into ``previous-<time of its recording>``."""
+        present = [self.out_dir / name for name in self.owned if (self.out_dir / name).is_file()]
+        if not present:
+            return
+        stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(max(p.stat().st_mtime for p in present)))
+        target = self.out_dir / f"previous-{stamp}"
+        n = 1
+        while target.exists():
+            n += 1
+            target = self.out_dir / f"previous-{stamp}-{n}"
+        target.mkdir()
+        for path in present:
+            os.replace(path, target / path.name)
+        self.kept_previous = target
+
     def publish(self) -> list[Path]:
-        """Move the staged files into the output folder; returns their final paths."""
+        """Keep the previous session aside, then move the staged files into the output folder; their final paths."""
         written = sorted(p.name for p in self.staging.iterdir() if p.is_file())
-        for name in self.owned:
-            if name not in written:
-                (self.out_dir / name).unlink(missing_ok=True)
+        self._keep_previous()
         out = []
         for name in written:
             target = self.out_dir / name
@@ -141,5 +168,8 @@ class SessionFolder:
         return out
 
     def discard(self) -> None:
-        """Drop the staged files (nothing of the session is worth keeping)."""
+        """Drop the staged files (nothing of the session is worth keeping); a folder created for them goes too."""
         shutil.rmtree(self.staging, ignore_errors=True)
+        if self._created:
+            with contextlib.suppress(OSError):
+                self.out_dir.rmdir()  # only when empty

@@ -14,7 +14,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from pipeline.core.episode import EpisodeResult, summarize
@@ -320,6 +320,8 @@ class DeploymentOutcome:
     profile: str
     metrics: dict[str, float]
     files: list[Path]
+    kept: list[Path] = field(default_factory=list)
+    """Earlier sessions kept aside in the output folder (``previous-*``, ``interrupted-*``), oldest first."""
 
 
 def check_scenario_agrees(world_scenario: str, params_source: str, fleet: Fleet, fleet_source: str) -> None:
@@ -383,13 +385,14 @@ def deploy_session(
     write_rosbag2_metadata(folder.staged("session.mcap"))
     files = folder.publish()
     if failure is not None:
+        previous = f"; the previous session is kept in {folder.kept_previous}" if folder.kept_previous else ""
         raise DeployAborted(
             f"{failure.reason}; the {len(results)} episode(s) run (the last counted as aborted where it was cut short) "
-            f"are in {out_dir}",
+            f"are in {out_dir}{previous}",
             results,
             failure.interrupted,
         ) from failure
-    return DeploymentOutcome(results, profile, metrics, files)
+    return DeploymentOutcome(results, profile, metrics, files, folder.kept())
 
 
 def _drop(folder: SessionFolder) -> None:

@@ -299,3 +299,31 @@ def test_a_twin_that_dies_mid_episode_is_a_runtime_fault_and_its_episode_counts_
     assert {r["team_success"] for r in cut} == {"0"}
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["real/episodes"] == last + 1 and metrics["real/aborted_fault"] == 1
+
+
+def test_a_run_that_stops_partway_keeps_the_finished_session_it_follows(tiny_policy, tmp_path):
+    out = tmp_path / "out"
+    good = write_fleet(tmp_path / "fleet.yaml")
+    deploy_into(tiny_policy, good, out, episodes=2)
+    before = digests(out)
+    # the next run into the same folder loses robot_2 for good in its first episode and stops partway
+    bad = write_fleet(tmp_path / "bad.yaml", timing={"reset_timeout_s": 2.0, "outage_limit_s": 1.0})
+    with pytest.raises(DeployAborted, match="the previous session is kept in") as err:
+        deploy_into(tiny_policy, bad, out, episodes=3, twin_extra_args=["--silence", "robot_2@0.3"])
+    (kept,) = out.glob("previous-*")
+    assert digests(kept) == before  # the finished session, byte for byte
+    assert str(kept) in str(err.value)
+    # the folder holds the new (partial) session, all of its files from it
+    assert len(err.value.results) == 1
+    with (out / "episodes.csv").open() as f:
+        assert {r["aborted"] for r in csv.DictReader(f)} == {"1"}
+
+
+def test_a_refused_run_leaves_no_folder_behind(tiny_policy, tmp_path):
+    # the twin refuses its profile after the session's folder was opened: the folder goes again
+    (tmp_path / "bad.yaml").write_text("lidar: {beams: 0}\n")
+    bad = write_fleet(tmp_path / "bad_fleet.yaml", twin={"profile": str(tmp_path / "bad.yaml")})
+    out = tmp_path / "never"
+    with pytest.raises(FleetNotReady, match=r"lidar.beams = 0"):
+        deploy_into(tiny_policy, bad, out)
+    assert not out.exists()

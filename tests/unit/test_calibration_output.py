@@ -9,10 +9,8 @@ import yaml
 
 from pipeline.calibration import (
     Calibration,
-    CalibrationError,
     Estimate,
     Source,
-    calibration_mapping,
     calibration_settings,
     write_calibration,
 )
@@ -133,10 +131,27 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
     assert "| `actuation.angular_gain` | unidentifiable |" in report
 
 
-def test_estimates_that_training_would_refuse_are_an_error(tmp_path):
-    bad = calibration(**{"actuation.time_constant_s": ok(3.5, 0.1, "s")})
-    with pytest.raises(CalibrationError, match=r"actuation.time_constant_s = 3.5"):
-        calibration_mapping(bad)
+def test_an_estimate_outside_its_physical_range_is_unidentified_and_the_rest_is_written(tmp_path):
+    bad = calibration(
+        **{
+            "actuation.time_constant_s": ok(3.5, 0.1, "s"),
+            "actuation.angular_gain": ok(-0.753237, 0.05, "ratio"),
+            "network.loss_prob": ok(0.2, 0.4, "probability"),  # an interval wider than the whole range
+        }
+    )
+    data = yaml.safe_load(write_calibration(bad, tmp_path).read_text())
+    missing = data["unidentified"]
+    assert (
+        "-0.753237" in missing["actuation.angular_gain"]
+        and "physical range (> 0.0 and <= 5.0)" in (missing["actuation.angular_gain"])
+    )
+    assert "3.5 s" in missing["actuation.time_constant_s"]
+    assert "wider than its whole physical range" in missing["network.loss_prob"]
+    world = data["world"]
+    assert "time_constant_s" not in world["actuation"] and "angular_gain" not in world["actuation"]
+    assert world["actuation"]["delay_s"] == 0.04 and world["lidar"]["noise_sigma_m"] == 0.021
+    assert "loss_prob" not in world["network"] and world["network"]["jitter_s"] == 0.006
+    calibrated_world(WorldConfig(), tmp_path / "calibration.yaml")  # training reads it
 
 
 def test_settings_from_a_mapping_name_bad_keys():
