@@ -70,6 +70,9 @@ class FleetLink:
         self.store = message_store()
         self.namespaces = [r.namespace for r in fleet.robots]
         self.unrecorded_before_clock = 0
+        self.unrecorded_before_lock = 0
+        """Messages heard before the fleet's writers were locked (:meth:`lock_writers`): neither recorded nor used."""
+        self._locked = False
         timing = fleet.timing
         self.use_truth = timing.use_ground_truth
         self.receiver = ReceiverBuffer(
@@ -129,8 +132,38 @@ class FleetLink:
 
     # -- hearing (transport thread) --------------------------------------------------------
 
+    # -- the fleet's writers ---------------------------------------------------------------
+
+    def lock_writers(self) -> dict[str, int]:
+        """From now on hear only the writers matched now on each topic (the fleet this run discovered): samples of any
+        other writer on the domain are dropped and counted (:meth:`foreign`). Returns the writers per topic."""
+        counts = {}
+        for sub in self._subs:
+            writers = sub.writers()
+            sub.accept_only(writers)
+            counts[sub.spec.name] = len(writers)
+        self._locked = True
+        return counts
+
+    def foreign(self) -> dict[str, int]:
+        """Per topic, the samples dropped because a writer this run did not discover sent them (non-zero only)."""
+        return {sub.spec.name: sub.foreign for sub in self._subs if sub.foreign}
+
+    def strays(self) -> dict[str, int]:
+        """Per topic, writers matched now that this run did not discover (non-zero only)."""
+        out = {}
+        for sub in self._subs:
+            n = len(sub.strays())
+            if n:
+                out[sub.spec.name] = n
+        return out
+
     def _on_timeline(self) -> bool:
-        """False until the session clock exists: under a scaled clock, before the first ``/clock``."""
+        """False until the session clock exists (under a scaled clock, before the first ``/clock``) and until the
+        fleet's writers are locked: nothing heard before is recorded or used."""
+        if not self._locked:
+            self.unrecorded_before_lock += 1
+            return False
         if isinstance(self.clock, ScaledClock) and not self.clock.anchored:
             self.unrecorded_before_clock += 1
             return False
@@ -183,6 +216,9 @@ class FleetLink:
             return None if self._target is None else (self._target[0].copy(), self._target[1])
 
     def _on_clock(self, spec: Any, msg: Any, receive_ns: int) -> None:
+        if not self._locked:
+            self.unrecorded_before_lock += 1
+            return
         t = C.time_ns(msg.clock)
         clock = self.clock
         if isinstance(clock, ScaledClock):
@@ -200,8 +236,16 @@ class FleetLink:
             self.on_reset_done(int(msg.episode), int(msg.seed))
 
     def close(self) -> None:
+        unrecorded = {}
         if self.unrecorded_before_clock:
-            self.log.add_metadata("unrecorded", {"before_first_clock": str(self.unrecorded_before_clock)})
+            unrecorded["before_first_clock"] = str(self.unrecorded_before_clock)
+        if self.unrecorded_before_lock:
+            unrecorded["before_writers_locked"] = str(self.unrecorded_before_lock)
+        foreign = self.foreign()
+        if foreign:
+            unrecorded["foreign"] = ", ".join(f"{topic}: {n}" for topic, n in sorted(foreign.items()))
+        if unrecorded:
+            self.log.add_metadata("unrecorded", unrecorded)
         for sub in self._subs:
             sub.close()
         for pub in self._cmd_pubs.values():

@@ -36,7 +36,7 @@ from pipeline.messages import topics as T
 from pipeline.policy.errors import PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record.session import SessionLog
-from pipeline.rollout.errors import DeployAborted, FleetNotReady
+from pipeline.rollout.errors import DeployAborted, FleetConflict, FleetNotReady
 from pipeline.rollout.handshake import ResetHandshake
 from pipeline.rollout.link import FleetLink, LatestSamples, odom_sample, scan_sample
 from pipeline.rollout.tally import EpisodeTally
@@ -130,21 +130,60 @@ class DeployRunner:
             self._check_alive()
         if self.pursuit and not self.transport.wait_for_match(T.TARGET_TRUTH, 1, max(0.0, deadline - time.monotonic())):
             missing.append(f"the pursuit's target ({T.TARGET_TRUTH.name})")
-        if self.fleet.target == "twin" and not self.transport.wait_for_match(
-            T.FLEET_TOPICS["reset"], 1, max(0.0, deadline - time.monotonic())
+        if self.fleet.target == "twin" and not (
+            self.transport.wait_for_match(T.FLEET_TOPICS["reset"], 1, max(0.0, deadline - time.monotonic()))
+            and self.transport.wait_for_match(T.FLEET_TOPICS["reset_done"], 1, max(0.0, deadline - time.monotonic()))
         ):
             missing.append("the twin's reset handler (/mrl/reset)")
+        if isinstance(self.clock, ScaledClock) and not self.transport.wait_for_match(
+            T.FLEET_TOPICS["clock"], 1, max(0.0, deadline - time.monotonic())
+        ):
+            missing.append("the fleet's clock (/clock)")
         if missing:
             raise FleetNotReady(
                 f"robots did not appear within {timeout_s:g} s: {', '.join(missing)}; check that they run, the "
                 f"fleet's domain id ({self.fleet.network.domain_id}) and its network peers"
             )
+        self._lock_writers()
         if isinstance(self.clock, ScaledClock):
             while not self.clock.anchored:
                 if time.monotonic() > deadline:
                     raise FleetNotReady(f"no /clock message within {timeout_s:g} s although the fleet's time is scaled")
                 time.sleep(0.01)
         self._check_scans(deadline, timeout_s)
+
+    def _lock_writers(self) -> None:
+        """Hear only the writers discovered now; each robot topic must have exactly one (a second is another robot,
+        twin or run on the domain). Nothing heard before is recorded or used."""
+        counts = self.link.lock_writers()
+        crowded = {
+            topic: n
+            for robot in self.fleet.robots
+            for kind, spec in robot.topics().items()
+            if kind != "cmd_vel" and (kind != "ground_truth" or self.use_truth)
+            for topic, n in [(spec.name, counts.get(spec.name, 0))]
+            if n > 1
+        }
+        if crowded:
+            raise FleetConflict(
+                self.fleet.network.domain_id,
+                [f"{n} publishers on {topic}" for topic, n in sorted(crowded.items())],
+                "each robot's topics must have one publisher; another robot, twin or run on this domain uses the "
+                "same namespaces: stop it, or give the fleet file another network.domain_id (mrl deploy --domain-id)",
+            )
+
+    def _clash(self) -> str | None:
+        """A writer this run did not discover, publishing or matched on the fleet's topics: what and where."""
+        foreign, strays = self.link.foreign(), self.link.strays()
+        if not foreign and not strays:
+            return None
+        seen = [f"{n} message(s) on {topic}" for topic, n in sorted(foreign.items())]
+        seen += [f"{n} new writer(s) on {topic}" for topic, n in sorted(strays.items())]
+        return (
+            f"a writer this run did not discover is on DDS domain {self.fleet.network.domain_id}: {'; '.join(seen)} "
+            "(dropped, never recorded); another robot, twin or run uses the fleet's topics: stop it, or give the "
+            "fleet file another network.domain_id (mrl deploy --domain-id)"
+        )
 
     def _check_scans(self, deadline: float, timeout_s: float) -> None:
         """Wait for every robot's first scan; refuse lidars that leave some of the policy's beams blind,
@@ -257,21 +296,30 @@ class DeployRunner:
         step = 0
         next_t = t_start
         aborted, reason, kind = False, "", ""
+        clash = self._clash()
+        if clash:  # heard between the episodes: no episode of this run may take data from another writer
+            self.log.event(self.clock.now_ns(), episode, 0, "abort", detail=clash)
+            self._fatal = DeployAborted(clash, [])
+            self.log.event(self.clock.now_ns(), episode, 0, "end", detail="aborted")
+            self._tally = None
+            return tally.result(self.judge, True, clash, "clash", self.staleness.stale_s(self.clock.now_ns()))
         while True:
             self._step = step
             if not self.clock.sleep_until(next_t):
                 break
             t = self.clock.now_ns()
             self.link.timing(TimingEvent("control", "", "", t, tick=step))
-            problem = self.fleet_alive()
+            problem, kind = self.fleet_alive(), "fault"
             if problem is None and self.emitter.error is not None:
                 problem = f"the emitter failed: {self.emitter.error!r}"
+            if problem is None:
+                problem, kind = self._clash(), "clash"
             if problem:
                 self.emitter.clear()
                 self.log.event(self.clock.now_ns(), episode, step, "abort", detail=problem)
                 self.emitter.halt()
                 self._fatal = DeployAborted(problem, [])
-                aborted, reason, kind = True, problem, "fault"
+                aborted, reason = True, problem
                 break
             state = self.receiver.joint_state(t)
             for name in self.namespaces:

@@ -253,6 +253,10 @@ class DdsPublisher(Publisher):
             self._transport._forget(self)
 
 
+HANDLE_MASK = (1 << 64) - 1
+"""DDS instance handles are 64-bit unsigned; cyclonedds hands matches out signed and sample infos unsigned."""
+
+
 class DdsSubscription(Subscription):
     """A DDS reader of one topic whose samples the transport's receive thread hands to a callback."""
 
@@ -316,9 +320,29 @@ class DdsSubscription(Subscription):
                 if len(samples) < TAKE_BATCH:
                     return
 
+    def writers(self) -> frozenset[int]:
+        """Instance handles of the remote writers matched with this reader (the publication handles of their
+        samples)."""
+        with self._lock:
+            reader = self._reader
+            if reader is None:
+                return frozenset()
+            own = self._transport.participant.guid
+            found = set()
+            try:
+                for handle in reader.get_matched_publications():
+                    data = reader.get_matched_publication_data(handle)
+                    if data is not None and data.participant_key != own:
+                        found.add(int(handle) & HANDLE_MASK)  # the matches read signed, sample infos unsigned
+            except DDSException as exc:
+                raise TransportError(f"topic {self.spec.name}", f"cannot read the DDS matches: {exc}") from exc
+            return frozenset(found)
+
     def _deliver(self, sample: Any, receive_time_ns: int) -> None:
         if not sample.sample_info.valid_data:
             self.dropped_invalid += 1
+            return
+        if not self._admits(int(sample.sample_info.publication_handle) & HANDLE_MASK):
             return
         try:
             msg = self._dtype.from_dds(sample)

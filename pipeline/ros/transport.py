@@ -185,6 +185,37 @@ class Subscription(ABC):
         """Samples without valid data (e.g. the notice of a writer that vanished), never handed on."""
         self.callback_errors = 0
         """Callback calls that raised."""
+        self.foreign = 0
+        """Valid samples from writers outside the accepted set (:meth:`accept_only`), dropped."""
+        self._accepted: frozenset[int] | None = None
+
+    def writers(self) -> frozenset[int]:
+        """The writers on other participants matched with this subscription now (transport-specific handles).
+
+        Transports that cannot tell writers apart return an empty set; their subscriptions accept every writer."""
+        return frozenset()
+
+    def accept_only(self, writers: frozenset[int]) -> None:
+        """From now on hand on only samples of `writers` (from :meth:`writers`); count and drop the others."""
+        self._accepted = frozenset(writers)
+
+    @property
+    def accepted(self) -> frozenset[int] | None:
+        """The writers whose samples are handed on; None: every writer (nothing locked yet)."""
+        return self._accepted
+
+    def strays(self) -> frozenset[int]:
+        """Writers matched now that are not accepted (empty before :meth:`accept_only`)."""
+        if not self._accepted:  # nothing locked, or nothing to tell writers apart by
+            return frozenset()
+        return self.writers() - self._accepted
+
+    def _admits(self, writer: int) -> bool:
+        """Whether a sample of `writer` is handed on; counts a dropped one."""
+        if self._accepted is None or not self._accepted or writer in self._accepted:
+            return True
+        self.foreign += 1
+        return False
 
     @abstractmethod
     def close(self) -> None:
