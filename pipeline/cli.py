@@ -51,7 +51,8 @@ def run_stage(name: str, body: Callable[[], int]) -> int:
         print(f"{name}: {exc}", file=sys.stderr)
         if getattr(exc, "interrupted", False):
             return EXIT_INTERRUPTED
-        return EXIT_RUNTIME_FAULT if isinstance(exc, RuntimeFault) else EXIT_BAD_INPUT
+        fault = isinstance(exc, RuntimeFault) or getattr(exc, "runtime_fault", False)
+        return EXIT_RUNTIME_FAULT if fault else EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -231,6 +231,9 @@ def read_yaml(path: str | Path) -> Any:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(str(p), [ConfigProblem("<file>", str(p), f"a readable file ({exc.strerror})")]) from exc
+    except UnicodeDecodeError as exc:
+        problem = ConfigProblem("<file>", str(p), f"UTF-8 text (byte {exc.start}: {exc.reason})")
+        raise ConfigError(str(p), [problem]) from exc
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:

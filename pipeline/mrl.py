@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from pipeline.cli import deploy_summary, operator_reset, run_stage
 from pipeline.core.timebase import NS_PER_S
-from pipeline.errors import ConfigError, ConfigProblem, MrlError
+from pipeline.errors import ConfigError, ConfigProblem, MrlError, RuntimeFault
 from pipeline.record.live import live_view
 
 if TYPE_CHECKING:
@@ -62,6 +62,7 @@ EPISODE_COLUMNS = (
     "collided",
     "timeout",
     "aborted",
+    "abort_kind",
     "stale_s",
     "time_to_goal_s",
     "path_length_m",
@@ -75,8 +76,10 @@ BAG_HELP = "an MCAP file, a rosbag2 folder (mcap or sqlite3 storage) or a ROS 1 
 class CommandError(MrlError):
     """Bad input to a verb (an option, an output path), or a library error reworded for the command line."""
 
-    def __init__(self, message: str, interrupted: bool = False) -> None:
+    def __init__(self, message: str, interrupted: bool = False, runtime_fault: bool = False) -> None:
         self.interrupted = interrupted
+        self.runtime_fault = runtime_fault
+        """A runtime fault reworded onto one line: it still exits 3."""
         super().__init__(message)
 
 
@@ -508,7 +511,7 @@ def _replay(args: argparse.Namespace) -> int:
 def _twin(args: argparse.Namespace, rest: list[str]) -> int:
     from pipeline.twin.__main__ import main as twin_main
 
-    return twin_main(rest)
+    return twin_main(rest, prog="mrl twin")
 
 
 def _deploy(args: argparse.Namespace) -> int:
@@ -915,8 +918,15 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def _warning_line(verb: str, stream: TextIO) -> Callable[..., None]:
+    """Each warning once, on one line (a file opened twice warns twice otherwise)."""
+    shown: set[str] = set()
+
     def show(message: Warning | str, category: type[Warning], *args: object, **kwargs: object) -> None:
-        print(f"mrl {verb}: warning: {message}", file=stream)
+        text = str(message)
+        if text in shown:
+            return
+        shown.add(text)
+        print(f"mrl {verb}: warning: {text}", file=stream)
 
     return show
 
@@ -932,7 +942,9 @@ def _one_line(verb: str, body: Callable[[], int]) -> Callable[[], int]:
             if len(lines) <= 1:
                 raise
             text = lines[0].rstrip(":") + ": " + "; ".join(lines[1:])
-            raise CommandError(text, bool(getattr(exc, "interrupted", False))) from exc
+            raise CommandError(
+                text, bool(getattr(exc, "interrupted", False)), runtime_fault=isinstance(exc, RuntimeFault)
+            ) from exc
 
     return run
 

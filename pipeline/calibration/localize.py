@@ -117,7 +117,7 @@ class OccupancyMap:
         where = str(p)
         try:
             meta = yaml.safe_load(p.read_text(encoding="utf-8"))
-        except (OSError, yaml.YAMLError) as exc:
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
             raise CalibrationError(where, f"cannot read the map file: {exc}") from exc
         if not isinstance(meta, dict):
             raise CalibrationError(where, "a map_server map file is a mapping with image, resolution and origin")
@@ -130,10 +130,11 @@ class OccupancyMap:
             negate = int(meta.get("negate", 0))
             occ_t = float(meta.get("occupied_thresh", 0.65))
             free_t = float(meta.get("free_thresh", 0.25))
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise CalibrationError(where, f"resolution, origin, negate and thresholds must be numbers: {exc}") from exc
         mode = str(meta.get("mode", "trinary"))
-        if resolution <= 0 or len(origin) != 3 or not 0 <= free_t < occ_t <= 1 or negate not in (0, 1):
+        finite = all(math.isfinite(v) for v in (resolution, occ_t, free_t, *origin))
+        if not finite or resolution <= 0 or len(origin) != 3 or not 0 <= free_t < occ_t <= 1 or negate not in (0, 1):
             raise CalibrationError(
                 where,
                 "resolution must be > 0, origin [x, y, yaw], 0 <= free_thresh < occupied_thresh <= 1, negate 0 or 1",
@@ -148,7 +149,7 @@ class OccupancyMap:
 
             with Image.open(image_path) as img:
                 pixels = np.asarray(img.convert("L"), dtype=np.float64)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, Image.DecompressionBombError) as exc:
             raise CalibrationError(where, f"cannot read the map image {image_path}: {exc}") from exc
         if mode == "raw":
             occupied = pixels >= 100 * occ_t

@@ -29,8 +29,8 @@ from pipeline.twin.profile import load_profile_for
 from pipeline.twin.twin import HardwareTwin, Silence
 
 
-def parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.twin", description=__doc__.splitlines()[0])
+def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("--fleet", default="twin", help="bundled fleet name or fleet YAML (default: twin)")
     parser.add_argument("--profile", default=None, help="bundled profile name or profile YAML (default: the fleet's)")
     parser.add_argument(
@@ -77,8 +77,10 @@ def say(line: str) -> None:
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - stays open until exit, so the final flush succeeds
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = parse(argv)
+def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin") -> int:
+    """The twin process; `prog` is how it names itself in usage and messages (``mrl twin`` from the command)."""
+    args = parse(argv, prog)
+    me = "twin" if prog.startswith("python") else prog
     sys.setswitchinterval(0.0002)  # the tick thread gets the interpreter back quickly
     stop = threading.Event()
 
@@ -113,7 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         clock: Clock = WallClock() if scale == 1.0 else ScaledClock(scale, time.time_ns())
         transport = open_transport(fleet.transport, fleet.network_settings(args.fleet))
     except MrlError as exc:
-        print(f"twin: {exc}", file=sys.stderr)
+        print(f"{me}: {exc}", file=sys.stderr)
         return 2
     try:
         twin = HardwareTwin(
