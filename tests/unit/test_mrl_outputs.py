@@ -42,3 +42,26 @@ def test_a_bad_out_is_one_line_before_any_work(verb, bad, tmp_path, capsys, monk
     assert code == 2, err
     assert "Traceback" not in err and f"--out {out}" in err and len(err.strip().splitlines()) == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker.txt"]  # nothing created
+
+
+def test_a_warning_is_shown_once_per_command(capsys):
+    import io
+
+    from pipeline.mrl import _warning_line
+
+    stream = io.StringIO()
+    show = _warning_line("info", stream)
+    for _ in range(3):
+        show(UserWarning("x.mcap: salvaged 10 messages"), UserWarning, "file", 1)
+    show(UserWarning("y.mcap: salvaged 2 messages"), UserWarning, "file", 1)
+    assert stream.getvalue().splitlines() == [
+        "mrl info: warning: x.mcap: salvaged 10 messages",
+        "mrl info: warning: y.mcap: salvaged 2 messages",
+    ]
+
+
+@pytest.mark.parametrize("value", ["-1", "233", "x"])
+def test_deploy_domain_id_is_checked_by_the_parser(value, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["deploy", "--policy", "p", "--domain-id", value])
+    assert done.value.code == 2 and "a DDS domain id, an integer from 0 to 232" in capsys.readouterr().err
