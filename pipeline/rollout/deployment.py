@@ -7,6 +7,7 @@ finalized, the transport and the twin process are shut down.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -74,6 +75,8 @@ class TwinProcess:
         )
         self.lines: deque[str] = deque(maxlen=50)
         self.ready = threading.Event()
+        self.participant = ""
+        """The twin's participant on the domain (from its ready line): the only writers the runner will hear."""
         threading.Thread(target=self._pump, args=(self.proc.stdout,), daemon=True).start()
         threading.Thread(target=self._pump, args=(self.proc.stderr,), daemon=True).start()
 
@@ -81,6 +84,8 @@ class TwinProcess:
         for line in stream:  # type: ignore[attr-defined]
             self.lines.append(line.rstrip())
             if line.startswith("twin: ready"):
+                found = re.search(r"participant (\S+)", line)
+                self.participant = found.group(1) if found else ""
                 self.ready.set()
 
     def wait_ready(self, timeout_s: float) -> None:
@@ -291,6 +296,7 @@ def deploy_policy(
             clock,
             log,
             fleet_alive=(twin.problem if twin is not None else lambda: None),
+            fleet_participant=twin.participant if twin is not None else "",
             confirm_reset=confirm_reset if fleet.target == "robots" else None,
         )
         runner.wait_for_fleet(fleet.timing.discovery_timeout_s)

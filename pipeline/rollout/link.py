@@ -134,12 +134,23 @@ class FleetLink:
 
     # -- the fleet's writers ---------------------------------------------------------------
 
-    def lock_writers(self) -> dict[str, int]:
-        """From now on hear only the writers matched now on each topic (the fleet this run discovered): samples of any
-        other writer on the domain are dropped and counted (:meth:`foreign`). Returns the writers per topic."""
+    def writers(self, participant: str = "") -> dict[str, tuple[int, int]]:
+        """Per topic: (writers of `participant`, writers of anyone else) matched now; with no `participant`, every
+        writer counts as the fleet's."""
+        out = {}
+        for sub in self._subs:
+            every = sub.writers()
+            own = sub.writers(participant) if participant else every
+            out[sub.spec.name] = (len(own), len(every - own))
+        return out
+
+    def lock_writers(self, participant: str = "") -> dict[str, int]:
+        """From now on hear only the writers matched now on each topic (the fleet this run discovered; with
+        `participant`, only that participant's, e.g. the twin this run started): samples of any other writer on
+        the domain are dropped and counted (:meth:`foreign`). Returns the writers accepted per topic."""
         counts = {}
         for sub in self._subs:
-            writers = sub.writers()
+            writers = sub.writers(participant)
             sub.accept_only(writers)
             counts[sub.spec.name] = len(writers)
         self._locked = True

@@ -67,8 +67,12 @@ class DeployRunner:
         log: SessionLog,
         fleet_alive: Callable[[], str | None] = lambda: None,
         confirm_reset: Callable[[int], None] | None = None,
+        fleet_participant: str = "",
     ) -> None:
+        """`fleet_participant`: the participant whose writers are the fleet (the twin this run started); '' for
+        robots, whose writers are whichever one publishes each robot topic."""
         self.runtime = runtime
+        self.fleet_participant = fleet_participant
         self.fleet = fleet
         self.scenario = scenario
         self.transport = transport
@@ -144,7 +148,7 @@ class DeployRunner:
                 f"robots did not appear within {timeout_s:g} s: {', '.join(missing)}; check that they run, the "
                 f"fleet's domain id ({self.fleet.network.domain_id}) and its network peers"
             )
-        self._lock_writers()
+        self._lock_writers(deadline, timeout_s)
         if isinstance(self.clock, ScaledClock):
             while not self.clock.anchored:
                 if time.monotonic() > deadline:
@@ -152,18 +156,34 @@ class DeployRunner:
                 time.sleep(0.01)
         self._check_scans(deadline, timeout_s)
 
-    def _lock_writers(self) -> None:
-        """Hear only the writers discovered now; each robot topic must have exactly one (a second is another robot,
-        twin or run on the domain). Nothing heard before is recorded or used."""
-        counts = self.link.lock_writers()
-        crowded = {
-            topic: n
+    def _robot_topics(self) -> list[str]:
+        return [
+            spec.name
             for robot in self.fleet.robots
             for kind, spec in robot.topics().items()
             if kind != "cmd_vel" and (kind != "ground_truth" or self.use_truth)
-            for topic, n in [(spec.name, counts.get(spec.name, 0))]
-            if n > 1
-        }
+        ]
+
+    def _lock_writers(self, deadline: float, timeout_s: float) -> None:
+        """Hear only the fleet's writers: the twin's when this run started one (once each robot topic has it), else
+        the ones discovered now. Each robot topic must have exactly one, and no other writer may be there (another
+        robot, twin or run on the domain). Nothing heard before is recorded or used."""
+        topics = self._robot_topics()
+        while True:
+            found = self.link.writers(self.fleet_participant)
+            missing = [t for t in topics if found.get(t, (0, 0))[0] == 0]
+            if not missing or not self.fleet_participant:
+                break
+            if time.monotonic() > deadline:
+                raise FleetNotReady(
+                    f"the twin this run started did not appear within {timeout_s:g} s on {', '.join(missing)}"
+                )
+            self._check_alive()
+            time.sleep(0.01)
+        others = {t: n for t, (_, n) in found.items() if n}
+        counts = self.link.lock_writers(self.fleet_participant)
+        crowded = {topic: counts.get(topic, 0) for topic in topics if counts.get(topic, 0) > 1}
+        crowded.update(others)
         if crowded:
             raise FleetConflict(
                 self.fleet.network.domain_id,

@@ -320,9 +320,9 @@ class DdsSubscription(Subscription):
                 if len(samples) < TAKE_BATCH:
                     return
 
-    def writers(self) -> frozenset[int]:
+    def writers(self, participant: str = "") -> frozenset[int]:
         """Instance handles of the remote writers matched with this reader (the publication handles of their
-        samples)."""
+        samples); with `participant` (a participant GUID as text), only its writers."""
         with self._lock:
             reader = self._reader
             if reader is None:
@@ -332,8 +332,11 @@ class DdsSubscription(Subscription):
             try:
                 for handle in reader.get_matched_publications():
                     data = reader.get_matched_publication_data(handle)
-                    if data is not None and data.participant_key != own:
-                        found.add(int(handle) & HANDLE_MASK)  # the matches read signed, sample infos unsigned
+                    if data is None or data.participant_key == own:
+                        continue
+                    if participant and str(data.participant_key) != participant:
+                        continue
+                    found.add(int(handle) & HANDLE_MASK)  # the matches read signed, sample infos unsigned
             except DDSException as exc:
                 raise TransportError(f"topic {self.spec.name}", f"cannot read the DDS matches: {exc}") from exc
             return frozenset(found)
@@ -424,6 +427,9 @@ class DdsTransport(Transport):
             self._waitset.attach(condition)
             self._wake()
             return sub
+
+    def identity(self) -> str:
+        return str(self.participant.guid)
 
     def matched_count(self, spec: TopicSpec) -> int:
         with self._lock:

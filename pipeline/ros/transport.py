@@ -189,8 +189,9 @@ class Subscription(ABC):
         """Valid samples from writers outside the accepted set (:meth:`accept_only`), dropped."""
         self._accepted: frozenset[int] | None = None
 
-    def writers(self) -> frozenset[int]:
-        """The writers on other participants matched with this subscription now (transport-specific handles).
+    def writers(self, participant: str = "") -> frozenset[int]:
+        """The writers on other participants matched with this subscription now (transport-specific handles); with
+        `participant` (a :meth:`Transport.identity`), only that participant's.
 
         Transports that cannot tell writers apart return an empty set; their subscriptions accept every writer."""
         return frozenset()
@@ -250,6 +251,10 @@ class Transport(ABC):
     @abstractmethod
     def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> Subscription:
         """Calls ``callback(spec, msg, receive_time_ns)`` on the transport's thread for every valid sample of `spec`."""
+
+    def identity(self) -> str:
+        """This participant as the others see it (a DDS participant GUID); '' where the transport cannot tell."""
+        return ""
 
     @abstractmethod
     def matched_count(self, spec: TopicSpec) -> int:

@@ -122,7 +122,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             fleet, scenario, profile, transport, clock, seed, publish_clock=scale != 1.0, silence=silence
         )
         robots = ", ".join(r.namespace for r in fleet.robots)
-        say(f"twin: ready, profile {name}, {len(fleet.robots)} robots ({robots}), time scale {scale}")
+        identity = transport.identity()
+        say(
+            f"twin: ready, profile {name}, {len(fleet.robots)} robots ({robots}), time scale {scale}"
+            + (f", participant {identity}" if identity else "")
+        )
         try:
             twin.run(stop)
         finally:

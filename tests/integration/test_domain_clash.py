@@ -42,9 +42,10 @@ def start(policy: Path, fleet: Path, out: Path) -> subprocess.Popen[str]:
 
 
 def stamp_offsets_s(recording: Path) -> np.ndarray:
-    """Header stamp minus log time (s) of every robot message the run recorded."""
+    """Header stamp minus log time (s) of every scan and odometry message the run recorded (the robots' clock; motion
+    capture stamps ground truth on its own)."""
     log = McapLog(recording)
-    topics = [t for t in log.topics() if t.endswith(("/scan", "/odom", "/ground_truth"))]
+    topics = [t for t in log.topics() if t.endswith(("/scan", "/odom"))]
     return np.array(
         [(header_stamp_ns(m.msg) - m.log_time_ns) / NS_PER_S for m in log.messages(topics)], dtype=np.float64
     )

@@ -17,7 +17,7 @@ from pipeline.learn.modes import StreamMap
 from pipeline.learn.trainer import train
 from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, read_yaml
-from pipeline.params import Params, load_params, world_config
+from pipeline.params import NetworkRanges, Params, load_params, world_config
 from pipeline.policy.scripted import GoToGoalController, PathFollowingController
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
@@ -214,6 +214,7 @@ def test_on_the_paper_layout_the_teacher_told_of_the_robots_passes_the_box_corne
     world = load_params(Path("params.yaml")).world
     world = replace(
         world,
+        randomize=replace(world.randomize, network=NetworkRanges()),  # the corner geometry, on an ideal link
         scenario="obstacles",
         observation="rich",
         observed_pose="ground_truth",
