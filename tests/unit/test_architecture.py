@@ -1,4 +1,4 @@
-"""The roles of the package stay apart: who may import whom (DESIGN section 2)."""
+"""The roles of the package stay apart: who may import whom (docs/architecture.md)."""
 
 from __future__ import annotations
 
