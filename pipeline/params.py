@@ -16,6 +16,7 @@ from pipeline.core.actions import ActionCodec, ActionKind
 from pipeline.core.judge import ProgressDistance, RewardWeights
 from pipeline.core.observation import LAYOUTS, LayoutName, ObservationLayout, ObservedPose
 from pipeline.core.scan import Reduction
+from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mappings import bounds_text, from_mapping, in_bounds, merge, read_yaml, setting, to_mapping
 
@@ -105,8 +106,8 @@ class ActuationConfig:
     odometry (wheel encoders read with the nominal radii) does not see."""
     deadband_radps: float = setting(0.0, ge=0.0, le=50.0, optional=True)
     """Wheel speeds (rad/s, from the command by the nominal wheel geometry below) under this stay at 0."""
-    wheel_radius_m: float = setting(0.034, gt=0.0, le=0.5, optional=True)
-    wheel_separation_m: float = setting(0.281, gt=0.0, le=2.0, optional=True)
+    wheel_radius_m: float = setting(SPARK_WHEEL_RADIUS_M, gt=0.0, le=0.5, optional=True)
+    wheel_separation_m: float = setting(SPARK_WHEEL_SEPARATION_M, gt=0.0, le=2.0, optional=True)
     max_linear_mps: float | None = setting(None, gt=0.0, le=10.0, optional=True)
     """The base's speed limit: forward speeds (after the gain) beyond this are cut to it; None: no limit."""
     max_angular_radps: float | None = setting(None, gt=0.0, le=50.0, optional=True)

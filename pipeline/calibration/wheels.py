@@ -57,9 +57,10 @@ from scipy import stats
 from pipeline.calibration.estimates import Estimate, bootstrap, spread
 from pipeline.calibration.odometry import CHUNK_S, OdometryEpisode, chunk_bounds, continuous_stretches, pose_increments
 from pipeline.calibration.options import CalibrationSettings
+from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 
-NOMINAL_WHEEL_RADIUS_M = 0.034
-NOMINAL_WHEEL_SEPARATION_M = 0.281
+NOMINAL_WHEEL_RADIUS_M = SPARK_WHEEL_RADIUS_M
+NOMINAL_WHEEL_SEPARATION_M = SPARK_WHEEL_SEPARATION_M
 """The geometry the robots' drivers integrate their encoders with (the SPARK's, as the twin's profile states)."""
 
 MIN_CLUSTERS = 3

@@ -43,6 +43,12 @@ class Room:
         return bad
 
 
+SPARK_WHEEL_RADIUS_M = 0.034
+SPARK_WHEEL_SEPARATION_M = 0.281
+"""The SPARK's wheel geometry (wheel diameter 0.068 m), the one place it is written: the simulator's wheel model, the
+twin's ideal base, the robots' drivers (odometry integrates encoder ticks with it) and calibration take it from here."""
+
+
 @dataclass(frozen=True)
 class RobotShape:
     """The robot body, shared by every robot of a scenario (SPARK by default)."""
@@ -50,8 +56,8 @@ class RobotShape:
     radius_m: float = setting(0.165, gt=0.0)
     height_m: float = setting(0.2, gt=0.0)
     mass_kg: float = setting(5.0, gt=0.0)
-    wheel_separation_m: float = setting(0.281, gt=0.0)
-    wheel_diameter_m: float = setting(0.068, gt=0.0)
+    wheel_separation_m: float = setting(SPARK_WHEEL_SEPARATION_M, gt=0.0)
+    wheel_diameter_m: float = setting(2 * SPARK_WHEEL_RADIUS_M, gt=0.0)
 
 
 @dataclass(frozen=True)

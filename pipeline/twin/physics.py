@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 import mujoco
 import numpy as np
 
-from pipeline.core.scenario import Scenario
+from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M, Scenario
 from pipeline.errors import ConfigError, ConfigProblem
 
 WHEEL_MASS_KG = 0.2
@@ -46,9 +46,9 @@ WALL_THICKNESS_M = 0.1
 class BaseParams:
     """The drive base as it really is; the defaults are the ideal nominal SPARK."""
 
-    wheel_radius_left_m: float = 0.034
-    wheel_radius_right_m: float = 0.034
-    wheel_separation_m: float = 0.281
+    wheel_radius_left_m: float = SPARK_WHEEL_RADIUS_M
+    wheel_radius_right_m: float = SPARK_WHEEL_RADIUS_M
+    wheel_separation_m: float = SPARK_WHEEL_SEPARATION_M
     mass_kg: float = 5.0
     motor_time_constant_s: float = 0.0
     deadband_radps: float = 0.0

@@ -30,12 +30,12 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from pipeline.core.scenario import Scenario
+from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M, Scenario
 from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mappings import from_mapping, read_yaml, setting
 
-NOMINAL_WHEEL_RADIUS_M = 0.034
-NOMINAL_WHEEL_SEPARATION_M = 0.281
+NOMINAL_WHEEL_RADIUS_M = SPARK_WHEEL_RADIUS_M
+NOMINAL_WHEEL_SEPARATION_M = SPARK_WHEEL_SEPARATION_M
 """The SPARK's wheels as its driver knows them: odometry integrates encoder ticks with these."""
 
 
