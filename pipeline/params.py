@@ -14,6 +14,7 @@ from typing import Any, Literal
 
 from pipeline.core.actions import ActionCodec, ActionKind
 from pipeline.core.judge import ProgressDistance, RewardWeights
+from pipeline.core.network import StaleScan
 from pipeline.core.observation import LAYOUTS, LayoutName, ObservationLayout, ObservedPose
 from pipeline.core.scan import Reduction
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
@@ -79,7 +80,7 @@ class NetworkConfig:
     """Spread of the latency: a half-normal extra delay of this standard deviation (s)."""
     scan_stale_s: float = setting(0.5, gt=0.0, le=10.0, optional=True)
     odom_stale_s: float = setting(0.3, gt=0.0, le=10.0, optional=True)
-    stale_scan: Literal["hold", "blank"] = setting("hold", optional=True)
+    stale_scan: StaleScan = setting("hold", optional=True)
     """What the policy observes of a stale robot's scan: the last one held, or no return on any beam. A fleet
     deploying the policy does the same (:func:`pipeline.core.network.observed_scans`)."""
     clock_offset_s: float = setting(0.0, ge=-1e9, le=1e9, optional=True)

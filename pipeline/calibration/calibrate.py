@@ -20,8 +20,9 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +43,8 @@ from pipeline.calibration.smoothing import SmootherNoise, Trajectory, smooth_tra
 from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M, WheelFit, estimate_wheels
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
+from pipeline.mappings import bounds_text, in_bounds
+from pipeline.params import WorldConfig
 
 PROFILE_KEYS: dict[str, tuple[str, ...]] = {
     "lidar": ("beams", "rate_hz", "noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"),
@@ -74,11 +77,6 @@ RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
     "actuation.angular_gain": (0.01, 5.0),
     "odometry.drift_per_m": (0.0, 1.0),
     "actuation.deadband_radps": (0.0, 50.0),
-    "network.scan_rate_hz": (0.0, 100.0),
-    "network.odom_rate_hz": (0.0, 1000.0),
-    "network.loss_prob": (0.0, 0.5),
-    "network.burst_len": (1.0, 50.0),
-    "network.jitter_s": (0.0, 0.5),
 }
 NETWORK_SOURCES: dict[str, str] = {
     "scan_rate_hz": "lidar.rate_hz",
@@ -92,7 +90,8 @@ NETWORK_SOURCES: dict[str, str] = {
 """The simulator's network keys (``world.network``) and the estimates they take: the rates at which scans and odometry
 arrive, how they are lost and jittered, and the robots' clock; the calibrated round trains on them, randomized
 within their intervals (the clock keys, which move only the sensors' stamps, at their values)."""
-"""The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside."""
+"""The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside; keys
+not listed take the bounds of their setting (:func:`world_bounds`)."""
 
 
 PHYSICAL_KEYS: dict[str, str] = {
@@ -108,33 +107,34 @@ PHYSICAL_KEYS: dict[str, str] = {
 (``lidar.noise_per_m``, which reads slightly negative where noise does not grow with range, is drawn at 0 instead)."""
 
 
+def _setting_meta(world_key: str) -> Mapping[str, Any]:
+    """The metadata (bounds) of the simulator setting ``world.<world_key>``, e.g. ``network.loss_prob``."""
+    group, name = world_key.split(".")
+    return next(f.metadata for f in fields(getattr(WorldConfig(), group)) if f.name == name)
+
+
+def world_bounds(world_key: str) -> tuple[float, float]:
+    """(low, high) of the simulator setting ``world.<world_key>`` (open ends as infinities)."""
+    meta = _setting_meta(world_key)
+    low, high = meta.get("ge", meta.get("gt")), meta.get("le", meta.get("lt"))
+    return (-math.inf if low is None else float(low)), (math.inf if high is None else float(high))
+
+
 def within_physical_ranges(values: dict[str, Estimate]) -> dict[str, Estimate]:
     """`values` with every estimate that lies outside its physical range, or whose 95 % interval is wider than that
     range, made unidentifiable, the reason carrying the raw figure: what the data cannot show is not a setting (the
     simulator keeps its nominal value), and the other keys stand."""
-    from dataclasses import fields as dataclass_fields
-
-    from pipeline.mappings import bounds_text, in_bounds
-    from pipeline.params import WorldConfig
-
     out = dict(values)
     for key, world_key in {**PHYSICAL_KEYS, **{v: f"network.{k}" for k, v in NETWORK_SOURCES.items()}}.items():
         est = out.get(key)
         if est is None or not est.ok or est.value is None:
             continue
-        group, name = world_key.split(".")
-        default = getattr(WorldConfig(), group)
-        meta = next(f.metadata for f in dataclass_fields(default) if f.name == name)
-        low, high = meta.get("ge", meta.get("gt")), meta.get("le", meta.get("lt"))
+        meta = _setting_meta(world_key)
+        low, high = world_bounds(world_key)
         raw = f"{est.value:.6g} {est.unit}".strip()
         if not in_bounds(est.value, meta):
             reason = f"the estimate {raw} lies outside its physical range ({bounds_text(meta)})"
-        elif (
-            est.interval is not None
-            and low is not None
-            and high is not None
-            and (est.interval[1] - est.interval[0] > high - low)
-        ):
+        elif est.interval is not None and est.interval[1] - est.interval[0] > high - low:
             reason = f"the estimate {raw} has a 95 % interval wider than its whole physical range ({bounds_text(meta)})"
         else:
             continue
@@ -324,10 +324,7 @@ class Calibration:
                 out.setdefault("actuation", {})[key] = _short(limit.limit.value)
         put("odometry", "drift_per_m", "odometry.drift_per_m")
         for key, source in NETWORK_SOURCES.items():
-            est = self.values.get(source)
-            low, high = RANDOMIZE_BOUNDS.get(f"network.{key}", (-math.inf, math.inf))
-            if est is not None and est.value is not None and low <= est.value <= high:  # else the simulator's own
-                put("network", key, source)
+            put("network", key, source)  # within their ranges: the estimates are checked (within_physical_ranges)
         ranges = self.randomize_ranges()
         if ranges:
             out["randomize"] = dict(ranges)
@@ -359,7 +356,7 @@ class Calibration:
             half = MIN_RANDOMIZE_HALF_WIDTH * abs(value)
             lo, hi = min(lo, value - half), max(hi, value + half)
             group, name = world_key.split(".")
-            low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key, (-math.inf, math.inf))
+            low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key) or world_bounds(world_key)
             fitted = self.randomization.ranges().get(name) if self.randomization and group == "actuation" else None
             if fitted is not None:  # widened to the spread that the recorded transitions ask for
                 lo, hi = min(lo, fitted[0]), max(hi, fitted[1])

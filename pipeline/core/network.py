@@ -24,7 +24,6 @@ from typing import Literal
 import numpy as np
 
 StaleScan = Literal["hold", "blank"]
-STALE_SCANS: tuple[StaleScan, ...] = ("hold", "blank")
 
 
 def observed_scans(latest: Sequence[np.ndarray], stale: np.ndarray, mode: StaleScan) -> list[np.ndarray]:
@@ -53,10 +52,6 @@ class LinkSettings:
     burst_len: float = 1.0
     delay_s: float = 0.0
     jitter_s: float = 0.0
-
-    @property
-    def ideal(self) -> bool:
-        return self.loss_prob == 0.0 and self.delay_s == 0.0 and self.jitter_s == 0.0
 
 
 class BurstLoss:

@@ -181,8 +181,7 @@ def export_policy(
         max_diff, agreement = 0.0, 1.0
     else:
         world = from_mapping(WorldConfig, meta["world"], f"{where}/{META_FILE}: world")
-        max_diff = command_difference(world, onnx_actions, torch_actions)
-        agreement = 1.0 if max_diff <= tolerance else 0.0
+        max_diff, agreement = command_difference(world, onnx_actions, torch_actions), 1.0
         if max_diff > tolerance:
             raise PolicyError(
                 where,

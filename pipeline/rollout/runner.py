@@ -48,6 +48,10 @@ from pipeline.ros.transport import Transport
 
 __all__ = ["DeployRunner", "odom_sample", "scan_sample", "stale_rows"]
 
+STRAYS_EVERY = 10
+"""Control steps between two look-ups of the writers matched on the fleet's topics (DDS calls per subscription, kept
+off most steps of the control loop); a stray's messages are counted at every step."""
+
 
 def stale_rows(namespaces: list[str], stale: dict[str, str]) -> np.ndarray:
     """(n_robots,) True for the robots whose data is stale: they stand still."""
@@ -192,13 +196,15 @@ class DeployRunner:
                 "same namespaces: stop it, or give the fleet file another network.domain_id (mrl deploy --domain-id)",
             )
 
-    def _clash(self) -> str | None:
-        """A writer this run did not discover, publishing or matched on the fleet's topics: what and where."""
-        foreign, strays = self.link.foreign(), self.link.strays()
-        if not foreign and not strays:
+    def _clash(self, strays: bool) -> str | None:
+        """A writer this run did not discover, publishing on the fleet's topics (or, with `strays`, matched on
+        them): what and where."""
+        foreign = self.link.foreign()
+        strays_seen = self.link.strays() if strays else {}
+        if not foreign and not strays_seen:
             return None
         seen = [f"{n} message(s) on {topic}" for topic, n in sorted(foreign.items())]
-        seen += [f"{n} new writer(s) on {topic}" for topic, n in sorted(strays.items())]
+        seen += [f"{n} new writer(s) on {topic}" for topic, n in sorted(strays_seen.items())]
         return (
             f"a writer this run did not discover is on DDS domain {self.fleet.network.domain_id}: {'; '.join(seen)} "
             "(dropped, never recorded); another robot, twin or run uses the fleet's topics: stop it, or give the "
@@ -316,13 +322,12 @@ class DeployRunner:
         step = 0
         next_t = t_start
         aborted, reason, kind = False, "", ""
-        clash = self._clash()
+        clash = self._clash(strays=True)
         if clash:  # heard between the episodes: no episode of this run may take data from another writer
-            self.log.event(self.clock.now_ns(), episode, 0, "abort", detail=clash)
             self._fatal = DeployAborted(clash, [])
-            self.log.event(self.clock.now_ns(), episode, 0, "end", detail="aborted")
-            self._tally = None
-            return tally.result(self.judge, True, clash, "clash", self.staleness.stale_s(self.clock.now_ns()))
+            cut = self._cut_short(clash, "clash")
+            assert cut is not None  # the tally above is the episode under way
+            return cut
         while True:
             self._step = step
             if not self.clock.sleep_until(next_t):
@@ -333,7 +338,8 @@ class DeployRunner:
             if problem is None and self.emitter.error is not None:
                 problem = f"the emitter failed: {self.emitter.error!r}"
             if problem is None:
-                problem, kind = self._clash(), "clash"
+                # new writers are looked up every STRAYS_EVERY steps; their messages are counted as they arrive
+                problem, kind = self._clash(strays=step % STRAYS_EVERY == 0), "clash"
             if problem:
                 self.emitter.clear()
                 self.log.event(self.clock.now_ns(), episode, step, "abort", detail=problem)

@@ -59,6 +59,19 @@ def twins_of(proc: psutil.Process) -> list[psutil.Process]:
     return [p for p in proc.children(recursive=True) if "pipeline.twin" in " ".join(p.cmdline())]
 
 
+def recording_with_twin(stage: subprocess.Popen, staged: Path, timeout_s: float = 120) -> list[psutil.Process]:
+    """Wait until the deploy `stage` runs its twin and records into `staged`; the twin processes."""
+    runner = psutil.Process(stage.pid)
+    deadline = time.monotonic() + timeout_s
+    twins: list[psutil.Process] = []
+    while time.monotonic() < deadline and not (twins and staged.exists() and staged.stat().st_size > 0):
+        twins = twins or twins_of(runner)
+        assert stage.poll() is None, "the deploy stage ended before it recorded"
+        time.sleep(0.1)
+    assert twins, "the deploy stage never started its twin"
+    return twins
+
+
 def deploy_into(policy: Path, fleet_file: Path, out: Path, episodes: int = 1, **kwargs):
     request = DeployRequest(episodes=episodes, seed=5, recording=out / "session.mcap", progress=False)
     fleet = load_fleet(fleet_file)
@@ -88,15 +101,7 @@ def test_a_killed_runner_takes_its_twin_along_and_the_next_deploy_runs(tiny_poli
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    runner = psutil.Process(stage.pid)
-    staged = tmp_path / "real" / "nominal" / STAGING / "session.mcap"
-    deadline = time.monotonic() + 120
-    twins: list[psutil.Process] = []
-    while time.monotonic() < deadline and not (twins and staged.exists() and staged.stat().st_size > 0):
-        twins = twins or twins_of(runner)
-        assert stage.poll() is None, "the deploy stage ended before it could be killed"
-        time.sleep(0.1)
-    assert twins, "the deploy stage never started its twin"
+    twins = recording_with_twin(stage, tmp_path / "real" / "nominal" / STAGING / "session.mcap")
     time.sleep(2.0)  # mid-episode
     stage.kill()
     stage.wait()
@@ -274,14 +279,7 @@ def test_a_twin_that_dies_mid_episode_is_a_runtime_fault_and_its_episode_counts_
         stderr=subprocess.PIPE,
         text=True,
     )
-    runner = psutil.Process(stage.pid)
-    staged = tmp_path / "real" / "nominal" / STAGING / "session.mcap"
-    deadline = time.monotonic() + 120
-    twins: list[psutil.Process] = []
-    while time.monotonic() < deadline and not (twins and staged.exists() and staged.stat().st_size > 0):
-        twins = twins or twins_of(runner)
-        time.sleep(0.1)
-    assert twins, "the deploy stage never started its twin"
+    twins = recording_with_twin(stage, tmp_path / "real" / "nominal" / STAGING / "session.mcap")
     time.sleep(4.0)  # an episode or two at 2x, and part of the next
     for twin in twins:
         twin.kill()
