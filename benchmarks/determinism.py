@@ -81,7 +81,7 @@ def run_cell(algorithm: str, mode: str, out: Path) -> dict[str, object]:
     eval_cfg = EvalSimConfig(episodes=3, seed=11, record=True, out_dir=str(folder / "eval"))
     results, metrics = evaluate_session(scenario, world, runtime, eval_cfg, folder / "eval", progress=False)
     return {
-        "weights": load_checkpoint(result.checkpoint).meta["weights_sha256"],
+        "weights": load_checkpoint(result.checkpoint).record.weights_sha256,
         "onnx": exported.onnx_sha256,
         "trajectories": _sha(b"".join(np.ascontiguousarray(r.trajectory).tobytes() for r in results)),
         "episodes_csv": _sha((folder / "eval" / "episodes.csv").read_bytes()),

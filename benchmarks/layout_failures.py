@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cli import run_stage
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.judge import goal_fields
 from pipeline.core.layouts import draw_layout
@@ -35,6 +34,7 @@ from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
+from pipeline.stage import run_stage
 
 COLLISION_GAP_M = 0.02
 

@@ -36,7 +36,6 @@ import numpy as np
 import yaml
 
 from pipeline.analysis.timing import timing_figures
-from pipeline.cli import run_stage
 from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
 from pipeline.params import EvalSimConfig, RandomizeConfig
 from pipeline.policy.runtime import PolicyRuntime
@@ -44,6 +43,7 @@ from pipeline.rollout.deployment import DeployRequest, deploy_session
 from pipeline.rollout.sim import evaluate_session
 from pipeline.ros.fleet import fleet_path, load_fleet
 from pipeline.sim import make_world
+from pipeline.stage import run_stage
 
 
 def _line(label: str, metrics: dict[str, float], prefix: str) -> str:

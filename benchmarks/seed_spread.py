@@ -18,7 +18,6 @@ a panel per world.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from dataclasses import dataclass
@@ -32,6 +31,8 @@ import numpy as np
 
 from pipeline.bench.stats import iqm_intervals
 from pipeline.core.stats import mean_interval
+from pipeline.record.errors import RecordError
+from pipeline.record.results import read_session_metrics
 
 WORLD_NAMES = {
     "sim_random": "held-out random layouts",
@@ -51,24 +52,15 @@ class Seed:
 
 def _world_figures(path: Path) -> Seed:
     try:
-        metrics = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise SystemExit(f"{path}: not a readable metrics file ({exc})") from None
-    if not isinstance(metrics, dict):
-        raise SystemExit(f"{path}: expected a JSON object of eval/... figures")
-    missing = [k for k in ("eval/robot_success", "eval/team_success", "eval/collision_rate") if k not in metrics]
-    if missing:
-        raise SystemExit(f"{path}: {', '.join(missing)} missing (every episode aborted, or not an evaluation)")
-    robots = sorted(
-        (k for k in metrics if k.startswith("eval/robot_") and k.endswith("_success") and k != "eval/robot_success"),
-        key=lambda k: int(k.split("_")[1]),
-    )
+        metrics = read_session_metrics(path, "eval")
+    except RecordError as exc:
+        raise SystemExit(str(exc)) from None
     return Seed(
         path.parent,
-        float(metrics["eval/robot_success"]),
-        float(metrics["eval/team_success"]),
-        float(metrics["eval/collision_rate"]),
-        tuple(float(metrics[k]) for k in robots),
+        metrics.robot_success.value,
+        metrics.team_success.value,
+        metrics.collision_rate,
+        metrics.robot_success_each,
     )
 
 

@@ -23,7 +23,6 @@ aborted_calibrated=<%>``.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import subprocess
 import sys
@@ -33,6 +32,8 @@ from typing import Any
 import yaml
 
 from pipeline.core.stats import newcombe_interval
+from pipeline.params import read_calibration_file
+from pipeline.record.results import read_session_metrics
 from pipeline.twin.draw import draw_profile_mapping
 from pipeline.twin.profile import profile_path
 
@@ -50,10 +51,6 @@ def stage(name: str, params: Path, round_name: str | None = None) -> None:
         cmd += ["--round", round_name]
     print(f"sim2real: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
     subprocess.run(cmd, check=True, cwd=ROOT)
-
-
-def metrics(path: Path) -> dict[str, Any]:
-    return dict(json.loads(path.read_text()))
 
 
 def main() -> int:
@@ -128,49 +125,44 @@ def report(spec: str, out: Path, truth: dict[str, Any]) -> None:
     figures = {}
     figures_aborted: dict[str, float] = {}
     for round_name in ("nominal", "calibrated"):
-        real = metrics(out / "real" / round_name / "metrics.json")
-        pr = real["real/robot_success"]
+        real = read_session_metrics(out / "real" / round_name / "metrics.json", "real")
+        pr = real.robot_success.value
         # every episode counts: an aborted one fails the robots that had not arrived
-        n_real = int(real["real/episodes"]) * ROBOTS
-        aborted = int(real["real/aborted_episodes"])
-        stale = ", ".join(
-            f"{k.split('/')[1][: -len('_stale_s')]} {v:.1f} s"
-            for k, v in sorted(real.items())
-            if k.startswith("real/robot_") and k.endswith("_stale_s")
-        )
+        n_real = real.episodes * ROBOTS
+        aborted = real.aborted_episodes
+        stale = ", ".join(f"robot_{i + 1} {v:.1f} s" for i, v in enumerate(real.stale_s_each))
         print(
-            f"{round_name:10s} twin {pr:.3f} [{real['real/robot_success_ci_low']:.3f}, "
-            f"{real['real/robot_success_ci_high']:.3f}] over all {int(real['real/episodes'])} episodes, "
-            f"aborted {aborted} ({100 * aborted / max(int(real['real/episodes']), 1):.1f} %), completed only "
-            f"{real.get('real/robot_success_completed') or float('nan'):.3f}; stale {stale}"
+            f"{round_name:10s} twin {pr:.3f} [{real.robot_success.ci_low:.3f}, "
+            f"{real.robot_success.ci_high:.3f}] over all {real.episodes} episodes, "
+            f"aborted {aborted} ({100 * aborted / max(real.episodes, 1):.1f} %), completed only "
+            f"{real.robot_success_completed.value:.3f}; stale {stale}"
         )
-        figures_aborted[round_name] = aborted / max(int(real["real/episodes"]), 1)
+        figures_aborted[round_name] = aborted / max(real.episodes, 1)
         for folder, label in (("sim", "at the world values"), ("sim_randomized", "under its randomization")):
-            sim = metrics(out / folder / round_name / "metrics.json")
-            ps = sim["eval/robot_success"]
-            n_sim = int(sim["eval/episodes"]) * ROBOTS
+            sim = read_session_metrics(out / folder / round_name / "metrics.json", "eval")
+            ps = sim.robot_success.value
+            n_sim = sim.episodes * ROBOTS
             lo, hi = newcombe_interval(round(ps * n_sim), n_sim, round(pr * n_real), n_real)
             gap = ps - pr
             figures.setdefault(round_name, (pr, gap))  # the headline gap: the simulator at its values
-            sim_ci = f"[{sim['eval/robot_success_ci_low']:.3f}, {sim['eval/robot_success_ci_high']:.3f}]"
+            sim_ci = f"[{sim.robot_success.ci_low:.3f}, {sim.robot_success.ci_high:.3f}]"
             print(
                 f"{'':10s} sim {ps:.3f} {sim_ci} {label:24s}"
                 f"  gap {100 * gap:+.1f} points [{100 * lo:+.1f}, {100 * hi:+.1f}]"
             )
-    cal = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
+    cal = read_calibration_file(out / "calibration" / "calibration.yaml")
     print(f"{'key':30s} {'estimate':>10s} {'truth':>10s} {'rel err':>8s} covered")
-    for group, keys in cal["uncertainty"].items():
-        for key, est in keys.items():
-            t = truth_of(truth, f"{group}.{key}")
-            if t is None:
-                continue
-            if est["status"] != "ok":
-                print(f"{group + '.' + key:30s} {'-':>10s} {t:10.4g}  unidentifiable: {est['reason']}")
-                continue
-            v, (lo, hi) = est["value"], est["interval_95"] or (float("nan"), float("nan"))
-            rel = abs(v - t) / abs(t) if t else float("nan")
-            covered = "-" if est["interval_95"] is None else "yes" if lo <= t <= hi else "no"  # exact: no interval
-            print(f"{group + '.' + key:30s} {v:10.4g} {t:10.4g} {rel:8.3f} {covered}")
+    for key, est in cal.keys.items():
+        t = truth_of(truth, key)
+        if t is None:
+            continue
+        if not est.ok or est.value is None:
+            print(f"{key:30s} {'-':>10s} {t:10.4g}  unidentifiable: {est.reason}")
+            continue
+        v, (lo, hi) = est.value, est.interval_95 or (float("nan"), float("nan"))
+        rel = abs(v - t) / abs(t) if t else float("nan")
+        covered = "-" if est.interval_95 is None else "yes" if lo <= t <= hi else "no"  # exact: no interval
+        print(f"{key:30s} {v:10.4g} {t:10.4g} {rel:8.3f} {covered}")
     nominal, calibrated = figures["nominal"], figures["calibrated"]
     print(
         f"profile={spec} nominal_real={nominal[0]:.3f} calibrated_real={calibrated[0]:.3f} "

@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cli import run_stage
 from pipeline.core.episode import summarize
 from pipeline.params import RandomizeConfig, load_params
 from pipeline.policy.scripted import GoToGoalController, PathFollowingController
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
+from pipeline.stage import run_stage
 
 
 def teachers(sim: MultiRobotSim) -> dict[str, Callable[[np.ndarray], np.ndarray]]:

@@ -18,7 +18,7 @@ from pipeline.core.network import StaleScan
 from pipeline.core.observation import LAYOUTS, LayoutName, ObservationLayout, ObservedPose
 from pipeline.core.scan import Reduction
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
-from pipeline.errors import ConfigError, ConfigProblem
+from pipeline.errors import MISSING, ConfigError, ConfigProblem
 from pipeline.mappings import bounds_text, from_mapping, in_bounds, merge, read_yaml, setting, to_mapping
 
 
@@ -634,20 +634,119 @@ def evaluation_world(params: Params, round_name: str, source: str = "params.yaml
 
 
 CALIBRATION_FILE = "calibration.yaml"
+CALIBRATION_FORMAT = "mrl-calibration/1"
+"""The format tag of calibration.yaml (written by :mod:`pipeline.calibration.output`, read by
+:func:`read_calibration_file`)."""
+
+
+@dataclass(frozen=True)
+class CalibratedKey:
+    """One estimated key of calibration.yaml's ``uncertainty``: ``ok`` with its value, standard error and 95 %
+    interval (None where the value is exact, e.g. a beam count), or why it could not be identified."""
+
+    key: str
+    status: str
+    value: float | None
+    interval_95: tuple[float, float] | None
+    unit: str
+    reason: str
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+@dataclass(frozen=True)
+class CalibrationFile:
+    """calibration.yaml, read and checked: the world overrides training applies, the estimates in the reality
+    profile's keys, each estimated key with its interval, what was left unidentified and why, and the sources."""
+
+    path: str
+    scenario: str
+    world: dict[str, Any]
+    profile: dict[str, Any]
+    keys: dict[str, CalibratedKey]
+    """By dotted profile key (``lidar.rate_hz``, ``map.box_offsets_m[1][1]``)."""
+    unidentified: dict[str, str]
+    speed_limits: dict[str, Any]
+    source: dict[str, Any]
+
+
+def _calibrated_keys(uncertainty: Any) -> tuple[dict[str, CalibratedKey], list[ConfigProblem]]:
+    keys: dict[str, CalibratedKey] = {}
+    problems: list[ConfigProblem] = []
+    if not isinstance(uncertainty, dict):
+        return keys, [ConfigProblem("uncertainty", uncertainty, "a mapping of groups of estimated keys")]
+    for group, entries in uncertainty.items():
+        for name, entry in (entries or {}).items() if isinstance(entries, dict) else ():
+            key = f"{group}.{name}"
+            if not isinstance(entry, dict) or entry.get("status") not in ("ok", "unidentifiable"):
+                problems.append(
+                    ConfigProblem(f"uncertainty.{key}", entry, "a mapping with status ok or unidentifiable")
+                )
+                continue
+            interval = entry.get("interval_95")
+            value = entry.get("value")
+            if entry["status"] == "ok" and not (
+                isinstance(value, (int, float))
+                and (interval is None or (isinstance(interval, list) and len(interval) == 2))
+            ):
+                problems.append(
+                    ConfigProblem(f"uncertainty.{key}", entry, "a value and a two-number interval_95 or null")
+                )
+                continue
+            keys[key] = CalibratedKey(
+                key=key,
+                status=str(entry["status"]),
+                value=None if value is None else float(value),
+                interval_95=None if not interval else (float(interval[0]), float(interval[1])),
+                unit=str(entry.get("unit", "")),
+                reason=str(entry.get("reason", "")),
+            )
+        if not isinstance(entries, dict):
+            problems.append(ConfigProblem(f"uncertainty.{group}", entries, "a mapping of estimated keys"))
+    return keys, problems
+
+
+def read_calibration_file(path: str | Path) -> CalibrationFile:
+    """Read calibration.yaml; ConfigError naming the file and each bad key (another format tag included)."""
+    data = read_yaml(path)
+    where = str(path)
+    if not isinstance(data, dict):
+        raise ConfigError(where, [ConfigProblem("<top>", data, "a mapping (the calibrate stage writes it)")])
+    if data.get("format") != CALIBRATION_FORMAT:
+        raise ConfigError(
+            where,
+            [
+                ConfigProblem(
+                    "format",
+                    data.get("format", MISSING),
+                    f"{CALIBRATION_FORMAT!r}: calibrate again (dvc repro calibrate, or mrl calibrate BAG --out DIR)",
+                )
+            ],
+        )
+    problems: list[ConfigProblem] = []
+    for key in ("world", "profile", "unidentified", "speed_limits", "source"):
+        if not isinstance(data.get(key, {}), dict):
+            problems.append(ConfigProblem(key, data.get(key), "a mapping (the calibrate stage writes it)"))
+    if "world" not in data:
+        problems.append(ConfigProblem("world", MISSING, "a mapping of world settings (the calibrate stage writes it)"))
+    keys, bad_keys = _calibrated_keys(data.get("uncertainty", {}))
+    problems += bad_keys
+    if problems:
+        raise ConfigError(where, problems)
+    return CalibrationFile(
+        path=where,
+        scenario=str(data.get("scenario", "")),
+        world=dict(data["world"]),
+        profile=dict(data.get("profile") or {}),
+        keys=keys,
+        unidentified={str(k): str(v) for k, v in (data.get("unidentified") or {}).items()},
+        speed_limits=dict(data.get("speed_limits") or {}),
+        source=dict(data.get("source") or {}),
+    )
 
 
 def calibrated_world(base: WorldConfig, path: Path) -> WorldConfig:
     """`base` with the ``world`` overrides of a calibration file (written by the calibrate stage)."""
-    data = read_yaml(path)
-    if not isinstance(data, dict) or not isinstance(data.get("world"), dict):
-        raise ConfigError(
-            str(path),
-            [
-                ConfigProblem(
-                    "world",
-                    data if not isinstance(data, dict) else data.get("world"),
-                    "a mapping of world settings (the calibrate stage writes it)",
-                )
-            ],
-        )
-    return world_config(data["world"], base=base, source=str(path))
+    return world_config(read_calibration_file(path).world, base=base, source=str(path))

@@ -7,12 +7,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.cli import deploy_summary, operator_reset, run_stage, stage_arguments
 from pipeline.params import load_params
 from pipeline.policy.runtime import PolicyRuntime
-from pipeline.record.live import live_view
-from pipeline.rollout.deployment import DeployRequest, check_scenario_agrees, deploy_session
+from pipeline.rollout.deployment import check_scenario_agrees
 from pipeline.ros.fleet import load_fleet
+from pipeline.runs import run_deployment
+from pipeline.stage import run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -23,18 +23,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_scenario_agrees(params.world.scenario, args.params, fleet, cfg.fleet)
     runtime = PolicyRuntime(Path(params.export.out_dir) / args.round / "policy")
     out = Path(cfg.out_dir) / args.round
-    request = DeployRequest(
-        episodes=cfg.episodes,
-        seed=cfg.seed,
-        recording=out / "session.mcap",
-        time_scale=cfg.time_scale,
-        profile=cfg.profile,
-        chunk_size_bytes=cfg.chunk_size_bytes,
-        params_text=Path(args.params).read_text(encoding="utf-8"),
-    )
-    with live_view(cfg.live, cfg.live_port, f"deploy ({args.round})") as live:
-        outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset, live=live)
-    print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
+    params_text = Path(args.params).read_text(encoding="utf-8")
+    live_label = f"deploy ({args.round})"
+    run_deployment(runtime, fleet, cfg, out, params_text, live=cfg.live, live_port=cfg.live_port, live_label=live_label)
     return 0
 
 

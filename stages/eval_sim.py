@@ -6,12 +6,13 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.cli import run_stage, stage_arguments
 from pipeline.params import evaluation_world, load_params
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record.live import live_view
 from pipeline.rollout.sim import evaluate_session
+from pipeline.runs import eval_summary
 from pipeline.sim import make_world
+from pipeline.stage import run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -25,12 +26,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         results, metrics = evaluate_session(
             scenario, world, runtime, cfg, out, Path(args.params).read_text(encoding="utf-8"), live=live
         )
-    print(
-        f"eval_sim: robot success {metrics['eval/robot_success']:.3f} "
-        f"[{metrics['eval/robot_success_ci_low']:.3f}, {metrics['eval/robot_success_ci_high']:.3f}], "
-        f"team success {metrics['eval/team_success']:.3f} over {len(results)} episodes "
-        f"({'under the randomization' if cfg.randomized else 'at the world values'}) -> {out}"
-    )
+    conditions = "under the randomization" if cfg.randomized else "at the world values"
+    print(f"eval_sim: {eval_summary(metrics, len(results), out, conditions)}")
     return 0
 
 

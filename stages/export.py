@@ -6,11 +6,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.cli import run_stage, stage_arguments
 from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import CHECKPOINT_DIR
 from pipeline.params import load_params, round_world
 from pipeline.sim import make_world
+from pipeline.stage import run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:

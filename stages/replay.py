@@ -8,10 +8,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.analysis.replay_report import run_replay, write_replay
-from pipeline.cli import ROUNDS, run_stage, stage_arguments
 from pipeline.params import load_params, round_world
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.sim import make_world
+from pipeline.stage import ROUNDS, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -9,8 +9,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline.analysis.report import write_report
-from pipeline.cli import ROUNDS, run_stage, stage_arguments
 from pipeline.params import load_params
+from pipeline.stage import ROUNDS, run_stage, stage_arguments
 
 
 def relink_images(markdown: str, source: Path, target: Path) -> str:

@@ -10,7 +10,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.cli import run_stage, stage_arguments
 from pipeline.core.episode import summarize
 from pipeline.params import load_params, world_config
 from pipeline.policy.scripted import GoToGoalController
@@ -18,6 +17,7 @@ from pipeline.rollout.outputs import write_episodes, write_metrics, write_paths_
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
+from pipeline.stage import run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -6,11 +6,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.cli import run_stage, stage_arguments
 from pipeline.learn.trainer import train
 from pipeline.params import load_params, round_world
 from pipeline.rollout.outputs import write_metrics
 from pipeline.sim import make_world
+from pipeline.stage import run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -18,7 +18,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     params = load_params(args.params)
     scenario, world = make_world(world=round_world(params, args.round, args.params))
     out = Path(params.train.out_dir) / args.round
-    result = train(scenario, world, params.train, out, extra_meta={"round": args.round})
+    result = train(scenario, world, params.train, out, round_name=args.round)
     write_metrics(out / "train_metrics.json", result.metrics())
     converged = result.converged_at_episode
     chosen = (

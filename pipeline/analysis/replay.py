@@ -29,6 +29,7 @@ from pipeline.params import RandomizeConfig, WorldConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC, read_episode_windows
+from pipeline.record.session import session_info
 from pipeline.sim.world import SimWorld
 
 REPLAY_TICK_S = 0.02
@@ -45,7 +46,7 @@ class Agreement:
 
 def check_scenario(log: McapLog, expected: str | None, what: str) -> None:
     """Refuse a recording made in another scenario than `expected` (files without session metadata pass)."""
-    recorded = log.metadata().get("session", {}).get("scenario")
+    recorded = session_info(log.metadata()).scenario
     if expected and recorded and recorded != expected:
         raise ReplayError(f"{log.path}: recorded in scenario {recorded!r}, but {what} is for {expected!r}")
 

@@ -16,12 +16,10 @@ frame of the topic (``map`` for ground truth, ``<ns>/odom`` for odometry), yaw i
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -29,7 +27,7 @@ import polars as pl
 
 from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat, decode
 from pipeline.analysis.errors import AnalysisError
-from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
 from pipeline.messages import topics as T
@@ -38,6 +36,7 @@ from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC as EPISODE_TOPIC  # re-exported: mrl and benchmarks use it
 from pipeline.record.episodes import EpisodeWindow, EventRow, episode_windows
 from pipeline.record.errors import MissingTopicError, TopicTypeError
+from pipeline.record.session import SessionInfo, session_info
 
 PoseKind = Literal["ground_truth", "odom"]
 POSE_TYPES: dict[str, str] = {"ground_truth": T.POSE_STAMPED, "odom": T.ODOMETRY}
@@ -77,20 +76,6 @@ EPISODES_SCHEMA: dict[str, Any] = {
     "salvaged": pl.Boolean,
 }
 """Columns of :func:`episodes_table`, in order."""
-
-
-@dataclass(frozen=True)
-class SessionInfo:
-    """The ``session`` metadata of a recording (empty strings where the file does not say)."""
-
-    world: str
-    scenario: str
-    robots: tuple[str, ...]
-    control_period_s: float | None
-    profile: str
-    policy: str
-    policy_digest: str
-    training_digest: str
 
 
 @dataclass(frozen=True)
@@ -215,38 +200,20 @@ class Recording:
 
     def scenario(self) -> Scenario:
         """The scenario of the session: the recorded ``scenario`` document, else the bundled one it names."""
-        text = self.document("scenario")
         try:
-            if text:
-                return load_scenario(json.loads(text))
-            if self.info.scenario:
-                return load_scenario(self.info.scenario)
+            scenario = self.info.load_scenario()
         except (MrlError, ValueError, TypeError) as exc:
             raise AnalysisError(self.where, f"the recorded scenario cannot be loaded: {exc}") from exc
+        if scenario is not None:
+            return scenario
         raise AnalysisError(self.where, "the recording names no scenario (no 'scenario' metadata)")
 
     def _session_info(self) -> SessionInfo:
-        meta = self._metadata.get("session", {})
-        robots = tuple(r for r in meta.get("robots", "").split(",") if r)
-        if not robots:
-            found = {m.group(1) for topic in self._topics if (m := _ROBOT_TOPIC.match(topic))}
-            robots = tuple(sorted(found))
-        try:
-            period: float | None = float(meta["control_period_s"])
-            if not (period is not None and math.isfinite(period) and period > 0):
-                period = None
-        except (KeyError, ValueError):
-            period = None
-        return SessionInfo(
-            world=meta.get("world", ""),
-            scenario=meta.get("scenario", ""),
-            robots=robots,
-            control_period_s=period,
-            profile=meta.get("profile", ""),
-            policy=meta.get("policy", ""),
-            policy_digest=meta.get("policy_digest", ""),
-            training_digest=meta.get("training_digest", ""),
-        )
+        info = session_info(self._metadata)
+        if info.robots:
+            return info
+        found = {m.group(1) for topic in self._topics if (m := _ROBOT_TOPIC.match(topic))}
+        return replace(info, robots=tuple(sorted(found)))
 
     # -- reading -----------------------------------------------------------------------------
 

@@ -17,6 +17,7 @@ the recordings.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 from collections.abc import Mapping, Sequence
@@ -35,12 +36,13 @@ from pipeline.calibration.localize import OccupancyMap, PoseSource, localize_rob
 from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors, wheel_speeds
 from pipeline.calibration.network import NetworkFit, StampStream, estimate_network, rate_estimate
 from pipeline.calibration.odometry import OdometryEpisode, OdometryFit, estimate_odometry
-from pipeline.calibration.options import CalibrationSettings
+from pipeline.calibration.options import CalibrationSettings, Part
 from pipeline.calibration.randomization import RandomizationFit, fit_randomization
 from pipeline.calibration.raycast import MapGeometry
 from pipeline.calibration.recording import SessionData, read_session
 from pipeline.calibration.smoothing import SmootherNoise, Trajectory, smooth_trajectory
 from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M, WheelFit, estimate_wheels
+from pipeline.core.reality import bounds_of, profile_setting
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.mappings import bounds_text, in_bounds
@@ -67,17 +69,6 @@ PROFILE_KEYS: dict[str, tuple[str, ...]] = {
 
 MIN_RANDOMIZE_HALF_WIDTH = 0.1
 """Training on a calibration draws each identified key within at least +-10 % of its value."""
-RANDOMIZE_BOUNDS: dict[str, tuple[float, float]] = {
-    "lidar.noise_sigma_m": (0.0, 1.0),
-    "lidar.noise_per_m": (0.0, 0.2),
-    "lidar.dropout_prob": (0.0, 0.99),
-    "actuation.delay_s": (0.0, 1.0),
-    "actuation.time_constant_s": (0.005, 2.0),
-    "actuation.linear_gain": (0.01, 5.0),
-    "actuation.angular_gain": (0.01, 5.0),
-    "odometry.drift_per_m": (0.0, 1.0),
-    "actuation.deadband_radps": (0.0, 50.0),
-}
 NETWORK_SOURCES: dict[str, str] = {
     "scan_rate_hz": "lidar.rate_hz",
     "odom_rate_hz": "odometry.rate_hz",
@@ -89,9 +80,8 @@ NETWORK_SOURCES: dict[str, str] = {
 }
 """The simulator's network keys (``world.network``) and the estimates they take: the rates at which scans and odometry
 arrive, how they are lost and jittered, and the robots' clock; the calibrated round trains on them, randomized
-within their intervals (the clock keys, which move only the sensors' stamps, at their values)."""
-"""The simulator's bounds of the randomized keys (pipeline.params), that calibrated ranges are kept inside; keys
-not listed take the bounds of their setting (:func:`world_bounds`)."""
+within their intervals (the clock keys, which move only the sensors' stamps, at their values). Calibrated ranges are
+kept inside the bounds of their simulator setting (:func:`world_bounds`)."""
 
 
 PHYSICAL_KEYS: dict[str, str] = {
@@ -103,8 +93,9 @@ PHYSICAL_KEYS: dict[str, str] = {
     "base.wheel_radius_right_m": "actuation.wheel_radius_m",
     "base.wheel_separation_m": "actuation.wheel_separation_m",
 }
-"""Estimates that become simulator settings, and the setting (``world.<key>``) whose bounds are their physical range
-(``lidar.noise_per_m``, which reads slightly negative where noise does not grow with range, is drawn at 0 instead)."""
+"""Estimates that become simulator settings, and the setting (``world.<key>``) they become: an estimate's physical
+range is the reality profile's bounds of its key within that setting's (:func:`physical_ranges`;
+``lidar.noise_per_m``, which reads slightly negative where noise does not grow with range, is drawn at 0 instead)."""
 
 
 def _setting_meta(world_key: str) -> Mapping[str, Any]:
@@ -114,10 +105,18 @@ def _setting_meta(world_key: str) -> Mapping[str, Any]:
 
 
 def world_bounds(world_key: str) -> tuple[float, float]:
-    """(low, high) of the simulator setting ``world.<world_key>`` (open ends as infinities)."""
-    meta = _setting_meta(world_key)
-    low, high = meta.get("ge", meta.get("gt")), meta.get("le", meta.get("lt"))
-    return (-math.inf if low is None else float(low)), (math.inf if high is None else float(high))
+    """(low, high) of the simulator setting ``world.<world_key>`` (open ends as infinities, an exclusive bound as the
+    nearest float inside it)."""
+    return bounds_of(_setting_meta(world_key))
+
+
+def physical_ranges(key: str, world_key: str) -> list[Mapping[str, Any]]:
+    """The bounds estimate `key` must keep: the reality profile's of the key (what a robot can have) and the simulator
+    setting's it becomes (the setting's alone for a key the profile does not have)."""
+    ranges = [_setting_meta(world_key)]
+    with contextlib.suppress(KeyError):
+        ranges.append(profile_setting(key).metadata)
+    return ranges
 
 
 def within_physical_ranges(values: dict[str, Estimate]) -> dict[str, Estimate]:
@@ -129,13 +128,15 @@ def within_physical_ranges(values: dict[str, Estimate]) -> dict[str, Estimate]:
         est = out.get(key)
         if est is None or not est.ok or est.value is None:
             continue
-        meta = _setting_meta(world_key)
-        low, high = world_bounds(world_key)
+        ranges = physical_ranges(key, world_key)
+        low = max(bounds_of(m)[0] for m in ranges)
+        high = min(bounds_of(m)[1] for m in ranges)
         raw = f"{est.value:.6g} {est.unit}".strip()
-        if not in_bounds(est.value, meta):
-            reason = f"the estimate {raw} lies outside its physical range ({bounds_text(meta)})"
+        allowed = " and ".join(dict.fromkeys(bounds_text(m) for m in ranges))
+        if not all(in_bounds(est.value, m) for m in ranges):
+            reason = f"the estimate {raw} lies outside its physical range ({allowed})"
         elif est.interval is not None and est.interval[1] - est.interval[0] > high - low:
-            reason = f"the estimate {raw} has a 95 % interval wider than its whole physical range ({bounds_text(meta)})"
+            reason = f"the estimate {raw} has a 95 % interval wider than its whole physical range ({allowed})"
         else:
             continue
         out[key] = Estimate.unidentifiable(f"{reason}: the data cannot show it", est.unit, est.n)
@@ -356,7 +357,7 @@ class Calibration:
             half = MIN_RANDOMIZE_HALF_WIDTH * abs(value)
             lo, hi = min(lo, value - half), max(hi, value + half)
             group, name = world_key.split(".")
-            low_bound, high_bound = RANDOMIZE_BOUNDS.get(world_key) or world_bounds(world_key)
+            low_bound, high_bound = world_bounds(world_key)
             fitted = self.randomization.ranges().get(name) if self.randomization and group == "actuation" else None
             if fitted is not None:  # widened to the spread that the recorded transitions ask for
                 lo, hi = min(lo, fitted[0]), max(hi, fitted[1])
@@ -597,12 +598,97 @@ def calibrate(
         raise CalibrationError("<calibrate>", "no recording given")
     parts = tuple(dict.fromkeys(settings.parts))
     rng = np.random.default_rng(settings.seed)
+    read = _read_sessions(paths, parts, settings)
+    tagged = [(f"recording {k}" if len(read.sessions) > 1 else "recording", d) for k, d in enumerate(read.sessions)]
+    data = _gather(tagged, read.pose_sources, parts, settings, read.geometry)
+    values: dict[str, Estimate] = {}
+    found = _Fits()
+    if "lidar" in parts:
+        found.lidar = estimate_lidar(read.geometry, data.spans, settings, rng)
+        values.update(_lidar_values(found.lidar, data))
+        if any(s.kind == "localized" for s in read.pose_sources):
+            values.update(_localized_lidar_values(values, read.sessions))
+    if "actuation" in parts:
+        found.actuation = estimate_actuation(data.tracks, settings, rng)
+        values.update({f"actuation.{key}": getattr(found.actuation, key) for key in PROFILE_KEYS["actuation"]})
+        values = within_physical_ranges(values)
+    if "odometry" in parts:
+        found.wheels, found.odometry = _odometry_fits(values, data, read.sessions, settings)
+    if "odometry" in parts and "actuation" in parts:
+        wheel_episodes = [e for tag, d in tagged for e in _wheel_episodes(tag, d, data.tracks)]
+        found.motors = estimate_motors(wheel_episodes, _odometry_period_s(data.odom_stamps), settings, rng)
+        values["base.deadband_radps"] = found.motors.deadband_radps
+        values["base.max_wheel_accel_radps2"] = found.motors.max_wheel_accel_radps2
+    if "actuation" in parts:
+        found.randomization = _fitted_randomization(values, data.tracks, settings)
+    if "network" in parts:
+        found.network, found.clock = _network_fits(values, data.streams, tagged, read.sessions, settings, rng)
+    for key in ("lidar.rate_hz", "odometry.rate_hz"):
+        if key in values:
+            values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
+    values = within_physical_ranges(values)
+    return Calibration(
+        read.scenario.name,
+        _sources(read.sessions),
+        values,
+        found.lidar,
+        found.actuation,
+        found.odometry,
+        found.network,
+        settings,
+        wheels=found.wheels,
+        clock=found.clock,
+        motors=found.motors,
+        randomization=found.randomization,
+        pose_source=_merged(read.pose_sources),
+    )
+
+
+@dataclass
+class _Sessions:
+    """The recordings as read (poses localized where they come from scans), their scenario and the map's geometry."""
+
+    sessions: list[SessionData]
+    pose_sources: list[PoseSource]
+    scenario: Scenario
+    geometry: MapGeometry
+
+
+@dataclass
+class _Gathered:
+    """What each part's estimator reads, pooled over the recordings."""
+
+    spans: list[ScanSpan] = field(default_factory=list)
+    tracks: list[VelocityTrack] = field(default_factory=list)
+    episodes: list[OdometryEpisode] = field(default_factory=list)
+    streams: list[StampStream] = field(default_factory=list)
+    scan_stamps: list[np.ndarray] = field(default_factory=list)
+    odom_stamps: list[np.ndarray] = field(default_factory=list)
+    beams: list[int] = field(default_factory=list)
+
+
+@dataclass
+class _Fits:
+    """Each part's fit, None where the part was not asked for."""
+
+    lidar: LidarFit | None = None
+    actuation: ActuationFit | None = None
+    odometry: OdometryFit | None = None
+    network: NetworkFit | None = None
+    wheels: WheelFit | None = None
+    clock: ClockFit | None = None
+    motors: MotorFit | None = None
+    randomization: RandomizationFit | None = None
+
+
+def _read_sessions(paths: Sequence[str | Path], parts: tuple[Part, ...], settings: CalibrationSettings) -> _Sessions:
+    """Read every recording (one scenario; poolable, checked before any long work) and localize the ones without
+    motion capture. A map given without a scenario (a building of the user's) stands in for a recording that names
+    none, and the lidar and contacts are fitted against the map's own faces."""
     expected = settings.scenario or None
     sessions: list[SessionData] = []
     scenario: Scenario | None = None
     pose_sources: list[PoseSource] = []
-    # a map given without a scenario (a building of the user's): a stand-in scenario for a recording that names
-    # none, and the lidar and contacts against the map's own faces
     floor = OccupancyMap.from_map_server(settings.map_file) if settings.map_file and not expected else None
     fallback = floor.scenario(f"map {Path(settings.map_file).name}", 1) if floor is not None else None
     for path in paths:
@@ -619,133 +705,158 @@ def calibrate(
             source = PoseSource("ground_truth")
         sessions.append(data)
         pose_sources.append(source)
-    assert scenario is not None
+    if scenario is None:
+        raise CalibrationError("<calibrate>", "no recording given")
     geometry = (
         floor.geometry(float(scenario.radii.max()))
         if floor is not None and scenario is fallback
         else MapGeometry.from_scenario(scenario)
     )
-    spans: list[ScanSpan] = []
-    tracks: list[VelocityTrack] = []
-    episodes: list[OdometryEpisode] = []
-    streams: list[StampStream] = []
-    scan_stamps: list[np.ndarray] = []
-    odom_stamps: list[np.ndarray] = []
-    beams: list[int] = []
-    tagged = [(f"recording {k}" if len(sessions) > 1 else "recording", data) for k, data in enumerate(sessions)]
+    return _Sessions(sessions, pose_sources, scenario, geometry)
+
+
+def _gather(
+    tagged: list[tuple[str, SessionData]],
+    pose_sources: list[PoseSource],
+    parts: tuple[Part, ...],
+    settings: CalibrationSettings,
+    geometry: MapGeometry,
+) -> _Gathered:
+    """The scan spans, velocity tracks, odometry episodes and stamp streams of every recording, for the parts asked."""
+    out = _Gathered()
     for (tag, data), source in zip(tagged, pose_sources, strict=True):
         trajectories = _trajectories(data, settings, source)
         if "lidar" in parts:
-            spans += _scan_spans(tag, data, trajectories, settings)
+            out.spans += _scan_spans(tag, data, trajectories, settings)
             for robot in data.robots:
                 if robot.scans is not None and len(robot.scans.ranges):
-                    beams.append(robot.scans.beams)
-                    scan_stamps.append(robot.scans.time.stamp_ns)
+                    out.beams.append(robot.scans.beams)
+                    out.scan_stamps.append(robot.scans.time.stamp_ns)
         if "actuation" in parts:
-            tracks += _velocity_tracks(tag, data, trajectories, geometry, settings)
+            out.tracks += _velocity_tracks(tag, data, trajectories, geometry, settings)
         if "odometry" in parts:
-            episodes += _odometry_episodes(tag, data, trajectories)
-            odom_stamps += [r.odom.time.stamp_ns for r in data.robots if r.odom is not None]
+            out.episodes += _odometry_episodes(tag, data, trajectories)
+            out.odom_stamps += [r.odom.time.stamp_ns for r in data.robots if r.odom is not None]
         if "network" in parts:
-            streams += _network_streams(tag, data)
+            out.streams += _network_streams(tag, data)
+    return out
+
+
+def _lidar_values(lidar: LidarFit, data: _Gathered) -> dict[str, Estimate]:
+    """The lidar's and the map's keys from the lidar fit, the beam count and the scans' rate."""
     values: dict[str, Estimate] = {}
-    lidar = actuation = odometry = network = wheels = clock = motors = randomization = None
-    if "lidar" in parts:
-        lidar = estimate_lidar(geometry, spans, settings, rng)
-        if beams:
-            counts = np.bincount(beams)
-            values["lidar.beams"] = Estimate.of(
-                float(counts.argmax()), 0.0, None, "beams", "beam count of the scans", len(beams)
-            )
-        else:
-            values["lidar.beams"] = Estimate.unidentifiable("no scan recorded", "beams")
-        values["lidar.rate_hz"] = rate_estimate(scan_stamps)
-        for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"):
-            values[f"lidar.{key}"] = getattr(lidar, key)
-        values["lidar.mount_xy_m[0]"] = lidar.mount_x_m
-        values["lidar.mount_xy_m[1]"] = lidar.mount_y_m
-        values["map.wall_offset_m"] = lidar.wall_offset_m
-        for b, (dx, dy) in enumerate(lidar.box_offsets_m):
-            values[f"map.box_offsets_m[{b}][0]"] = dx
-            values[f"map.box_offsets_m[{b}][1]"] = dy
-        if any(s.kind == "localized" for s in pose_sources):
-            mounts = [r.lidar_mount for d in sessions for r in d.robots]
-            keys = ("lidar.mount_xy_m[0]", "lidar.mount_xy_m[1]", "lidar.mount_yaw_rad")
-            if all(m is not None for m in mounts):
-                # the robot description's mounting, used by the localization: given, not estimated
-                given = np.array(mounts, dtype=np.float64).mean(axis=0)
-                for k, key in enumerate(keys):
-                    v = float(given[k])
-                    values[key] = Estimate.of(v, 0.0, (v, v), values[key].unit, "from /tf_static", len(mounts))
-            else:
-                reason = (
-                    "the poses were localized from the same scans (a mounting offset moves the localized pose with "
-                    "it) and the recording has no /tf_static base_link -> laser transform"
-                )
-                for key in keys:
-                    values[key] = Estimate.unidentifiable(reason, values[key].unit)
-            bias, wall = values["lidar.bias_m"], values["map.wall_offset_m"]
-            total = (
-                f" (together they read {bias.value + wall.value:+.4f} m)"
-                if bias.ok and wall.ok and bias.value is not None and wall.value is not None
-                else ""
-            )
-            reason = (
-                "from poses localized in the map, a range bias and walls standing farther out read the same "
-                f"(the localized pose cannot move away from every wall at once){total}"
-            )
-            for key in ("lidar.bias_m", "map.wall_offset_m"):
-                values[key] = Estimate.unidentifiable(reason, values[key].unit)
-    if "actuation" in parts:
-        actuation = estimate_actuation(tracks, settings, rng)
-        for key in PROFILE_KEYS["actuation"]:
-            values[f"actuation.{key}"] = getattr(actuation, key)
-        values = within_physical_ranges(values)
-    if "odometry" in parts:
-        values["odometry.rate_hz"] = rate_estimate(odom_stamps)
-        wheels = estimate_wheels(episodes, settings)
-        values["base.wheel_radius_left_m"] = wheels.radius_left_m
-        values["base.wheel_radius_right_m"] = wheels.radius_right_m
-        values["base.wheel_separation_m"] = wheels.separation_m
-        # the simulator's odometry misses the unequal wheels' arc by itself: the drift is what it must still draw
-        odometry = estimate_odometry(episodes, settings, arc_per_m(values) or 0.0)
-        inferred = tuple(note for d in sessions for note in d.notes)
-        odometry = replace(odometry, notes=inferred + odometry.notes)
-        values["odometry.drift_per_m"] = odometry.drift_per_m
-    if "odometry" in parts and "actuation" in parts:
-        wheel_episodes = [e for tag, data in tagged for e in _wheel_episodes(tag, data, tracks)]
-        motors = estimate_motors(wheel_episodes, _odometry_period_s(odom_stamps), settings, rng)
-        values["base.deadband_radps"] = motors.deadband_radps
-        values["base.max_wheel_accel_radps2"] = motors.max_wheel_accel_radps2
-    if "actuation" in parts:
-        long_tracks = [t for t in tracks if t.duration_s >= settings.actuation_min_track_s]
-        deadband = values.get("base.deadband_radps")
-        known = deadband is not None and deadband.ok and deadband.value is not None
-        randomization = fit_randomization(
-            long_tracks,
-            values,
-            settings.command_timeout_s,
-            settings.seed,
-            float(deadband.value) if known and deadband is not None and deadband.value is not None else 0.0,
-            arc_per_m(values) or 0.0,
+    if data.beams:
+        counts = np.bincount(data.beams)
+        values["lidar.beams"] = Estimate.of(
+            float(counts.argmax()), 0.0, None, "beams", "beam count of the scans", len(data.beams)
         )
-    if "network" in parts:
-        network = estimate_network(streams, settings, rng)
-        values["network.loss_prob"] = network.loss_prob
-        values["network.jitter_s"] = network.jitter_s
-        values["network.burst_len"] = network.burst_len
-        own = _own_clock_streams(streams)
-        clock = estimate_clock(own, settings, _followed_clocks(tagged, own))
-        values["clock.offset_s"] = _offset_on_followed_clock(clock.offset_s, sessions)
-        values["clock.drift_ppm"] = clock.drift_ppm
-    for key in ("lidar.rate_hz", "odometry.rate_hz"):
-        if key in values:
-            values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
-    values = within_physical_ranges(values)
-    sources = tuple(
+    else:
+        values["lidar.beams"] = Estimate.unidentifiable("no scan recorded", "beams")
+    values["lidar.rate_hz"] = rate_estimate(data.scan_stamps)
+    for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"):
+        values[f"lidar.{key}"] = getattr(lidar, key)
+    values["lidar.mount_xy_m[0]"] = lidar.mount_x_m
+    values["lidar.mount_xy_m[1]"] = lidar.mount_y_m
+    values["map.wall_offset_m"] = lidar.wall_offset_m
+    for b, (dx, dy) in enumerate(lidar.box_offsets_m):
+        values[f"map.box_offsets_m[{b}][0]"] = dx
+        values[f"map.box_offsets_m[{b}][1]"] = dy
+    return values
+
+
+def _localized_lidar_values(values: dict[str, Estimate], sessions: list[SessionData]) -> dict[str, Estimate]:
+    """What poses localized from the same scans cannot tell apart: the mounting (given by /tf_static where the
+    recording has it) and a range bias against walls standing farther out."""
+    out: dict[str, Estimate] = {}
+    mounts = [r.lidar_mount for d in sessions for r in d.robots]
+    keys = ("lidar.mount_xy_m[0]", "lidar.mount_xy_m[1]", "lidar.mount_yaw_rad")
+    if all(m is not None for m in mounts):
+        # the robot description's mounting, used by the localization: given, not estimated
+        given = np.array(mounts, dtype=np.float64).mean(axis=0)
+        for k, key in enumerate(keys):
+            v = float(given[k])
+            out[key] = Estimate.of(v, 0.0, (v, v), values[key].unit, "from /tf_static", len(mounts))
+    else:
+        reason = (
+            "the poses were localized from the same scans (a mounting offset moves the localized pose with "
+            "it) and the recording has no /tf_static base_link -> laser transform"
+        )
+        for key in keys:
+            out[key] = Estimate.unidentifiable(reason, values[key].unit)
+    bias, wall = values["lidar.bias_m"], values["map.wall_offset_m"]
+    total = (
+        f" (together they read {bias.value + wall.value:+.4f} m)"
+        if bias.ok and wall.ok and bias.value is not None and wall.value is not None
+        else ""
+    )
+    reason = (
+        "from poses localized in the map, a range bias and walls standing farther out read the same "
+        f"(the localized pose cannot move away from every wall at once){total}"
+    )
+    for key in ("lidar.bias_m", "map.wall_offset_m"):
+        out[key] = Estimate.unidentifiable(reason, values[key].unit)
+    return out
+
+
+def _odometry_fits(
+    values: dict[str, Estimate], data: _Gathered, sessions: list[SessionData], settings: CalibrationSettings
+) -> tuple[WheelFit, OdometryFit]:
+    """The wheels and the odometry's drift (what the simulator must still draw beyond the unequal wheels' arc), into
+    `values`."""
+    values["odometry.rate_hz"] = rate_estimate(data.odom_stamps)
+    wheels = estimate_wheels(data.episodes, settings)
+    values["base.wheel_radius_left_m"] = wheels.radius_left_m
+    values["base.wheel_radius_right_m"] = wheels.radius_right_m
+    values["base.wheel_separation_m"] = wheels.separation_m
+    odometry = estimate_odometry(data.episodes, settings, arc_per_m(values) or 0.0)
+    inferred = tuple(note for d in sessions for note in d.notes)
+    odometry = replace(odometry, notes=inferred + odometry.notes)
+    values["odometry.drift_per_m"] = odometry.drift_per_m
+    return wheels, odometry
+
+
+def _fitted_randomization(
+    values: dict[str, Estimate], tracks: list[VelocityTrack], settings: CalibrationSettings
+) -> RandomizationFit | None:
+    """The spread of the drive's parameters that the recorded transitions ask for (long tracks only)."""
+    long_tracks = [t for t in tracks if t.duration_s >= settings.actuation_min_track_s]
+    deadband = values.get("base.deadband_radps")
+    known = deadband is not None and deadband.ok and deadband.value is not None
+    return fit_randomization(
+        long_tracks,
+        values,
+        settings.command_timeout_s,
+        settings.seed,
+        float(deadband.value) if known and deadband is not None and deadband.value is not None else 0.0,
+        arc_per_m(values) or 0.0,
+    )
+
+
+def _network_fits(
+    values: dict[str, Estimate],
+    streams: list[StampStream],
+    tagged: list[tuple[str, SessionData]],
+    sessions: list[SessionData],
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+) -> tuple[NetworkFit, ClockFit]:
+    """Loss, bursts and jitter of the robots' messages and their clock, into `values`."""
+    network = estimate_network(streams, settings, rng)
+    values["network.loss_prob"] = network.loss_prob
+    values["network.jitter_s"] = network.jitter_s
+    values["network.burst_len"] = network.burst_len
+    own = _own_clock_streams(streams)
+    clock = estimate_clock(own, settings, _followed_clocks(tagged, own))
+    values["clock.offset_s"] = _offset_on_followed_clock(clock.offset_s, sessions)
+    values["clock.drift_ppm"] = clock.drift_ppm
+    return network, clock
+
+
+def _sources(sessions: list[SessionData]) -> tuple[Source, ...]:
+    return tuple(
         Source(
             str(d.path),
-            dict(d.session),
+            dict(d.session.fields),
             len(d.episodes),
             d.kind,
             tuple(r.name for r in d.robots),
@@ -753,21 +864,6 @@ def calibrate(
             d.salvage,
         )
         for d in sessions
-    )
-    return Calibration(
-        scenario.name,
-        sources,
-        values,
-        lidar,
-        actuation,
-        odometry,
-        network,
-        settings,
-        wheels=wheels,
-        clock=clock,
-        motors=motors,
-        randomization=randomization,
-        pose_source=_merged(pose_sources),
     )
 
 
@@ -829,11 +925,12 @@ def _offset_on_followed_clock(offset: Estimate, sessions: Sequence[SessionData])
     """The clock offset, unless the recorder kept time by a published clock (``/clock``, a time-scaled twin):
     that copy of the robots' time lags by part of its period, so receipt may even precede the sample and the
     one-way bound no longer bounds."""
-    followed = [d for d in sessions if d.session.get("clock") == "ros_clock"]
+    followed = [d for d in sessions if d.session.clock == "ros_clock"]
     if not followed or not offset.ok or offset.value is None:
         return offset
+    rate = followed[0].session.fields.get("clock_rate", "?")
     reason = (
-        f"the recorder followed a published /clock (rate {followed[0].session.get('clock_rate', '?')}), which lags "
+        f"the recorder followed a published /clock (rate {rate}), which lags "
         f"the robots' time by part of its period: one-way stamps put the offset near {offset.value:.3f} s but "
         "cannot bound it (the drift is measured with the copy's own wander taken out)"
     )

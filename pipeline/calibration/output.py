@@ -28,9 +28,9 @@ from pipeline.calibration.calibrate import Calibration, split_key, within_physic
 from pipeline.calibration.errors import CalibrationError
 from pipeline.errors import ConfigError
 from pipeline.mappings import to_mapping
-from pipeline.params import CALIBRATION_FILE, world_config
+from pipeline.params import CALIBRATION_FILE, CALIBRATION_FORMAT, world_config
 
-FORMAT = "mrl-calibration/1"
+FORMAT = CALIBRATION_FORMAT
 REPORT_FILE = "calibration.md"
 
 

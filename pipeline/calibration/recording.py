@@ -25,7 +25,6 @@ motion-capture clocks that are not synchronised with the recorder.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -43,6 +42,7 @@ from pipeline.messages.convert import quaternion_yaw
 from pipeline.record import McapLog
 from pipeline.record import episodes as recorded_episodes
 from pipeline.record.errors import MissingTopicError
+from pipeline.record.session import SessionInfo, session_info
 
 OFFSET_QUANTILE = 2.0
 """Percentile of (log time - stamp) taken as a sensor topic's clock offset (the quickest deliveries)."""
@@ -150,7 +150,7 @@ class SessionData:
     """
 
     path: Path
-    session: dict[str, str]
+    session: SessionInfo
     scenario: Scenario
     robots: tuple[RobotData, ...]
     episodes: tuple[EpisodeWindow, ...]
@@ -167,19 +167,18 @@ class SessionData:
     def kind(self) -> str:
         """What the recording is of: ``sim`` (the simulator), ``twin`` (the hardware twin) or ``real`` (robots, or a
         bag recorded elsewhere)."""
-        if self.session.get("world") == "sim":
+        if self.session.world == "sim":
             return "sim"
-        return "twin" if self.session.get("target") == "twin" else "real"
+        return "twin" if self.session.fields.get("target") == "twin" else "real"
 
     @property
     def windows(self) -> list[tuple[int, int]]:
         return [(e.start_ns, e.end_ns) for e in self.episodes]
 
 
-def _robots(log: McapLog, session: dict[str, str]) -> tuple[str, ...]:
-    robots = tuple(r for r in session.get("robots", "").split(",") if r)
-    if robots:
-        return robots
+def _robots(log: McapLog, session: SessionInfo) -> tuple[str, ...]:
+    if session.robots:
+        return session.robots
     topics = log.topics()
     found = sorted({t.split("/")[1] for t in topics if t.count("/") == 2 and t.endswith("/ground_truth")})
     if not found:
@@ -196,15 +195,8 @@ def recorded_scenario(
     names no scenario uses `expected`, else `fallback` (the stand-in of a map given without a scenario).
     """
     where = str(log.path)
-    meta = log.metadata()
-    text = meta.get("scenario", {}).get("text")
-    name = meta.get("session", {}).get("scenario", "")
-    recorded: Scenario | None = None
     try:
-        if text:
-            recorded = load_scenario(json.loads(text))
-        elif name:
-            recorded = load_scenario(name)
+        recorded = session_info(log.metadata()).load_scenario()
     except (MrlError, ValueError, TypeError) as exc:
         raise CalibrationError(where, f"the recorded scenario cannot be loaded: {exc}") from exc
     wanted: Scenario | None = None
@@ -367,8 +359,7 @@ def read_session(
     p = Path(path)
     where = str(p)
     log = McapLog(p)
-    meta = log.metadata()
-    session = dict(meta.get("session", {}))
+    session = session_info(log.metadata())
     scen = recorded_scenario(log, scenario, fallback)
     robots = _robots(log, session)
     if not robots:
@@ -389,7 +380,7 @@ def read_session(
     if needed:
         uses = sorted({part for parts_ in needed.values() for part in parts_})
         raise MissingTopicError(where, sorted(needed), "the " + ", ".join(uses) + " calibration")
-    if session.get("robots") and len(robots) != scen.n_robots:
+    if session.robots and len(robots) != scen.n_robots:
         raise CalibrationError(
             where, f"the recording has {len(robots)} robots, scenario {scen.name!r} has {scen.n_robots}"
         )
@@ -465,7 +456,7 @@ def read_session(
                 commands=_commands(raw.get(f"/{ns}/cmd_vel")),
             )
         )
-    followed = _followed_clock(log) if session.get("clock") == "ros_clock" and CLOCK_TOPIC in topics else None
+    followed = _followed_clock(log) if session.clock == "ros_clock" and CLOCK_TOPIC in topics else None
     if TF_STATIC_TOPIC in topics:
         statics = _static_transforms(log)
         robot_data = [replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data]

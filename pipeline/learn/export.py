@@ -10,10 +10,9 @@ so any runtime can re-check the file it loaded.
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium
 import numpy as np
@@ -21,15 +20,24 @@ import onnx
 import onnxruntime
 import torch as th
 
-from pipeline.learn.checkpoint import META_FILE, load_checkpoint
+from pipeline.learn.checkpoint import META_FILE, TrainRecord, load_checkpoint
 from pipeline.learn.modes import deterministic_actions
 from pipeline.learn.scaling import BoundsScaling, space_of
-from pipeline.mappings import from_mapping
+from pipeline.mappings import from_mapping, to_mapping
 from pipeline.params import WorldConfig
 from pipeline.policy.errors import PolicyError
 from pipeline.policy.networks import SCALE_CENTER, SCALE_HALF_RANGE, ActionNetwork, action_network
 from pipeline.policy.onnx_graph import INPUT, policy_graph
-from pipeline.policy.spec import FORMAT, GOLDEN_FILE, ONNX_FILE, SPEC_FILE, PolicySpec, write_policy_spec
+from pipeline.policy.spec import (
+    FORMAT,
+    GOLDEN_FILE,
+    ONNX_FILE,
+    SPEC_FILE,
+    GoldenSet,
+    PolicySpec,
+    write_golden,
+    write_policy_spec,
+)
 
 
 @dataclass(frozen=True)
@@ -75,14 +83,13 @@ def _torch_policy(
     return policy
 
 
-def learner_spaces(meta: dict[str, Any]) -> tuple[int, gymnasium.Space[Any]]:
+def learner_spaces(record: TrainRecord) -> tuple[int, gymnasium.Space[Any]]:
     """(input size, action space) of each learner network of a checkpoint description."""
-    n = len(meta["robots"])
-    obs_size = int(meta["observation"]["size"])
-    actions = meta["actions"]
-    discrete = actions["kind"] == "discrete"
-    k = len(actions["discrete_set"])
-    if meta["mode"] == "centralized":
+    n = len(record.robots)
+    obs_size = record.observation.size
+    discrete = record.actions.kind == "discrete"
+    k = len(record.actions.discrete_set)
+    if record.mode == "centralized":
         space: gymnasium.Space[Any] = (
             gymnasium.spaces.Discrete(k**n) if discrete else gymnasium.spaces.Box(-1.0, 1.0, (2 * n,), np.float32)
         )
@@ -91,21 +98,20 @@ def learner_spaces(meta: dict[str, Any]) -> tuple[int, gymnasium.Space[Any]]:
     return obs_size, space
 
 
-def _reference_actions(nets: list[Any], meta: dict[str, Any], obs: np.ndarray) -> np.ndarray:
+def _reference_actions(nets: list[Any], record: TrainRecord, obs: np.ndarray) -> np.ndarray:
     """Per-robot actions (samples, n_robots, 2) or (samples, n_robots) from the torch networks."""
-    actions = meta["actions"]
     return deterministic_actions(
         nets,
-        meta["mode"],
-        len(meta["robots"]),
-        actions["kind"] == "discrete",
-        len(actions["discrete_set"]),
+        record.mode,
+        len(record.robots),
+        record.actions.kind == "discrete",
+        len(record.actions.discrete_set),
         obs,
     )
 
 
-def _check_sizes(networks: list[ActionNetwork], meta: dict[str, Any], where: str) -> None:
-    size, space = learner_spaces(meta)
+def _check_sizes(networks: list[ActionNetwork], record: TrainRecord, where: str) -> None:
+    size, space = learner_spaces(record)
     want_out = int(space.n) if isinstance(space, gymnasium.spaces.Discrete) else int(np.prod(space.shape or (1,)))
     for i, net in enumerate(networks):
         if net.input_size != size or net.output_size != want_out:
@@ -116,7 +122,7 @@ def _check_sizes(networks: list[ActionNetwork], meta: dict[str, Any], where: str
             )
 
 
-GOLDEN_COMPARED = "commands"
+GOLDEN_COMPARED: Literal["commands"] = "commands"
 """golden.json's tolerance is a share of the robots' limits on the decoded commands (older files: raw actions)."""
 COMMAND_TOLERANCE = 1e-3
 """How far the exported graph's commands may be from torch's, as a share of each robot's limit on each channel (0.4
@@ -143,35 +149,35 @@ def export_policy(
     robots' limits (continuous; :func:`command_difference`) or if it picks another action (discrete).
     """
     ckpt = load_checkpoint(checkpoint_dir)
-    meta = ckpt.meta
+    record = ckpt.record
     where = str(checkpoint_dir)
-    discrete = meta["actions"]["kind"] == "discrete"
-    n = len(meta["robots"])
-    obs_size = int(meta["observation"]["size"])
+    discrete = record.actions.kind == "discrete"
+    n = len(record.robots)
+    obs_size = record.observation.size
     networks = [
-        action_network(meta["policy_kind"], {k: v.numpy() for k, v in w.items()}, discrete, f"{where}/learner_{i}.pt")
+        action_network(record.policy_kind, {k: v.numpy() for k, v in w.items()}, discrete, f"{where}/learner_{i}.pt")
         for i, w in enumerate(ckpt.weights)
     ]
-    _check_sizes(networks, meta, where)
+    _check_sizes(networks, record, where)
     golden = np.asarray(golden_obs, dtype=np.float32)
     if golden.ndim != 3 or golden.shape[1:] != (n, obs_size):
         raise PolicyError(where, f"golden observations have shape {golden.shape}, need (samples, {n}, {obs_size})")
     model = policy_graph(
         networks,
-        meta["mode"],
+        record.mode,
         n,
         obs_size,
         discrete,
-        len(meta["actions"]["discrete_set"]),
+        len(record.actions.discrete_set),
         opset=opset,
-        doc=f"{meta['algorithm']} {meta['mode']} policy for {', '.join(meta['robots'])}",
+        doc=f"{record.algorithm} {record.mode} policy for {', '.join(record.robots)}",
     )
     data = model.SerializeToString()
     session = onnxruntime.InferenceSession(data, providers=["CPUExecutionProvider"])
     onnx_actions = np.stack([session.run(None, {INPUT: o})[0] for o in golden])
-    size, space = learner_spaces(meta)
-    torch_nets = [_torch_policy(meta["policy_kind"], w, size, space, list(meta["net_arch"])) for w in ckpt.weights]
-    torch_actions = _reference_actions(torch_nets, meta, golden)
+    size, space = learner_spaces(record)
+    torch_nets = [_torch_policy(record.policy_kind, w, size, space, list(record.net_arch)) for w in ckpt.weights]
+    torch_actions = _reference_actions(torch_nets, record, golden)
     if discrete:
         agree = onnx_actions == torch_actions
         if not agree.all():
@@ -180,8 +186,7 @@ def export_policy(
             )
         max_diff, agreement = 0.0, 1.0
     else:
-        world = from_mapping(WorldConfig, meta["world"], f"{where}/{META_FILE}: world")
-        max_diff, agreement = command_difference(world, onnx_actions, torch_actions), 1.0
+        max_diff, agreement = command_difference(record.world, onnx_actions, torch_actions), 1.0
         if max_diff > tolerance:
             raise PolicyError(
                 where,
@@ -189,45 +194,39 @@ def export_policy(
                 f"(tolerance {tolerance:g}): the graph does not compute the trained network",
             )
     sha = hashlib.sha256(data).hexdigest()
-    spec = policy_spec(meta, sha, opset, f"{where}/{META_FILE}")  # validated before any file is written
+    spec = policy_spec(record, sha, opset, f"{where}/{META_FILE}")  # validated before any file is written
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / ONNX_FILE).write_bytes(data)
-    golden_doc = {
-        "observations": golden.tolist(),
-        "actions": torch_actions.tolist(),
-        "tolerance": tolerance,
-        "compared": GOLDEN_COMPARED,
-    }
-    (out_dir / GOLDEN_FILE).write_text(json.dumps(golden_doc) + "\n", encoding="utf-8")
+    write_golden(GoldenSet(golden, torch_actions, tolerance, GOLDEN_COMPARED), out_dir / GOLDEN_FILE)
     write_policy_spec(spec, out_dir / SPEC_FILE)
     return ExportResult(
         folder=out_dir, onnx_sha256=sha, max_abs_diff=max_diff, golden_samples=len(golden), discrete_agreement=agreement
     )
 
 
-def policy_spec(meta: dict[str, Any], onnx_sha256: str, opset: int, source: str) -> PolicySpec:
-    """The spec of a policy exported from a checkpoint described by `meta`; ConfigError names a bad key."""
+def policy_spec(record: TrainRecord, onnx_sha256: str, opset: int, source: str) -> PolicySpec:
+    """The spec of a policy exported from a checkpoint described by `record`; ConfigError names a bad key."""
     mapping = {
         "format": FORMAT,
         "onnx": {"file": ONNX_FILE, "sha256": onnx_sha256, "opset": opset, "input": INPUT, "output": "action"},
         "golden": GOLDEN_FILE,
-        "algorithm": meta["algorithm"],
-        "mode": meta["mode"],
-        "policy_kind": meta["policy_kind"],
-        "robots": meta["robots"],
-        "observation": meta["observation"],
-        "world": meta["world"],
-        "scenario": meta["scenario"],
+        "algorithm": record.algorithm,
+        "mode": record.mode,
+        "policy_kind": record.policy_kind,
+        "robots": to_mapping(record.robots),
+        "observation": to_mapping(record.observation),
+        "world": to_mapping(record.world),
+        "scenario": to_mapping(record.scenario),
         "training": {
-            "digest": meta["weights_sha256"],
-            "seed": meta["train"]["seed"],
-            "world_steps": meta["world_steps"],
-            "episodes": meta["episodes"],
-            "converged_at_episode": meta["converged_at_episode"],
-            "interrupted": meta["interrupted"],
-            "round": meta.get("round", ""),
+            "digest": record.weights_sha256,
+            "seed": record.train.seed,
+            "world_steps": record.world_steps,
+            "episodes": record.episodes,
+            "converged_at_episode": record.converged_at_episode,
+            "interrupted": record.interrupted,
+            "round": record.round,
         },
-        "versions": {**meta["versions"], "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__},
+        "versions": {**to_mapping(record.versions), "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__},
     }
     return from_mapping(PolicySpec, mapping, source)
 

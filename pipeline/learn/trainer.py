@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,14 @@ from stable_baselines3 import PPO
 from tqdm import tqdm
 
 from pipeline.core.scenario import Scenario
-from pipeline.learn.checkpoint import save_checkpoint
+from pipeline.learn.checkpoint import (
+    TRAIN_FORMAT,
+    ImitationRecord,
+    SelectionRecord,
+    TrainRecord,
+    TrainVersions,
+    save_checkpoint,
+)
 from pipeline.learn.errors import TrainingInterrupted
 from pipeline.learn.imitation import ImitationResult, warm_start
 from pipeline.learn.learners import build_learners
@@ -25,6 +32,8 @@ from pipeline.learn.selection import Selector, greedy_policy
 from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import to_mapping
 from pipeline.params import TrainConfig, WorldConfig
+from pipeline.policy.networks import PolicyKind
+from pipeline.policy.spec import ObservationInput
 
 CHECKPOINT_DIR = "checkpoint"
 CURVE_FILE = "curve.csv"
@@ -75,7 +84,7 @@ class TrainResult:
         return out
 
 
-def policy_kind(cfg: TrainConfig) -> str:
+def policy_kind(cfg: TrainConfig) -> PolicyKind:
     """The network the exporter rebuilds: sac_actor, ppo_actor, dqn or dqn_dueling."""
     if cfg.algorithm == "sac":
         return "sac_actor"
@@ -90,7 +99,7 @@ def train(
     cfg: TrainConfig,
     out_dir: Path,
     progress: bool = True,
-    extra_meta: dict[str, Any] | None = None,
+    round_name: str = "",
     report: Callable[[int, int, float], None] | None = None,
 ) -> TrainResult:
     """Train `cfg.algorithm` in `cfg.mode` on `scenario`; writes the checkpoint and the learning curve to `out_dir`.
@@ -98,8 +107,9 @@ def train(
     With `cfg.selection.keep == "best"` the checkpoint holds the weights that did best in the periodic
     deterministic evaluations (see :mod:`pipeline.learn.selection`), else the final ones.
     On KeyboardInterrupt the current weights are checkpointed and TrainingInterrupted is raised.
-    `report` is called with (episodes, world steps, windowed robot success) at every checkpoint (progress for
-    callers without a terminal, e.g. a sweep's trials).
+    `round_name` is the loop's round recorded in train.json (empty outside the loop). `report` is called with
+    (episodes, world steps, windowed robot success) at every checkpoint (progress for callers without a terminal,
+    e.g. a sweep's trials).
     """
     th.set_num_threads(cfg.torch_threads)
     start = time.perf_counter()
@@ -107,7 +117,7 @@ def train(
         scenario, world, cfg.n_envs, cfg.seed, cfg.start_xy_m, cfg.start_yaw_rad, workers=cfg.world_workers
     )
     try:
-        return _train(scenario, world, cfg, out_dir, worlds, start, progress, extra_meta, report)
+        return _train(scenario, world, cfg, out_dir, worlds, start, progress, round_name, report)
     finally:
         worlds.close()
 
@@ -120,68 +130,12 @@ def _train(
     worlds: VecWorlds,
     start: float,
     progress: bool,
-    extra_meta: dict[str, Any] | None,
+    round_name: str,
     report: Callable[[int, int, float], None] | None,
 ) -> TrainResult:
-    streams = StreamMap(cfg.mode, worlds)
-    learners = build_learners(
-        cfg, streams.observation_space, streams.action_space, streams.n_streams, streams.n_learners
-    )
-    tracker = ConvergenceTracker(scenario.n_robots, cfg.convergence.window_episodes, cfg.convergence.success_threshold)
-    curve = LearningCurve(out_dir / CURVE_FILE, scenario.robot_names)
-    ckpt_dir = out_dir / CHECKPOINT_DIR
-    layout = world.layout()
-    meta: dict[str, Any] = {
-        "algorithm": cfg.algorithm,
-        "mode": cfg.mode,
-        "policy_kind": policy_kind(cfg),
-        "net_arch": list(cfg.net_arch),
-        "robots": list(scenario.robot_names),
-        "observation": {"layout": layout.name, "n_beams": layout.n_beams, "size": layout.size},
-        "actions": to_mapping(world.actions),
-        "scenario": to_mapping(scenario),
-        "world": to_mapping(world),
-        "train": to_mapping(cfg),
-        "versions": {"stable_baselines3": stable_baselines3.__version__, "torch": th.__version__},
-        **(extra_meta or {}),
-    }
-    steps = 0
-    digest = ""
-    selector = Selector(cfg.selection, scenario, world, out_dir)
-    models = [learner.model for learner in learners]
-    greedy = greedy_policy(
-        models, cfg.mode, scenario.n_robots, streams.codec.kind == "discrete", streams.codec.n_discrete
-    )
-    imitation = None
+    run = _TrainingRun(scenario, world, cfg, out_dir, worlds, round_name, report)
     if cfg.imitation.steps > 0:  # ppo only (TrainConfig.check)
-        imitation = warm_start(worlds, streams, [m for m in models if isinstance(m, PPO)], cfg, progress)
-        meta["imitation"] = to_mapping(imitation)
-        if selector.enabled:
-            selector.offer(0, greedy, models)  # the imitated weights compete for export too
-
-    def checkpoint(interrupted: bool = False, final: bool = False) -> str:
-        state = {
-            **meta,
-            "world_steps": steps,
-            "episodes": tracker.episodes,
-            "converged_at_episode": tracker.converged_at,
-            "interrupted": interrupted,
-        }
-        weights = [model.policy.state_dict() for model in models]
-        if final and selector.best is not None:
-            best = selector.best
-            state["selection"] = {
-                "keep": cfg.selection.keep,
-                "evaluations": len(selector.evaluations),
-                "best_at_steps": best.world_steps,
-                "best_robot_success": best.robot_success,
-                "best_team_success": best.team_success,
-            }
-            if selector.best_state is not None:
-                weights = selector.best_state
-        return save_checkpoint(ckpt_dir, state, weights)
-
-    converged_steps: int | None = None
+        run.warm_start(progress)
     bar = tqdm(
         total=cfg.total_steps,
         desc=f"train {cfg.algorithm}/{cfg.mode}",
@@ -190,67 +144,185 @@ def _train(
         mininterval=1.0,
     )
     try:
-        obs = worlds.reset()
-        while steps < cfg.total_steps:
-            per_learner = streams.learner_obs(obs)
-            actions = [learner.act(o) for learner, o in zip(learners, per_learner, strict=True)]
-            result = worlds.step(streams.world_actions(actions))
-            batches = streams.learner_batches(result)
-            steps += worlds.n_worlds
-            for learner, o, a, b in zip(learners, per_learner, actions, batches, strict=True):
-                learner.observe(o, a, b)
-                learner.set_progress(steps / cfg.total_steps)
-                learner.update()
-            for record in result.finished:
-                tracker.update(record.success)
-                curve.add(tracker.episodes, steps, record, float(tracker.rates().mean()))
-                if tracker.converged_at == tracker.episodes:
-                    converged_steps = steps
-                if tracker.episodes % cfg.checkpoint_every_episodes == 0:
-                    curve.flush()
-                    checkpoint()
-                    if report is not None:
-                        report(tracker.episodes, steps, float(tracker.rates().mean()))
-            evaluated = selector.due(steps)
+        run.loop(bar)
+    except KeyboardInterrupt:
+        run.close()
+        bar.close()
+        run.checkpoint(interrupted=True)
+        raise TrainingInterrupted(str(run.ckpt_dir), run.steps) from None
+    run.close()
+    bar.close()
+    digest = run.checkpoint(final=True)
+    return run.result(digest, time.perf_counter() - start)
+
+
+class _TrainingRun:
+    """One training: the learners on their streams of the worlds, the convergence tracker and learning curve, the
+    periodic selection, and the checkpoint's description."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        world: WorldConfig,
+        cfg: TrainConfig,
+        out_dir: Path,
+        worlds: VecWorlds,
+        round_name: str,
+        report: Callable[[int, int, float], None] | None,
+    ) -> None:
+        self.cfg, self.worlds, self.out_dir, self.report = cfg, worlds, out_dir, report
+        self.streams = StreamMap(cfg.mode, worlds)
+        streams = self.streams
+        self.learners = build_learners(
+            cfg, streams.observation_space, streams.action_space, streams.n_streams, streams.n_learners
+        )
+        self.tracker = ConvergenceTracker(
+            scenario.n_robots, cfg.convergence.window_episodes, cfg.convergence.success_threshold
+        )
+        self.curve = LearningCurve(out_dir / CURVE_FILE, scenario.robot_names)
+        self.ckpt_dir = out_dir / CHECKPOINT_DIR
+        self.described = _describe(scenario, world, cfg, round_name)
+        self.steps = 0
+        self.converged_steps: int | None = None
+        self.selector = Selector(cfg.selection, scenario, world, out_dir)
+        self.models = [learner.model for learner in self.learners]
+        self.greedy = greedy_policy(
+            self.models, cfg.mode, scenario.n_robots, streams.codec.kind == "discrete", streams.codec.n_discrete
+        )
+        self.imitation: ImitationResult | None = None
+
+    def warm_start(self, progress: bool) -> None:
+        """Imitate the teacher before the first PPO step; the imitated weights compete for export too."""
+        ppo: list[PPO] = [m for m in self.models if isinstance(m, PPO)]
+        self.imitation = warm_start(self.worlds, self.streams, ppo, self.cfg, progress)
+        self.described = replace(self.described, imitation=ImitationRecord(**to_mapping(self.imitation)))
+        if self.selector.enabled:
+            self.selector.offer(0, self.greedy, self.models)
+
+    def checkpoint(self, interrupted: bool = False, final: bool = False) -> str:
+        """Write the current weights (the final ones: the selected ones where selection keeps the best)."""
+        state = replace(
+            self.described,
+            world_steps=self.steps,
+            episodes=self.tracker.episodes,
+            converged_at_episode=self.tracker.converged_at,
+            interrupted=interrupted,
+        )
+        weights = [model.policy.state_dict() for model in self.models]
+        best = self.selector.best
+        if final and best is not None:
+            selection = SelectionRecord(
+                keep=self.cfg.selection.keep,
+                evaluations=len(self.selector.evaluations),
+                best_at_steps=best.world_steps,
+                best_robot_success=best.robot_success,
+                best_team_success=best.team_success,
+            )
+            state = replace(state, selection=selection)
+            if self.selector.best_state is not None:
+                weights = self.selector.best_state
+        return save_checkpoint(self.ckpt_dir, state, weights)
+
+    def loop(self, bar: tqdm) -> None:
+        """Step the worlds until the budget is spent, training converged (where it stops there) or the selection's
+        evaluation is good enough; the final weights are evaluated too."""
+        cfg, selector = self.cfg, self.selector
+        obs = self.worlds.reset()
+        while self.steps < cfg.total_steps:
+            result = self.step(obs)
+            self.count_episodes(result.finished)
+            evaluated = selector.due(self.steps)
             good_enough = False
             if evaluated:
-                ev = selector.offer(steps, greedy, models)
+                ev = selector.offer(self.steps, self.greedy, self.models)
                 stop_at = cfg.selection.stop_at_success
                 good_enough = stop_at is not None and ev.robot_success >= stop_at - 1e-12
             if result.finished or evaluated:
-                postfix = {"episodes": tracker.episodes, "success": f"{tracker.rates().mean():.2f}"}
-                if selector.best is not None:
-                    postfix["eval_best"] = f"{selector.best.robot_success:.2f}@{selector.best.world_steps}"
-                bar.set_postfix(postfix, refresh=False)
-            bar.update(worlds.n_worlds)
+                self.show(bar)
+            bar.update(self.worlds.n_worlds)
             obs = result.obs
-            if (cfg.convergence.stop and tracker.converged_at is not None) or good_enough:
+            if (cfg.convergence.stop and self.tracker.converged_at is not None) or good_enough:
                 break
-        if selector.enabled and (not selector.evaluations or selector.evaluations[-1].world_steps != steps):
-            selector.offer(steps, greedy, models)  # the final weights compete too
-    except KeyboardInterrupt:
-        curve.close()
-        selector.close()
-        bar.close()
-        checkpoint(interrupted=True)
-        raise TrainingInterrupted(str(ckpt_dir), steps) from None
-    curve.close()
-    selector.close()
-    bar.close()
-    digest = checkpoint(final=True)
-    chosen = selector.best if cfg.selection.keep == "best" else None
-    return TrainResult(
-        checkpoint=ckpt_dir,
-        curve=out_dir / CURVE_FILE,
-        world_steps=steps,
-        episodes=tracker.episodes,
-        converged_at_episode=tracker.converged_at,
-        converged_at_steps=converged_steps,
-        wall_s=time.perf_counter() - start,
-        digest=digest,
-        window_success=tracker.rates(),
-        selected_at_steps=None if chosen is None else chosen.world_steps,
-        selected_robot_success=None if chosen is None else chosen.robot_success,
-        selected_team_success=None if chosen is None else chosen.team_success,
-        imitation=imitation,
+        if selector.enabled and (not selector.evaluations or selector.evaluations[-1].world_steps != self.steps):
+            selector.offer(self.steps, self.greedy, self.models)
+
+    def step(self, obs: Any) -> Any:
+        """One step of every world with the learners' actions; each learner observes its batch and updates."""
+        streams = self.streams
+        per_learner = streams.learner_obs(obs)
+        actions = [learner.act(o) for learner, o in zip(self.learners, per_learner, strict=True)]
+        result = self.worlds.step(streams.world_actions(actions))
+        batches = streams.learner_batches(result)
+        self.steps += self.worlds.n_worlds
+        for learner, o, a, b in zip(self.learners, per_learner, actions, batches, strict=True):
+            learner.observe(o, a, b)
+            learner.set_progress(self.steps / self.cfg.total_steps)
+            learner.update()
+        return result
+
+    def count_episodes(self, finished: Any) -> None:
+        """Track convergence and the learning curve; checkpoint (and report) every few episodes."""
+        tracker = self.tracker
+        for record in finished:
+            tracker.update(record.success)
+            self.curve.add(tracker.episodes, self.steps, record, float(tracker.rates().mean()))
+            if tracker.converged_at == tracker.episodes:
+                self.converged_steps = self.steps
+            if tracker.episodes % self.cfg.checkpoint_every_episodes == 0:
+                self.curve.flush()
+                self.checkpoint()
+                if self.report is not None:
+                    self.report(tracker.episodes, self.steps, float(tracker.rates().mean()))
+
+    def show(self, bar: tqdm) -> None:
+        postfix = {"episodes": self.tracker.episodes, "success": f"{self.tracker.rates().mean():.2f}"}
+        best = self.selector.best
+        if best is not None:
+            postfix["eval_best"] = f"{best.robot_success:.2f}@{best.world_steps}"
+        bar.set_postfix(postfix, refresh=False)
+
+    def close(self) -> None:
+        self.curve.close()
+        self.selector.close()
+
+    def result(self, digest: str, wall_s: float) -> TrainResult:
+        chosen = self.selector.best if self.cfg.selection.keep == "best" else None
+        return TrainResult(
+            checkpoint=self.ckpt_dir,
+            curve=self.out_dir / CURVE_FILE,
+            world_steps=self.steps,
+            episodes=self.tracker.episodes,
+            converged_at_episode=self.tracker.converged_at,
+            converged_at_steps=self.converged_steps,
+            wall_s=wall_s,
+            digest=digest,
+            window_success=self.tracker.rates(),
+            selected_at_steps=None if chosen is None else chosen.world_steps,
+            selected_robot_success=None if chosen is None else chosen.robot_success,
+            selected_team_success=None if chosen is None else chosen.team_success,
+            imitation=self.imitation,
+        )
+
+
+def _describe(scenario: Scenario, world: WorldConfig, cfg: TrainConfig, round_name: str) -> TrainRecord:
+    """train.json before the first step: what is trained, where and how."""
+    layout = world.layout()
+    return TrainRecord(
+        format=TRAIN_FORMAT,
+        algorithm=cfg.algorithm,
+        mode=cfg.mode,
+        policy_kind=policy_kind(cfg),
+        net_arch=tuple(cfg.net_arch),
+        robots=tuple(scenario.robot_names),
+        observation=ObservationInput(layout=layout.name, n_beams=layout.n_beams, size=layout.size),
+        actions=world.actions,
+        scenario=scenario,
+        world=world,
+        train=cfg,
+        versions=TrainVersions(stable_baselines3=stable_baselines3.__version__, torch=th.__version__),
+        world_steps=0,
+        episodes=0,
+        converged_at_episode=None,
+        interrupted=False,
+        round=round_name,
     )

@@ -8,7 +8,6 @@ describes, so the same file gives the same actions everywhere.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,7 @@ import onnxruntime
 from pipeline.core.observation import ObservationLayout
 from pipeline.mappings import to_mapping
 from pipeline.policy.errors import PolicyError, PolicyMismatch
-from pipeline.policy.spec import SPEC_FILE, PolicySpec, read_policy_spec
+from pipeline.policy.spec import SPEC_FILE, PolicySpec, read_golden, read_policy_spec
 
 _OUTPUT_KINDS = {"tensor(float)": "continuous", "tensor(int64)": "discrete"}
 """The kind of actions an ONNX policy's output element type carries."""
@@ -117,14 +116,9 @@ class PolicyRuntime:
     def verify_golden(self) -> int:
         """Re-run the golden set stored with the policy; PolicyError if an action differs. Returns its size."""
         path = self.folder / self.spec.golden
-        try:
-            golden = json.loads(path.read_text(encoding="utf-8"))
-            obs = np.asarray(golden["observations"], dtype=np.float32)
-            expected = np.asarray(golden["actions"])
-            tol = float(golden["tolerance"])
-            on_commands = golden.get("compared", "actions") == "commands"
-        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise PolicyError(str(path), f"missing or malformed golden set ({exc})") from exc
+        golden = read_golden(path)
+        obs, tol, on_commands = golden.observations, golden.tolerance, golden.compared == "commands"
+        expected = golden.actions if self.codec.kind == "continuous" else golden.actions.astype(np.int64)
         want = (len(obs), self.n_robots) + ((2,) if self.codec.kind == "continuous" else ())
         if expected.shape != want:
             raise PolicyError(

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from pipeline.core.observation import LayoutName
 from pipeline.core.scenario import Scenario
 from pipeline.mappings import from_mapping, setting, to_mapping
@@ -146,3 +148,77 @@ def read_policy_spec(path: str | Path) -> PolicySpec:
 def write_policy_spec(spec: PolicySpec, path: str | Path) -> None:
     """Write `spec` as ``policy.json`` (keys sorted, so equal specs give equal bytes)."""
     Path(path).write_text(spec.to_json(), encoding="utf-8")
+
+
+GOLDEN_FORMAT = "mrl-golden/1"
+
+
+@dataclass(frozen=True)
+class GoldenSet:
+    """``golden.json`` beside the policy: observations, the training library's actions for them, and how close the
+    exported graph must come. ``compared``: ``commands`` (a share of the robots' limits on the decoded commands) or
+    ``actions`` (raw actions; files written before the commands were compared, read as such)."""
+
+    observations: np.ndarray
+    """(samples, n_robots, obs_size) float32."""
+    actions: np.ndarray
+    """(samples, n_robots, 2) continuous or (samples, n_robots) discrete."""
+    tolerance: float
+    compared: Literal["commands", "actions"]
+
+    def to_json(self) -> str:
+        return (
+            json.dumps(
+                {
+                    "format": GOLDEN_FORMAT,
+                    "observations": self.observations.tolist(),
+                    "actions": self.actions.tolist(),
+                    "tolerance": self.tolerance,
+                    "compared": self.compared,
+                }
+            )
+            + "\n"
+        )
+
+
+def write_golden(golden: GoldenSet, path: str | Path) -> None:
+    """Write ``golden.json``, the one writer (export)."""
+    Path(path).write_text(golden.to_json(), encoding="utf-8")
+
+
+def read_golden(path: str | Path) -> GoldenSet:
+    """Read ``golden.json``; PolicyError naming the file and what is wrong. Untagged files are the earlier layout of
+    the same keys (``compared`` absent: raw actions)."""
+    p = Path(path)
+    try:
+        data: Any = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PolicyError(str(p), "missing golden set: export the policy again (dvc repro export)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PolicyError(str(p), f"unreadable or not JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise PolicyError(str(p), "not a golden set (expected a JSON object)")
+    fmt = data.get("format", GOLDEN_FORMAT)
+    if fmt != GOLDEN_FORMAT:
+        raise PolicyError(str(p), f"format {fmt!r}; this runtime reads {GOLDEN_FORMAT!r}: export the policy again")
+    unknown = sorted(set(data) - {"format", "observations", "actions", "tolerance", "compared"})
+    if unknown:
+        raise PolicyError(str(p), f"unknown key(s) {unknown}; allowed: observations, actions, tolerance, compared")
+    compared = data.get("compared", "actions")
+    if compared not in ("commands", "actions"):
+        raise PolicyError(str(p), f"compared: {compared!r}; allowed: 'commands', 'actions'")
+    tolerance = data.get("tolerance")
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not 0 <= tolerance < 1:
+        raise PolicyError(str(p), f"tolerance: {tolerance!r}; allowed: a number in [0, 1)")
+    try:
+        obs = np.asarray(data["observations"], dtype=np.float32)
+        actions = np.asarray(data["actions"], dtype=np.float64)
+    except KeyError as exc:
+        raise PolicyError(str(p), f"{exc.args[0]}: missing (observations and actions are required)") from None
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(str(p), f"observations and actions must be rectangular lists of numbers ({exc})") from exc
+    if obs.ndim != 3 or actions.shape[:2] != obs.shape[:2]:
+        raise PolicyError(
+            str(p), f"observations have shape {obs.shape}, actions {actions.shape}: need (samples, robots, ...) both"
+        )
+    return GoldenSet(observations=obs, actions=actions, tolerance=float(tolerance), compared=compared)

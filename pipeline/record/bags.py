@@ -77,6 +77,7 @@ from pipeline.record.errors import (
     UnknownMessageTypeError,
 )
 from pipeline.record.reader import McapLog
+from pipeline.record.session import SESSION_META, session_info
 
 BagFormat = Literal["mcap", "rosbag2-mcap", "rosbag2-sqlite3", "ros1"]
 """Where a bag came from: an MCAP file, a rosbag2 folder (mcap or sqlite3 storage), a ROS 1 bag."""
@@ -84,7 +85,6 @@ KINDS = ("scan", "odom", "cmd_vel", "ground_truth")
 """The per-robot topic kinds of the ROS 2 contract, in the order ``robot_topics`` lists them."""
 DEFAULT_ROBOT = "robot_1"
 """The name of a single robot whose topics carry no namespace."""
-SESSION_META = "session"
 """The metadata record that marks a session recording of this pipeline."""
 
 _MCAP_MAGIC = fmt.MAGIC
@@ -582,7 +582,7 @@ def _session_bag(path: Path, source: _Source, log: McapLog, robots: Sequence[str
     counts = log.message_counts()
     if not sum(counts.values()):
         raise EmptyBagError(where, "the recording holds no messages")
-    recorded = [r for r in log.metadata()[SESSION_META].get("robots", "").split(",") if r]
+    recorded = list(session_info(log.metadata()).robots)
     found = recorded or _robot_namespaces(types)
     if not found:
         raise NoRobotsError(where, "the session recording has no robot topics", types)

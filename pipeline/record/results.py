@@ -17,23 +17,128 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from pipeline.core.episode import EpisodeResult
+from pipeline.core.episode import ABORT_KINDS, EpisodeResult
 from pipeline.record.errors import RecordError
 
 STAGING = ".session.partial"
 """The staging folder inside an output folder (hidden from globs of results)."""
 
 
-def write_metrics(path: Path, metrics: dict[str, float]) -> None:
-    """JSON with NaN written as null (JSON has no NaN)."""
+def write_metrics(path: Path, metrics: Mapping[str, float | None]) -> None:
+    """JSON with NaN written as null (JSON has no NaN). The one writer of metrics.json; :func:`read_session_metrics`
+    reads a session's back."""
     clean = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in metrics.items()}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+
+
+@dataclass(frozen=True)
+class Rate:
+    """A success rate with its 95 % Wilson interval (NaN where no episode counts)."""
+
+    value: float
+    ci_low: float
+    ci_high: float
+
+
+@dataclass(frozen=True)
+class SessionMetrics:
+    """A session's metrics.json (:func:`pipeline.core.episode.summarize` under one world prefix: ``eval``, ``real``,
+    ``scripted``), typed. Rates are over every episode; the ``*_completed`` ones over the episodes not aborted."""
+
+    world: str
+    episodes: int
+    aborted_episodes: int
+    aborted_by_kind: dict[str, int]
+    robot_success: Rate
+    team_success: Rate
+    robot_success_completed: Rate
+    team_success_completed: Rate
+    collision_rate: float
+    mean_time_to_goal_s: float
+    robot_success_each: tuple[float, ...]
+    """Per robot (robot_1, robot_2, ...), over every episode."""
+    stale_s_each: tuple[float, ...]
+    """Seconds each robot stood still for want of fresh data, summed over the session."""
+    values: dict[str, float]
+    """Every figure of the file under its full key (NaN for null), timing figures included."""
+
+    def get(self, key: str) -> float:
+        """The figure ``<world>/<key>`` (NaN when the file does not have it)."""
+        return self.values.get(f"{self.world}/{key}", math.nan)
+
+
+SESSION_METRICS_KEYS = ("episodes", "aborted_episodes", "robot_success", "team_success", "collision_rate")
+"""The keys every session's metrics.json has under its world prefix (older files without the ``*_completed``
+rates, stale seconds or abort kinds read with NaN and zeros there)."""
+
+
+def session_metrics(flat: Mapping[str, Any], source: str, world: str | None = None) -> SessionMetrics:
+    """:class:`SessionMetrics` of flat metrics (a metrics.json's object); RecordError naming `source` and the key."""
+    if not isinstance(flat, Mapping):
+        raise RecordError(source, "not a metrics file (expected a JSON object of <world>/<figure> numbers)")
+    values: dict[str, float] = {}
+    for key, value in flat.items():
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise RecordError(source, f"{key}: {value!r} is not a number or null")
+        values[str(key)] = math.nan if value is None else float(value)
+    if world is None:
+        worlds = sorted({k.split("/")[0] for k in values if k.endswith("/robot_success")})
+        if len(worlds) != 1:
+            raise RecordError(source, f"expected the figures of one session (one <world>/robot_success): {worlds}")
+        world = worlds[0]
+    missing = [f"{world}/{k}" for k in SESSION_METRICS_KEYS if f"{world}/{k}" not in values]
+    if missing:
+        raise RecordError(source, f"{', '.join(missing)} missing: not the metrics of a session of {world!r}")
+
+    def get(key: str, default: float = math.nan) -> float:
+        return values.get(f"{world}/{key}", default)
+
+    def rate(key: str) -> Rate:
+        return Rate(get(key), get(f"{key}_ci_low"), get(f"{key}_ci_high"))
+
+    def each(suffix: str) -> tuple[float, ...]:
+        found = {}
+        for key, value in values.items():
+            name = key[len(world) + 1 :]
+            if key.startswith(f"{world}/robot_") and name.endswith(suffix) and name[6 : -len(suffix)].isdigit():
+                found[int(name[6 : -len(suffix)])] = value
+        return tuple(found[i] for i in sorted(found))
+
+    return SessionMetrics(
+        world=world,
+        episodes=int(get("episodes")),
+        aborted_episodes=int(get("aborted_episodes")),
+        aborted_by_kind={kind: int(get(f"aborted_{kind}", 0.0)) for kind in ABORT_KINDS},
+        robot_success=rate("robot_success"),
+        team_success=rate("team_success"),
+        robot_success_completed=rate("robot_success_completed"),
+        team_success_completed=rate("team_success_completed"),
+        collision_rate=get("collision_rate"),
+        mean_time_to_goal_s=get("mean_time_to_goal_s"),
+        robot_success_each=each("_success"),
+        stale_s_each=each("_stale_s"),
+        values=values,
+    )
+
+
+def read_session_metrics(path: str | Path, world: str | None = None) -> SessionMetrics:
+    """Read a session's metrics.json (eval_sim, scripted_eval, deploy); RecordError naming the file and the key."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise RecordError(str(p), "missing: the session has not been run (or wrote no episode)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RecordError(str(p), f"unreadable or not JSON ({exc})") from exc
+    return session_metrics(data, str(p), world)
 
 
 EPISODES_CSV_COLUMNS = (

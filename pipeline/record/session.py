@@ -18,13 +18,16 @@ across episodes), the deploy clock on the fleet. Header stamps are the sender's.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
 from pipeline.core.scan import ScanGeometry
+from pipeline.core.scenario import Scenario, load_scenario
 from pipeline.messages import convert as C
 from pipeline.messages import fleet_topics, message_store
 from pipeline.messages.topics import TopicSpec
@@ -57,6 +60,74 @@ def session_metadata(
     }
     out.update(extra or {})
     return out
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """The ``session`` metadata record of a recording, read back by :func:`read_session_info` (empty strings and
+    None where the file does not say: a bag recorded by other tools has no such record)."""
+
+    recorded: bool
+    """The file has a ``session`` record (a session recording of this pipeline)."""
+    world: str
+    scenario: str
+    """The scenario's name as the session names it ('' when none)."""
+    scenario_text: str
+    """The recorded ``scenario`` document (JSON text), '' when none."""
+    robots: tuple[str, ...]
+    """The robots in fleet order, as recorded (empty when the file does not name them)."""
+    control_period_s: float | None
+    profile: str
+    policy: str
+    policy_digest: str
+    training_digest: str
+    clock: str
+    """sim | wall | ros_clock (see :func:`clock_metadata`), '' when not recorded."""
+    fields: dict[str, str]
+    """Every key of the record as written."""
+
+    def load_scenario(self) -> Scenario | None:
+        """The recorded scenario document, else the bundled scenario the session names, else None; MrlError,
+        ValueError or TypeError when what is recorded cannot be loaded."""
+        if self.scenario_text:
+            return load_scenario(json.loads(self.scenario_text))
+        if self.scenario:
+            return load_scenario(self.scenario)
+        return None
+
+    def scenario_name(self) -> str:
+        """The scenario the recording names: its scenario document's name, else the session's, else ''."""
+        if self.scenario_text:
+            try:
+                return str(json.loads(self.scenario_text).get("name", "")) or "(a scenario document)"
+            except (ValueError, AttributeError):
+                return "(an unreadable scenario document)"
+        return self.scenario
+
+
+def session_info(metadata: Mapping[str, Mapping[str, str]]) -> SessionInfo:
+    """:class:`SessionInfo` of a recording's metadata records (``McapLog.metadata()``)."""
+    meta = dict(metadata.get(SESSION_META, {}))
+    try:
+        period: float | None = float(meta["control_period_s"])
+    except (KeyError, ValueError):
+        period = None
+    if period is not None and not (math.isfinite(period) and period > 0):
+        period = None
+    return SessionInfo(
+        recorded=SESSION_META in metadata,
+        world=meta.get("world", ""),
+        scenario=meta.get("scenario", ""),
+        scenario_text=metadata.get("scenario", {}).get("text", ""),
+        robots=tuple(r for r in meta.get("robots", "").split(",") if r),
+        control_period_s=period,
+        profile=meta.get("profile", ""),
+        policy=meta.get("policy", ""),
+        policy_digest=meta.get("policy_digest", ""),
+        training_digest=meta.get("training_digest", ""),
+        clock=meta.get("clock", ""),
+        fields=meta,
+    )
 
 
 def clock_metadata(time_scale: float | None) -> dict[str, str]:

@@ -1,4 +1,4 @@
-"""Reality profiles: what the twin's robots, sensors, clocks, room and network are really like.
+"""Reality profile files: what the twin's robots, sensors, clocks, room and network are really like.
 
 The keys (units in the names; those marked * are optional and default to the ideal value)::
 
@@ -25,129 +25,42 @@ them, not where the scenario's map says. Losses come in bursts of ``burst_len`` 
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M, Scenario
+from pipeline.core.reality import (
+    NOMINAL_WHEEL_RADIUS_M,
+    NOMINAL_WHEEL_SEPARATION_M,
+    ActuationProfile,
+    BaseProfile,
+    ClockProfile,
+    LidarProfile,
+    MapProfile,
+    NetworkProfile,
+    OdometryProfile,
+    RealityProfile,
+)
+from pipeline.core.scenario import Scenario
 from pipeline.errors import ConfigError, ConfigProblem
-from pipeline.mappings import from_mapping, read_yaml, setting
+from pipeline.mappings import from_mapping, read_yaml
 
-NOMINAL_WHEEL_RADIUS_M = SPARK_WHEEL_RADIUS_M
-NOMINAL_WHEEL_SEPARATION_M = SPARK_WHEEL_SEPARATION_M
-"""The SPARK's wheels as its driver knows them: odometry integrates encoder ticks with these."""
-
-
-@dataclass(frozen=True)
-class LidarProfile:
-    beams: int = setting(ge=4, le=4096)
-    rate_hz: float = setting(gt=0.0, le=100.0)
-    noise_sigma_m: float = setting(ge=0.0, le=1.0)
-    dropout_prob: float = setting(ge=0.0, lt=1.0)
-    bias_m: float = setting(ge=-0.5, le=0.5)
-    mount_yaw_rad: float = setting(ge=-3.15, le=3.15)
-    noise_per_m: float = setting(0.0, ge=0.0, le=0.2, optional=True)
-    mount_xy_m: tuple[float, ...] = setting((0.0, 0.0), ge=-0.3, le=0.3, min_len=2, max_len=2, optional=True)
-    blocked_sectors_rad: tuple[tuple[float, ...], ...] = setting((), ge=-7.0, le=7.0, optional=True)
-    motion_distortion: bool = setting(False, optional=True)
-
-    def check(self) -> list[tuple[str, object, str]]:
-        bad: list[tuple[str, object, str]] = []
-        for k, sector in enumerate(self.blocked_sectors_rad):
-            where = f"blocked_sectors_rad[{k}]"
-            if len(sector) != 2:
-                bad.append((where, list(sector), "a pair [from, to] of angles (rad)"))
-            elif not sector[0] < sector[1]:
-                bad.append((where, list(sector), "from < to"))
-            elif sector[1] - sector[0] >= 2 * math.pi:
-                bad.append((where, list(sector), "a sector narrower than 2 pi"))
-        return bad
-
-
-@dataclass(frozen=True)
-class ActuationProfile:
-    delay_s: float = setting(ge=0.0, le=1.0)
-    time_constant_s: float = setting(gt=0.0, le=2.0)
-    linear_gain: float = setting(gt=0.0, le=5.0)
-    angular_gain: float = setting(gt=0.0, le=5.0)
-
-
-@dataclass(frozen=True)
-class OdometryProfile:
-    rate_hz: float = setting(gt=0.0, le=1000.0)
-    drift_per_m: float = setting(ge=0.0, le=1.0)
-    encoder_ticks_per_rev: int | None = setting(None, ge=1, le=1_000_000, optional=True)
-    """None: exact wheel angles."""
-
-
-@dataclass(frozen=True)
-class NetworkProfile:
-    loss_prob: float = setting(ge=0.0, lt=1.0)
-    jitter_s: float = setting(ge=0.0, le=1.0)
-    burst_len: float = setting(1.0, ge=1.0, le=1000.0, optional=True)
-
-
-@dataclass(frozen=True)
-class BaseProfile:
-    """The drive base: true wheel radii and separation, mass, motors (lag, deadband, acceleration limit), grip."""
-
-    wheel_radius_left_m: float = setting(NOMINAL_WHEEL_RADIUS_M, gt=0.0, le=0.5, optional=True)
-    wheel_radius_right_m: float = setting(NOMINAL_WHEEL_RADIUS_M, gt=0.0, le=0.5, optional=True)
-    wheel_separation_m: float = setting(NOMINAL_WHEEL_SEPARATION_M, gt=0.0, le=2.0, optional=True)
-    mass_kg: float = setting(5.0, gt=0.0, le=500.0, optional=True)
-    motor_time_constant_s: float = setting(0.0, ge=0.0, le=2.0, optional=True)
-    deadband_radps: float = setting(0.0, ge=0.0, le=50.0, optional=True)
-    max_wheel_accel_radps2: float | None = setting(None, gt=0.0, le=10_000.0, optional=True)
-    friction: float = setting(1.0, gt=0.0, le=5.0, optional=True)
-
-
-@dataclass(frozen=True)
-class ClockProfile:
-    """The robots' clock against the host's: an offset and a rate error."""
-
-    offset_s: float = setting(0.0, ge=-3600.0, le=3600.0, optional=True)
-    drift_ppm: float = setting(0.0, ge=-10_000.0, le=10_000.0, optional=True)
-
-
-@dataclass(frozen=True)
-class MapProfile:
-    """Where the room really is: each box moved by [dx, dy] (in the scenario's box order), walls moved outward."""
-
-    box_offsets_m: tuple[tuple[float, ...], ...] = setting((), ge=-0.5, le=0.5, optional=True)
-    wall_offset_m: float = setting(0.0, ge=-0.3, le=0.3, optional=True)
-
-    def check(self) -> list[tuple[str, object, str]]:
-        return [
-            (f"box_offsets_m[{k}]", list(offset), "a pair [dx, dy] (m)")
-            for k, offset in enumerate(self.box_offsets_m)
-            if len(offset) != 2
-        ]
-
-
-@dataclass(frozen=True)
-class RealityProfile:
-    """What the twin's robots are really like; `name` is the file's stem."""
-
-    lidar: LidarProfile = setting()
-    actuation: ActuationProfile = setting()
-    odometry: OdometryProfile = setting()
-    network: NetworkProfile = setting()
-    base: BaseProfile = setting(BaseProfile(), optional=True)
-    clock: ClockProfile = setting(ClockProfile(), optional=True)
-    map: MapProfile = setting(MapProfile(), optional=True)
-
-    def problems_in(self, n_boxes: int) -> list[tuple[str, object, str]]:
-        """Problems (key, value, allowed) of this profile in a room with `n_boxes` boxes."""
-        if len(self.map.box_offsets_m) > n_boxes:
-            return [
-                (
-                    "map.box_offsets_m",
-                    [list(o) for o in self.map.box_offsets_m],
-                    f"at most one offset per box of the scenario ({n_boxes})",
-                )
-            ]
-        return []
+__all__ = [
+    "NOMINAL_WHEEL_RADIUS_M",
+    "NOMINAL_WHEEL_SEPARATION_M",
+    "ActuationProfile",
+    "BaseProfile",
+    "ClockProfile",
+    "LidarProfile",
+    "MapProfile",
+    "NetworkProfile",
+    "OdometryProfile",
+    "RealityProfile",
+    "bundled_profiles",
+    "load_profile",
+    "load_profile_for",
+    "profile_path",
+]
+"""The schema lives in :mod:`pipeline.core.reality`; this module finds and loads the profile files."""
 
 
 def bundled_profiles() -> tuple[str, ...]:

@@ -68,8 +68,7 @@ def redrawn(checkpoint: Path, folder: Path, seed: int) -> Path:
         }
         for w in ckpt.weights
     ]
-    meta = {k: v for k, v in ckpt.meta.items() if k not in ("n_learners", "weights_sha256")}
-    save_checkpoint(folder, meta, weights)
+    save_checkpoint(folder, ckpt.record, weights)
     return folder
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +9,7 @@ import pytest
 import torch as th
 
 from pipeline.errors import ConfigError
+from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.learn.export import export_policy
 from pipeline.learn.imitation import demonstrate, discounted_returns, imitate
 from pipeline.learn.learners import build_learners
@@ -102,8 +102,8 @@ def test_a_warm_started_training_reports_it_and_repeats_to_the_bit(tmp_path: Pat
     assert a.world_steps == plain.world_steps == cfg.total_steps  # the demonstration is not in the budget
     metrics = a.metrics()
     assert metrics["train/imitation_world_steps"] == 200.0 and metrics["train/imitation_samples"] > 0
-    state = json.loads((tmp_path / "a" / "checkpoint" / "train.json").read_text())
-    assert state["imitation"]["world_steps"] == 200
+    state = load_checkpoint(tmp_path / "a" / "checkpoint").record
+    assert state.imitation is not None and state.imitation.world_steps == 200
     assert "train/imitation_world_steps" not in plain.metrics()
     # the imitated weights are evaluated before PPO's first step, and compete for export
     evaluated = [line.split(",")[0] for line in (tmp_path / "a" / "selection.csv").read_text().splitlines()[1:]]
@@ -124,8 +124,9 @@ def test_with_no_ppo_budget_the_imitated_policy_alone_is_evaluated_and_kept(tmp_
     assert result.world_steps == 0 and result.episodes == 0 and result.selected_at_steps == 0
     rows = (tmp_path / "a" / "selection.csv").read_text().splitlines()[1:]
     assert [row.split(",")[0] for row in rows] == ["0"]
-    state = json.loads((tmp_path / "a" / "checkpoint" / "train.json").read_text())
-    assert state["world_steps"] == 0 and state["imitation"]["world_steps"] == 200 and not state["interrupted"]
+    state = load_checkpoint(tmp_path / "a" / "checkpoint").record
+    assert state.world_steps == 0 and state.imitation is not None and state.imitation.world_steps == 200
+    assert not state.interrupted
     golden = golden_from_sim(scenario, world)
     export_policy(result.checkpoint, tmp_path / "policy", golden, tolerance=1e-5)
     assert PolicyRuntime(tmp_path / "policy").actions(golden[0]).shape == (scenario.n_robots, 2)

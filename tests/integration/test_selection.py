@@ -78,7 +78,7 @@ def test_evaluations_do_not_change_training_and_best_weights_are_exported(tmp_pa
     a, b = load_checkpoint(plain.checkpoint), load_checkpoint(watched.checkpoint)
     for wa, wb in zip(a.weights, b.weights, strict=True):
         assert all(th.equal(wa[k], wb[k]) for k in wa)  # bit for bit: evaluation touched no training state
-    assert watched.selected_at_steps is None and b.meta["selection"]["keep"] == "last"
+    assert watched.selected_at_steps is None and b.record.selection is not None and b.record.selection.keep == "last"
     assert [r["world_steps"] for r in rows(tmp_path / "last" / SELECTION_FILE)] == ["60", "120", "180", "240"]
 
     best = train(scenario, world, tiny_cfg(keep="best", every_steps=60, episodes=2), tmp_path / "best", progress=False)
@@ -117,7 +117,7 @@ def test_training_stops_at_the_first_evaluation_that_reaches_stop_at_success(tmp
     )
     assert stopped.world_steps == 60 and stopped.selected_robot_success == 1.0
     assert [r["world_steps"] for r in rows(tmp_path / "stop" / SELECTION_FILE)] == ["60"]
-    assert load_checkpoint(stopped.checkpoint).meta["world_steps"] == 60
+    assert load_checkpoint(stopped.checkpoint).record.world_steps == 60
 
     # in the reference room an untrained policy never reaches its goals: the whole budget is trained
     scenario, world = make_world(world=world_config({**WORLD, "max_steps": 30}))

@@ -75,7 +75,7 @@ def test_ctrl_c_during_training_keeps_the_last_checkpoint(tmp_path):
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     ckpt = load_checkpoint(meta.parent)
-    assert ckpt.meta["interrupted"] is True and ckpt.meta["world_steps"] > 0
+    assert ckpt.record.interrupted is True and ckpt.record.world_steps > 0
 
 
 def test_ctrl_c_in_a_terminal_reaches_the_world_workers_too_and_training_still_keeps_its_checkpoint(tmp_path):
@@ -107,7 +107,7 @@ def test_ctrl_c_in_a_terminal_reaches_the_world_workers_too_and_training_still_k
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err and "KeyboardInterrupt" not in err
     ckpt = load_checkpoint(meta.parent)
-    assert ckpt.meta["interrupted"] is True and ckpt.meta["world_steps"] > 0
+    assert ckpt.record.interrupted is True and ckpt.record.world_steps > 0
 
 
 def test_ctrl_c_during_sim_evaluation_closes_a_valid_recording(tiny_policy, tmp_path):

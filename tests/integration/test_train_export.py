@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.errors import ConfigError
 from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.learn.errors import CheckpointError
 from pipeline.learn.export import export_policy
@@ -91,7 +92,7 @@ def test_train_then_export_matches_torch(tmp_path: Path, algorithm: str, mode: s
     assert result.episodes >= 1
     ckpt = load_checkpoint(result.checkpoint)
     n_learners = scenario.n_robots if mode == "independent" else 1
-    assert ckpt.meta["n_learners"] == n_learners and len(ckpt.weights) == n_learners
+    assert ckpt.record.n_learners == n_learners and len(ckpt.weights) == n_learners
     curve = (tmp_path / "run" / "curve.csv").read_text().splitlines()
     assert len(curve) == result.episodes + 1
     golden = golden_from_sim(scenario, world)
@@ -193,6 +194,37 @@ def test_export_refuses_missing_or_corrupt_checkpoints(exported, tmp_path: Path)
         export_policy(ckpt, tmp_path / "out", np.zeros((1, 2, 21)))
 
 
+def test_train_json_is_typed_versioned_and_checked_on_read(exported, tmp_path: Path) -> None:
+    """train.json round-trips through its record; an untagged (earlier) file, an unknown key, a mistyped value or
+    robots that are not the scenario's are refused, naming the file and the key, before export writes anything."""
+    import shutil
+
+    root, scenario, _ = exported
+    record = load_checkpoint(root / "run" / "checkpoint").record
+    assert record.format == "mrl-train/1" and record.robots == scenario.robot_names and record.n_learners == 1
+    assert record.train.algorithm == "sac" and record.world.actions == record.actions
+    source = json.loads((root / "run" / "checkpoint" / "train.json").read_text())
+
+    def broken(name: str, change) -> Path:
+        folder = tmp_path / name
+        shutil.copytree(root / "run" / "checkpoint", folder)
+        data = json.loads(json.dumps(source))
+        change(data)
+        (folder / "train.json").write_text(json.dumps(data))
+        return folder
+
+    untagged = broken("untagged", lambda d: d.pop("format"))
+    with pytest.raises(CheckpointError, match=r"train\.json.*earlier version.*train the policy again"):
+        export_policy(untagged, tmp_path / "out", np.zeros((1, 2, 21)))
+    with pytest.raises(ConfigError, match=r"episodez.*unknown key"):
+        load_checkpoint(broken("extra", lambda d: d.update(episodez=3)))
+    with pytest.raises(ConfigError, match=r"world_steps.*an integer"):
+        load_checkpoint(broken("typed", lambda d: d.update(world_steps="many")))
+    with pytest.raises(ConfigError, match=r"robots.*the scenario's robots"):
+        load_checkpoint(broken("robots", lambda d: d.update(robots=["robot_9", "robot_2"])))
+    assert not (tmp_path / "out").exists()
+
+
 def test_export_clips_unbounded_ppo_means_like_the_training_library(tmp_path: Path) -> None:
     """A PPO mean far outside [-1, 1] is clipped by predict(); the ONNX graph must do the same."""
     import torch
@@ -203,8 +235,7 @@ def test_export_clips_unbounded_ppo_means_like_the_training_library(tmp_path: Pa
     result = train(scenario, world, tiny_config(algorithm="ppo", mode="shared"), tmp_path / "run", progress=False)
     ckpt = load_checkpoint(result.checkpoint)
     weights = [{k: (v * 50.0 if k.startswith("action_net") else v) for k, v in w.items()} for w in ckpt.weights]
-    meta = {k: v for k, v in ckpt.meta.items() if k not in ("n_learners", "weights_sha256")}
-    save_checkpoint(tmp_path / "big", meta, weights)
+    save_checkpoint(tmp_path / "big", ckpt.record, weights)
     golden = golden_from_sim(scenario, world)
     export_policy(tmp_path / "big", tmp_path / "policy", golden)
     actions = PolicyRuntime(tmp_path / "policy").actions(golden[3])

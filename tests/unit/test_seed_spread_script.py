@@ -25,6 +25,8 @@ def _seed_folder(folder: Path, worlds: dict[str, tuple[float, float, float]]) ->
     for world, robots in worlds.items():
         (folder / world).mkdir(parents=True)
         metrics = {
+            "eval/episodes": 20.0,
+            "eval/aborted_episodes": 0.0,
             "eval/robot_success": sum(robots) / 3,
             "eval/team_success": min(robots) / 2,
             "eval/collision_rate": 1 - max(robots),
@@ -103,10 +105,12 @@ def test_bad_runs_and_targets_are_refused_before_the_figure_is_written(tmp_path:
     broken = tmp_path / "broken" / "sim_random"
     broken.mkdir(parents=True)
     (broken / "metrics.json").write_text("{not json")
-    with pytest.raises(SystemExit, match=r"broken/sim_random/metrics\.json: not a readable metrics file"):
+    with pytest.raises(SystemExit, match=r"broken/sim_random/metrics\.json: unreadable or not JSON"):
         main(["--run", f"x={broken.parent}", "--out", str(out)])
     (broken / "metrics.json").write_text(json.dumps({"eval/episodes": 3.0, "eval/aborted_episodes": 3.0}))
-    with pytest.raises(SystemExit, match="eval/robot_success, eval/team_success, eval/collision_rate missing"):
+    with pytest.raises(
+        SystemExit, match=r"metrics\.json: eval/robot_success, eval/team_success, eval/collision_rate missing"
+    ):
         main(["--run", f"x={broken.parent}", "--out", str(out)])
     with pytest.raises(SystemExit, match=r"--target 'sim_random=90': expected WORLD=FRACTION"):
         main(["--run", f"x={good}", "--target", "sim_random=90", "--out", str(out)])

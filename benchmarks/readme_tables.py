@@ -1,0 +1,412 @@
+"""The result tables of README.md and docs/, and the figures in their sentences, made from committed result files.
+
+Each block in README.md and docs/world.md between ``<!-- results: NAME -->`` and ``<!-- /results -->`` is written
+by one function below from files under ``benchmarks/results/`` (a folder's ``run.json`` names its command, commit,
+machine and date; the layout, pursuit and first ten-robot folders were recorded before run.json existed, and the
+text around their table gives their commands). Nothing in a block is typed by hand:
+
+    python benchmarks/readme_tables.py            # rewrite the blocks from the result files
+    python benchmarks/readme_tables.py --check    # exit 1 naming every block that differs from its files
+
+``tests/unit/test_readme_tables.py`` runs the check, so a table that disagrees with its result file fails the tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import textwrap
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from pipeline.core.stats import newcombe_interval  # noqa: E402
+from pipeline.params import read_calibration_file  # noqa: E402
+from pipeline.record.results import SessionMetrics, read_session_metrics  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+BLOCK = re.compile(r"(<!-- results: (?P<name>[a-z0-9-]+) -->\n)(?P<body>.*?)(<!-- /results -->)", re.S)
+
+
+def pct(x: float) -> str:
+    """A rate in percent, one decimal ("100 %" and "0 %" at the ends)."""
+    return "100 %" if x >= 1.0 else "0 %" if x <= 0.0 else f"{100 * x:.1f} %"
+
+
+def prose(*parts: str) -> str:
+    """A paragraph wrapped at the README's width (links and numbers are never broken)."""
+    text = "".join(parts).replace(" %", "\x00%")  # "65.0 %" stays on one line
+    return textwrap.fill(text, width=118, break_long_words=False, break_on_hyphens=False).replace("\x00", " ")
+
+
+def interval(rate: Any) -> str:
+    return f"[{100 * rate.ci_low:.1f}, {100 * min(rate.ci_high, 1.0):.1f}]".replace("100.0]", "100]")
+
+
+def rate_text(metrics: SessionMetrics) -> str:
+    return f"{pct(metrics.robot_success.value)} {interval(metrics.robot_success)}"
+
+
+def gap_text(sim: SessionMetrics, real: SessionMetrics, robots: int) -> str:
+    """sim - real robot success in points with its Newcombe 95 % interval (every episode counted)."""
+    n_sim, n_real = sim.episodes * robots, real.episodes * robots
+    k_sim, k_real = round(sim.robot_success.value * n_sim), round(real.robot_success.value * n_real)
+    low, high = newcombe_interval(k_sim, n_sim, k_real, n_real)
+    gap = sim.robot_success.value - real.robot_success.value
+    return f"{100 * gap:+.1f} points [{100 * low:+.1f}, {100 * high:+.1f}]"
+
+
+def aborted_text(metrics: SessionMetrics) -> str:
+    return f"{metrics.aborted_episodes} of {metrics.episodes}"
+
+
+def stale_text(metrics: SessionMetrics) -> str:
+    return ", ".join(f"{s:.1f}" for s in metrics.stale_s_each)
+
+
+def run_of(folder: Path) -> dict[str, Any]:
+    return dict(json.loads((folder / "run.json").read_text(encoding="utf-8")))
+
+
+def loop_lab() -> str:
+    folder = RESULTS / "loop" / "lab"
+    logs = folder / "logs"
+    run = run_of(folder)
+    rows = []
+    for name in ("nominal", "calibrated"):
+        sim = read_session_metrics(logs / "sim" / name / "metrics.json", "eval")
+        real = read_session_metrics(logs / "real" / name / "metrics.json", "real")
+        robots = len(real.robot_success_each)
+        rows.append(
+            f"| {name} | {rate_text(sim)} / {pct(sim.team_success.value)} | {rate_text(real)} / "
+            f"{pct(real.team_success.value)} | {aborted_text(real)} | {gap_text(sim, real, robots)} | "
+            f"{stale_text(real)} |"
+        )
+    cal = read_calibration_file(logs / "calibration" / "calibration.yaml")
+    truth = yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / "lab.yaml").read_text(encoding="utf-8"))
+    replay = json.loads((logs / "replay" / "replay.json").read_text(encoding="utf-8"))
+    calibrated = read_session_metrics(logs / "real" / "calibrated" / "metrics.json", "real")
+    sim_cal = read_session_metrics(logs / "sim" / "calibrated" / "metrics.json", "eval")
+    gap_cal = 100 * (sim_cal.robot_success.value - calibrated.robot_success.value)
+
+    def est(key: str) -> float:
+        value = cal.keys[key].value
+        return float("nan") if value is None else value
+
+    return "\n".join(
+        [
+            prose(
+                f"**The loop on the `lab` twin** (`{run['command']}` with the defaults: PPO, 500 000 steps, one "
+                "network shared by the three robots; 200 sim and 50 twin episodes per round; "
+                "[benchmarks/results/loop/lab/](benchmarks/results/loop/lab/run.json), "
+                f"{run['wall_s']:.0f} s end to end on 2 cores with a low-priority training beside it):"
+            ),
+            "",
+            "| round | sim at its values, robot / team | twin (`lab`, 3x), robot / team | aborted | gap sim - twin "
+            "| stale s per robot (twin) |",
+            "|---|---|---|---|---|---|",
+            *rows,
+            "",
+            prose(
+                "A robot whose scans stop in one of the lab network's loss bursts stands still until fresh data comes "
+                "while the others drive on; only a robot blind for 5 s would abort an episode. The calibration found "
+                f"the network as it is (loss {est('network.loss_prob'):.3f} for {truth['network']['loss_prob']:g}, "
+                f"bursts of {est('network.burst_len'):.1f} for {truth['network']['burst_len']:g}, an "
+                f"{est('lidar.rate_hz'):.1f} Hz lidar, clock drift {est('clock.drift_ppm'):.0f} ppm for "
+                f"{truth['clock']['drift_ppm']:g}) and the calibrated round trained in it: its simulator predicts the "
+                f"twin within {abs(gap_cal):.1f} points. Replaying the nominal deployment's commands open loop, the "
+                f"nominal simulator is {replay['replay/nominal_commands_in_nominal_sim/error_10s_m']:.3f} m off the "
+                "recorded path after 10 s, the calibrated one "
+                f"{replay['replay/nominal_commands_in_calibrated_sim/error_10s_m']:.3f} m "
+                "([replay.md](benchmarks/results/loop/lab/logs/replay/replay.md)).",
+            ),
+        ]
+    )
+
+
+def _curvature_per_m(base: dict[str, float]) -> float:
+    """How far unequal wheels turn a straight command: rad per metre driven."""
+    left, right = base["wheel_radius_left_m"], base["wheel_radius_right_m"]
+    return 2 * (right - left) / (base["wheel_separation_m"] * (right + left))
+
+
+def sim2real() -> str:
+    folder = RESULTS / "sim2real"
+    rows = []
+    notes = []
+    for spec in ("drawn_26", "drawn_79"):
+        base = folder / spec
+        truth = yaml.safe_load((base / "profile.yaml").read_text(encoding="utf-8"))
+        name = spec.replace("_", ":")
+        net = truth["network"]
+        label = (
+            f"{name} ({truth['lidar']['rate_hz']:.1f} Hz lidar, loss {100 * net['loss_prob']:.1f} % in bursts of "
+            f"{net['burst_len']:.1f})"
+        )
+        for round_name in ("nominal", "calibrated"):
+            sim = read_session_metrics(base / "sim" / round_name / "metrics.json", "eval")
+            real = read_session_metrics(base / "real" / round_name / "metrics.json", "real")
+            robots = len(real.robot_success_each)
+            rows.append(
+                f"| {label if round_name == 'nominal' else name} | {round_name} | {rate_text(sim)} | "
+                f"{rate_text(real)} / {pct(real.team_success.value)} | {aborted_text(real)} | "
+                f"{gap_text(sim, real, robots)} |"
+            )
+        cal = read_calibration_file(base / "calibration" / "calibration.yaml")
+        notes.append((name, truth, cal))
+    name, truth, cal = notes[1]
+    nominal = read_session_metrics(folder / "drawn_79" / "real" / "nominal" / "metrics.json", "real")
+    calibrated = read_session_metrics(folder / "drawn_79" / "real" / "calibrated" / "metrics.json", "real")
+    sim_cal = read_session_metrics(folder / "drawn_79" / "sim" / "calibrated" / "metrics.json", "eval")
+    gain = cal.keys["actuation.angular_gain"].value or float("nan")
+    return "\n".join(
+        [
+            prose(
+                "**Realities drawn at random** (`python benchmarks/sim2real.py --profiles drawn:26 drawn:79`: the "
+                "first two drawn profiles whose network loses >= 4 % of its messages in bursts of >= 4, the loop's "
+                "nominal policy, 200 sim and 50 twin episodes per round; "
+                "[benchmarks/results/sim2real/](benchmarks/results/sim2real/summary.txt)):"
+            ),
+            "",
+            "| reality | round | sim at its values | twin, robot / team | aborted | gap sim - twin |",
+            "|---|---|---|---|---|---|",
+            *rows,
+            "",
+            prose(
+                f"The nominal policy reaches {pct(nominal.robot_success.value)} on {name} because its robots are "
+                "outside what the nominal round randomized: unequal wheels that curve a straight command by "
+                f"{_curvature_per_m(truth['base']):+.3f} rad/m (the nominal range is +-0.1) and an angular gain of "
+                f"{truth['actuation']['angular_gain']:.2f} ({gain:.2f} at the body as calibrated; the nominal range "
+                "is 0.8 to 1.1). Calibrated on that reality's own recording, the simulator predicts it within "
+                f"{100 * abs(sim_cal.robot_success.value - calibrated.robot_success.value):.1f} points and the "
+                f"policy reaches {pct(calibrated.robot_success.value)}."
+            ),
+        ]
+    )
+
+
+def ten() -> str:
+    folder = RESULTS / "ten" / "dagger_every_episode" / "s1"
+    logs = folder / "logs" / "benchmarks" / "ten_lab_1x"
+    twin = read_session_metrics(logs / "twin" / "metrics.json", "real")
+    sim = read_session_metrics(logs / "sim_random" / "metrics.json", "eval")
+    summary = (folder / "summary.txt").read_text(encoding="utf-8")
+    timing = re.search(r"tick jitter p99 ([0-9.]+) ms .*send skew p99 ([0-9.]+) ms", summary)
+    if timing is None:
+        raise SystemExit(f"{folder / 'summary.txt'}: no 'twin timing' line")
+    weak = [f"robot_{i + 1}" for i, s in enumerate(twin.robot_success_each) if s <= 0.25]
+    low = min(twin.robot_success_each)
+    high = max(s for s in twin.robot_success_each if s <= 0.25)
+    return prose(
+        "**Ten robots on the `lab` twin at 1x** (the path teacher's student of "
+        f"`benchmarks/settings/ten_dagger.yaml`, seed 1; {twin.episodes} episodes on the same seeds in sim and on the "
+        "twin; "
+        "[benchmarks/results/ten/dagger_every_episode/s1/](benchmarks/results/ten/dagger_every_episode/s1/run.json)):"
+        f" twin {rate_text(twin)} over every episode, {twin.aborted_episodes} aborted (the simulator "
+        f"{rate_text(sim)} on the same seeds; team {pct(twin.team_success.value)} on the twin, "
+        f"{pct(sim.team_success.value)} in sim: on the twin {', '.join(weak)} arrive in "
+        f"{100 * low:.0f} to {100 * high:.0f} % of the episodes); emitter tick jitter p99 "
+        f"{timing.group(1)} ms and cross-robot send skew p99 {timing.group(2)} ms (targets 1 and 0.5 ms)."
+    )
+
+
+def recount() -> str:
+    data = json.loads((RESULTS / "recount.json").read_text(encoding="utf-8"))
+    rows = {Path(r["folder"]).parts[3]: r for r in data["rows"]}
+    ten_row, memory = rows["dagger"], rows["memory5_dropout25"]
+
+    def sentence(row: dict[str, Any]) -> str:
+        completed = row["episodes"] - row["aborted_episodes"]
+        return (
+            f"{pct(row['robot_success'])} [{100 * row['robot_success_ci_low']:.1f}, "
+            f"{100 * row['robot_success_ci_high']:.1f}] over all {row['episodes']:.0f} episodes "
+            f"({pct(row['robot_success_completed_as_reported'])} over the {completed:.0f} completed)"
+        )
+
+    return prose(
+        "**Re-counted with every episode** ([benchmarks/results/recount.json](benchmarks/results/recount.json), from "
+        "the committed episodes of runs made while aborted episodes were left out): the ten-robot student on the lab "
+        f"twin at 1x, {sentence(ten_row)}; the quarter-dropout memory student of seed 3 on random layouts, "
+        f"{sentence(memory)}. Older twin figures in docs/ that name aborted episodes beside them are completed-only "
+        "rates, marked as such there."
+    )
+
+
+LAYOUT_SETTINGS = (
+    ("five DAgger rounds (`layouts_dagger.yaml` as committed)", "dagger5", (1, 2)),
+    ("three rounds, each fit at learning rate 5e-4", "dagger3_lr5e-4", (1, 2)),
+    ("three rounds, previous command observed", "memory3", (1, 2)),
+    ("five rounds, previous command observed (`layouts_memory.yaml`)", "memory5", (1, 2)),
+    ("the same, previous command hidden in half the fit's samples", "memory5_dropout", (1, 2)),
+    ("hidden in a quarter (`layouts_memory_dropout.yaml` as committed)", "memory5_dropout25", (1, 2, 3, 4)),
+)
+
+
+def _recounted(folder: Path) -> dict[str, Any]:
+    rows = json.loads((RESULTS / "recount.json").read_text(encoding="utf-8"))["rows"]
+    wanted = str(folder.relative_to(ROOT))
+    return next(r for r in rows if r["folder"] == wanted)
+
+
+def _timing(summary: Path) -> str:
+    found = dict(re.findall(r"(jitter_p99_ms|skew_p99_ms)=([0-9.]+)", summary.read_text(encoding="utf-8")))
+    return f"tick jitter p99 {float(found['jitter_p99_ms']):.3g} ms, send skew p99 {float(found['skew_p99_ms']):.3g} ms"
+
+
+def _twin_recounted(twin: Path, link: str) -> str:
+    """A twin run made while aborted episodes were left out: its every-episode rate (recount.json) first."""
+    real = read_session_metrics(twin / "metrics.json", "real")
+    again = _recounted(twin)
+    completed = real.robot_success
+    return (
+        f"{pct(again['robot_success'])} [{100 * again['robot_success_ci_low']:.1f}, "
+        f"{100 * again['robot_success_ci_high']:.1f}], team {pct(again['team_success'])} over all "
+        f"{real.episodes} ([recount.json](../benchmarks/results/recount.json)); completed only "
+        f"{pct(completed.value)} {interval(completed)}, team {pct(real.team_success.value)}, "
+        f"{real.aborted_episodes} of {real.episodes} aborted ([twin]({link}/twin/metrics.json))"
+    )
+
+
+def layouts() -> str:
+    rows = [
+        "| setting | seed | held-out layouts, robot [95 % CI], team | its fixed layout | held-out, randomized "
+        "| twin (`lab`) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, name, seeds in LAYOUT_SETTINGS:
+        for seed in seeds:
+            folder = RESULTS / "layouts" / name / f"s{seed}"
+            link = f"../benchmarks/results/layouts/{name}/s{seed}"
+            held = read_session_metrics(folder / "sim_random" / "metrics.json", "eval")
+            fixed = read_session_metrics(folder / "sim_fixed" / "metrics.json", "eval")
+            randomized = read_session_metrics(folder / "sim_random_randomized" / "metrics.json", "eval")
+            twin = "-"
+            if (folder / "twin" / "metrics.json").is_file():
+                sim50 = read_session_metrics(folder / "sim50" / "metrics.json", "eval")
+                twin = (
+                    f"3x, {sim50.episodes} held-out layouts: {_twin_recounted(folder / 'twin', link)}; the simulator "
+                    f"on the same {sim50.episodes} layouts {rate_text(sim50)} ([sim50]({link}/sim50/metrics.json)); "
+                    f"{_timing(folder / 'twin' / 'summary.txt')} ([summary.txt]({link}/twin/summary.txt))"
+                )
+            rows.append(
+                f"| {label} | [s{seed}]({link}/sim_random/metrics.json) | {rate_text(held)}, team "
+                f"{pct(held.team_success.value)} | {rate_text(fixed)}, team {pct(fixed.team_success.value)} | "
+                f"{pct(randomized.robot_success.value)} | {twin} |"
+            )
+    return "\n".join(rows)
+
+
+def scenarios() -> str:
+    pursuit = RESULTS / "pursuit_random" / "imitation_ppo" / "s0"
+    plink = "../benchmarks/results/pursuit_random/imitation_ppo/s0"
+    held = read_session_metrics(pursuit / "sim_random" / "metrics.json", "eval")
+    held_r = read_session_metrics(pursuit / "sim_random_randomized" / "metrics.json", "eval")
+    fixed = read_session_metrics(pursuit / "sim_fixed" / "metrics.json", "eval")
+    ten_old = RESULTS / "ten" / "dagger" / "s1"
+    old = read_session_metrics(ten_old / "sim_random" / "metrics.json", "eval")
+    old_r = read_session_metrics(ten_old / "sim_random_randomized" / "metrics.json", "eval")
+    again = RESULTS / "ten" / "dagger_every_episode" / "s1"
+    logs = again / "logs" / "benchmarks" / "ten_lab_1x"
+    new = read_session_metrics(logs / "sim_random" / "metrics.json", "eval")
+    new_r = read_session_metrics(logs / "sim_random_randomized" / "metrics.json", "eval")
+    twin = read_session_metrics(logs / "twin" / "metrics.json", "real")
+    memory = RESULTS / "ten" / "memory5_dropout25" / "s1"
+    mem = read_session_metrics(memory / "sim_random" / "metrics.json", "eval")
+    mem_r = read_session_metrics(memory / "sim_random_randomized" / "metrics.json", "eval")
+    timing = re.search(
+        r"tick jitter p99 ([0-9.]+) ms .*send skew p99 ([0-9.]+) ms", (again / "summary.txt").read_text()
+    )
+    if timing is None:
+        raise SystemExit(f"{again / 'summary.txt'}: no 'twin timing' line")
+
+    def team_ci(m: SessionMetrics) -> str:
+        return f"{pct(m.team_success.value)} {interval(m.team_success)}"
+
+    collided = "no collision" if old.collision_rate == 0 else f"collision rate {old.collision_rate:.3f}"
+    return "\n".join(
+        [
+            "| scenario, setting | result files | simulator, robot [95 % CI], team | simulator, randomized "
+            "| twin (`lab`) |",
+            "|---|---|---|---|---|",
+            f"| `pursuit_random`, {held.episodes} held-out layouts; imitation of the go-to-goal controller, then PPO, "
+            f"seed 0 | [sim_random]({plink}/sim_random/metrics.json) | robot {rate_text(held)}, team (capture, no "
+            f"robot collided) {team_ci(held)}; collision rate {held.collision_rate:.3f} | robot "
+            f"{pct(held_r.robot_success.value)}, team {team_ci(held_r)} | - |",
+            f"| the same policy on the fixed `pursuit` layout | [sim_fixed]({plink}/sim_fixed/metrics.json) | robot "
+            f"{rate_text(fixed)}, team {team_ci(fixed)}; collision rate {fixed.collision_rate:.3f} | - | - |",
+            f"| `ten`, `ten_dagger.yaml`, seed 1, {old.episodes} sim episodes | "
+            "[dagger/s1](../benchmarks/results/ten/dagger/s1/sim_random/metrics.json) | "
+            f"{rate_text(old)}, team {pct(old.team_success.value)}, {collided}, mean time to goal "
+            f"{old.mean_time_to_goal_s:.1f} s | {rate_text(old_r)} | 1x, "
+            f"{_twin_recounted(ten_old / 'twin', '../benchmarks/results/ten/dagger/s1')}; "
+            f"{_timing(ten_old / 'twin' / 'summary.txt')} "
+            "([summary.txt](../benchmarks/results/ten/dagger/s1/twin/summary.txt)) |",
+            f"| `ten`, `ten_dagger.yaml` trained again, seed 1, {new.episodes} sim episodes, every twin episode "
+            "counted | [run.json](../benchmarks/results/ten/dagger_every_episode/s1/run.json) | "
+            f"{rate_text(new)}, team {pct(new.team_success.value)} | {rate_text(new_r)} | 1x: {rate_text(twin)}, "
+            f"team {pct(twin.team_success.value)}, {twin.aborted_episodes} of {twin.episodes} aborted; tick jitter "
+            f"p99 {timing.group(1)} ms, send skew p99 {timing.group(2)} ms "
+            "([summary.txt](../benchmarks/results/ten/dagger_every_episode/s1/summary.txt)) |",
+            "| `ten`, five rounds with the previous command hidden in a quarter of the samples (`ten_dagger.yaml` "
+            "with `world.observation: rich_memory`, `train.imitation: {rounds: 5, epochs: 16, memory_dropout: "
+            f"0.25}}`), seed 1, {mem.episodes} sim episodes | "
+            "[memory5_dropout25/s1](../benchmarks/results/ten/memory5_dropout25/s1/sim_random/metrics.json) | "
+            f"{rate_text(mem)}, team {pct(mem.team_success.value)} | {rate_text(mem_r)} | - |",
+        ]
+    )
+
+
+BLOCKS: dict[str, Callable[[], str]] = {
+    "loop-lab": loop_lab,
+    "sim2real": sim2real,
+    "ten": ten,
+    "recount": recount,
+    "layouts": layouts,
+    "scenarios": scenarios,
+}
+FILES = (ROOT / "README.md", ROOT / "docs" / "world.md")
+
+
+def regenerate(text: str, where: str) -> tuple[str, list[str]]:
+    """`text` with every results block rewritten; the names of the blocks that changed."""
+    changed: list[str] = []
+    names = [m.group("name") for m in BLOCK.finditer(text)]
+    unknown = sorted(set(names) - set(BLOCKS))
+    if unknown:
+        raise SystemExit(f"{where}: results block(s) {unknown} have no generator; known: {sorted(BLOCKS)}")
+
+    def fill(match: re.Match[str]) -> str:
+        body = BLOCKS[match.group("name")]() + "\n"
+        if body != match.group("body"):
+            changed.append(match.group("name"))
+        return match.group(1) + body + match.group(4)
+
+    return BLOCK.sub(fill, text), changed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="only compare; exit 1 naming the blocks that differ")
+    args = parser.parse_args(argv)
+    stale = []
+    for path in FILES:
+        text = path.read_text(encoding="utf-8")
+        new, changed = regenerate(text, str(path))
+        stale += [f"{path.relative_to(ROOT)}: {name}" for name in changed]
+        if changed and not args.check:
+            path.write_text(new, encoding="utf-8")
+    for line in stale:
+        print(f"{'differs from its result files' if args.check else 'rewritten'}: {line}")
+    return 1 if (stale and args.check) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

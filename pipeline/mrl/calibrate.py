@@ -1,0 +1,137 @@
+"""``mrl calibrate BAG... [--scenario S] [--map FLOOR.yaml] [--initial-pose X,Y,YAW] [--out DIR]``: the calibration
+file and its fit report (poses from motion capture, or localized in the map without it)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import replace
+from typing import Any
+
+from pipeline.mrl.common import BAG_HELP, OPTIONS_SOURCE, add_verb, bag_options, imported, output_folder
+
+NAME = "calibrate"
+
+
+def add_parser(subparsers: Any) -> None:
+    """The ``calibrate`` verb's options."""
+    calibrate = add_verb(
+        subparsers,
+        NAME,
+        "estimate lidar noise, actuation, odometry and network from recordings",
+        "Estimates of the reality profile (lidar, actuation, odometry, network) with uncertainties from\n"
+        "recordings of one scenario, with motion capture or localized in the map from scans and odometry:\n"
+        "calibration.yaml (read by training) and a fit\n"
+        "report (calibration.md with plots) in --out.",
+    )
+    calibrate.add_argument(
+        "bags", nargs="+", metavar="BAG", help=BAG_HELP + "; several of one kind and one fleet are pooled"
+    )
+    calibrate.add_argument(
+        "--pool",
+        action="store_true",
+        help="pool recordings of different kinds (sim, twin, real) or of different robots (refused without it)",
+    )
+    calibrate.add_argument(
+        "--scenario",
+        default="",
+        metavar="S",
+        help="the scenario the robots drove in (a bundled name or a YAML file); needed when the bags name none",
+    )
+    calibrate.add_argument(
+        "--out", default="calibration", metavar="DIR", help="the output folder (default: calibration)"
+    )
+    calibrate.add_argument(
+        "--parts",
+        type=_parts,
+        default=None,
+        metavar="P,...",
+        help="what to estimate, of lidar,actuation,odometry,network (default: all)",
+    )
+    calibrate.add_argument(
+        "--bootstrap",
+        type=int,
+        default=None,
+        metavar="N",
+        help="bootstrap resamples of the uncertainties (default: 200)",
+    )
+    calibrate.add_argument("--seed", type=int, default=None, metavar="N", help="seed of the bootstrap (default: 0)")
+    _pose_options(calibrate)
+    bag_options(calibrate)
+
+
+def _pose_options(calibrate: argparse.ArgumentParser) -> None:
+    """--pose-source, --map and --initial-pose: where the robots' poses come from."""
+    calibrate.add_argument(
+        "--pose-source",
+        choices=("auto", "ground_truth", "scans"),
+        default="auto",
+        help="the robots' poses: motion capture (/<ns>/ground_truth), localization from scans and odometry "
+        "against the map, or auto (ground truth where every robot has it; default)",
+    )
+    calibrate.add_argument(
+        "--map",
+        default=None,
+        metavar="FLOOR.yaml",
+        help="a ROS map_server map (YAML + image) to localize in (default: the scenario's walls and boxes)",
+    )
+    calibrate.add_argument(
+        "--initial-pose",
+        type=_pose,
+        default=None,
+        metavar="X,Y,YAW",
+        help="where the (single) robot starts, for localization (default: global localization)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Calibrate from the bags, write calibration.yaml and its report, print what could not be identified."""
+    from pipeline.calibration import PARTS, calibrate, calibration_settings, write_calibration
+
+    output_folder(args.out)
+    options: dict[str, Any] = {"parts": list(args.parts or PARTS), "scenario": args.scenario}
+    options.update({k: v for k, v in (("bootstrap", args.bootstrap), ("seed", args.seed)) if v is not None})
+    options.update(
+        {
+            "pose_source": args.pose_source,
+            "map_file": args.map or "",
+            "initial_pose": args.initial_pose or [],
+            "pool": args.pool,
+        }
+    )
+    settings = calibration_settings(options, source=OPTIONS_SOURCE)
+    with imported(args, args.bags) as bags:
+        calibration = calibrate([bag.path for bag in bags], settings)
+        given = {str(bag.path): str(bag.source) for bag in bags}
+        sources = tuple(replace(s, path=given.get(s.path, s.path)) for s in calibration.sources)
+        path = write_calibration(replace(calibration, sources=sources), args.out)
+    for key, reason in calibration.unidentified().items():
+        print(f"calibrate: {key} unidentifiable: {reason}")
+    for limit in calibration.speed_limits():
+        print(f"calibrate: {limit.sentence()}")
+    poses = calibration.pose_source
+    if poses.kind == "localized":
+        print(f"calibrate: poses localized from scans and odometry in the {poses.map}, match score "
+              f"{poses.median_score:.2f} (fraction of scan endpoints on the map)")  # fmt: skip
+    print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
+    return 0
+
+
+def _parts(text: str) -> list[str]:
+    from pipeline.calibration import PARTS
+
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    bad = [p for p in parts if p not in PARTS]
+    if bad or not parts:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected some of {','.join(PARTS)} separated by commas")
+    return parts
+
+
+def _pose(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected x,y,yaw (metres, metres, radians)")
+    return values

@@ -1,0 +1,102 @@
+"""How a run is built and reported, once for the dvc stages and the ``mrl`` verbs: the deployment request, a
+deployment with its live view, and the summary lines of a deployment and of a simulated evaluation.
+
+The stages take their settings from params.yaml, the verbs from their options; both end up in the same config
+classes (:mod:`pipeline.params`) and pass them here. Nothing here imports the simulator: a deployment runs without it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pipeline.core.episode import ABORT_KINDS
+from pipeline.record.live import live_view
+from pipeline.rollout.deployment import DeployRequest, deploy_session
+
+if TYPE_CHECKING:
+    from pipeline.params import DeployConfig
+    from pipeline.policy.runtime import PolicyRuntime
+    from pipeline.rollout.deployment import DeploymentOutcome
+    from pipeline.ros.fleet import Fleet
+
+
+def operator_reset(episode: int) -> None:
+    """Ask the operator to put the robots at their start poses (the deploy runner's reset on real fleets)."""
+    input(f"deploy: put every robot at its start pose for episode {episode}, then press Enter ")
+
+
+def deploy_request(cfg: DeployConfig, out: Path, params_text: str | None = None) -> DeployRequest:
+    """The session settings of `cfg`, recorded to `out`/session.mcap with `params_text` (the params file) if given."""
+    return DeployRequest(
+        episodes=cfg.episodes,
+        seed=cfg.seed,
+        recording=out / "session.mcap",
+        time_scale=cfg.time_scale,
+        profile=cfg.profile,
+        chunk_size_bytes=cfg.chunk_size_bytes,
+        params_text=params_text or "",
+    )
+
+
+def run_deployment(
+    runtime: PolicyRuntime,
+    fleet: Fleet,
+    cfg: DeployConfig,
+    out: Path,
+    params_text: str | None = None,
+    *,
+    live: bool,
+    live_port: int,
+    live_label: str,
+) -> DeploymentOutcome:
+    """A deployment of `runtime` on `fleet` into `out` (served live when `live`), its summary printed."""
+    request = deploy_request(cfg, out, params_text)
+    with live_view(live, live_port, live_label) as view:
+        outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset, live=view)
+    print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
+    return outcome
+
+
+def eval_summary(metrics: Mapping[str, float], episodes: int, out: Path, conditions: str = "") -> str:
+    """A line on a finished evaluation: robot success with its 95 % interval, team success, where it went."""
+    where = f" ({conditions})" if conditions else ""
+    return (
+        f"robot success {metrics['eval/robot_success']:.3f} "
+        f"[{metrics['eval/robot_success_ci_low']:.3f}, {metrics['eval/robot_success_ci_high']:.3f}], "
+        f"team success {metrics['eval/team_success']:.3f} over {episodes} episodes{where} -> {out}"
+    )
+
+
+def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
+    """Lines on a finished deployment: success over every episode with 95 % intervals, the completed-only rate beside
+    it, aborted episodes by reason, stale seconds per robot, where it went."""
+    kept = f"; earlier sessions kept beside it: {', '.join(p.name for p in outcome.kept)}" if outcome.kept else ""
+    return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}) -> {out}{kept}"
+
+
+def session_summary(metrics: dict[str, float], world: str) -> str:
+    """What happened in a session, from its metrics (``<world>/...``): episodes, aborted (and why), robot and team
+    success over every episode with 95 % intervals, the completed-only robot rate, stale seconds per robot."""
+    nan = float("nan")
+
+    def get(key: str) -> float:
+        return metrics.get(f"{world}/{key}", nan)
+
+    def rate(key: str) -> str:
+        return f"{get(key):.3f} [{get(key + '_ci_low'):.3f}, {get(key + '_ci_high'):.3f}]"
+
+    why = ", ".join(f"{get('aborted_' + k):.0f} {k}" for k in ABORT_KINDS if get("aborted_" + k) > 0)
+    robots = sorted(
+        k.split("/")[1][: -len("_stale_s")]
+        for k in metrics
+        if k.startswith(f"{world}/robot_") and k.endswith("_stale_s")
+    )
+    stale = ", ".join(f"{r} {get(r + '_stale_s'):.1f} s" for r in robots)
+    return (
+        f"{get('episodes'):.0f} episodes, {get('aborted_episodes'):.0f} aborted{f' ({why})' if why else ''}: "
+        f"robot success {rate('robot_success')}, team success {rate('team_success')} over every episode; "
+        f"completed episodes only {get('robot_success_completed'):.3f} robot, "
+        f"{get('team_success_completed'):.3f} team; stale {stale or 'none'}"
+    )
