@@ -12,7 +12,7 @@ import numpy as np
 from pipeline.analysis.errors import ReplayError
 from pipeline.analysis.replay import open_loop_divergence, residual_lines
 from pipeline.calibration import Calibration, calibrate, calibration_settings, write_calibration
-from pipeline.calibration.report import spectrum_lines
+from pipeline.calibration.fit_report import spectrum_lines
 from pipeline.core.scenario import load_scenario
 from pipeline.params import Params, calibrated_world, load_params
 from pipeline.stage import run_stage, stage_arguments

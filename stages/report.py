@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.analysis.report import write_report
+from pipeline.analysis.gap_report import write_report
 from pipeline.params import load_params
 from pipeline.stage import ROUNDS, run_stage, stage_arguments
 

@@ -7,7 +7,7 @@ Modules (import them directly; this package imports nothing heavy):
   (one row per episode and robot), per-topic frames and pose frames.
 - :mod:`pipeline.analysis.compare`: success rates with Wilson intervals, sim-vs-real tests.
 - :mod:`pipeline.analysis.plots`: learning curves, success rates, trajectories (PNG).
-- :mod:`pipeline.analysis.report`: ``report.md`` and ``metrics.json`` of labelled sessions.
+- :mod:`pipeline.analysis.gap_report`: ``report.md`` and ``metrics.json`` of labelled sessions.
 - :mod:`pipeline.core.stats`: interval estimates and tests without heavy dependencies.
 
 Errors: :mod:`pipeline.analysis.errors`; a recording that lacks a topic or carries another type than

@@ -12,7 +12,7 @@ Modules: :mod:`~pipeline.calibration.recording` (reading), :mod:`~pipeline.calib
 :mod:`~pipeline.calibration.lidar`, :mod:`~pipeline.calibration.actuation`,
 :mod:`~pipeline.calibration.odometry`, :mod:`~pipeline.calibration.network` (the estimators),
 :mod:`~pipeline.calibration.calibrate`, :mod:`~pipeline.calibration.output` and
-:mod:`~pipeline.calibration.report`.
+:mod:`~pipeline.calibration.fit_report`.
 """
 
 from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration, Source, calibrate

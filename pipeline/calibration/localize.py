@@ -42,7 +42,7 @@ from scipy import ndimage, optimize
 
 from pipeline.calibration.errors import CalibrationError
 from pipeline.calibration.raycast import MapGeometry, wrap
-from pipeline.calibration.recording import PoseSeries, RobotData, Stamped
+from pipeline.calibration.recording import MessageTimes, PoseSeries, RobotData
 from pipeline.core.scenario import Point2D, Pose2D, RobotSpec, Room, Scenario, box_corners, load_scenario
 
 MAP_RESOLUTION_M = 0.02
@@ -734,7 +734,9 @@ def localize_robot(
         raise CalibrationError(where, f"robot {robot.name!r}: no episode holds both scans and odometry")
     idx = np.concatenate(keep_t)
     t = odom.time
-    series = PoseSeries(Stamped(t.t_ns[idx], t.stamp_ns[idx], t.log_ns[idx], t.offset_ns), np.concatenate(keep_pose))
+    series = PoseSeries(
+        MessageTimes(t.t_ns[idx], t.stamp_ns[idx], t.log_ns[idx], t.offset_ns), np.concatenate(keep_pose)
+    )
     sc = np.concatenate(scores)
     sd = np.concatenate(stds)
     med = np.median(sd, axis=0)

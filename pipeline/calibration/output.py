@@ -116,7 +116,7 @@ def write_calibration(calibration: Calibration, out_dir: str | Path, report: boo
     except OSError as exc:
         raise CalibrationError(str(path), f"cannot write: {exc.strerror}") from exc
     if report:
-        from pipeline.calibration.report import write_report
+        from pipeline.calibration.fit_report import write_report
 
         write_report(calibration, out)
     return path

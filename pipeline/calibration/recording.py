@@ -74,7 +74,7 @@ TOPICS_FOR: dict[Part, tuple[str, ...]] = {
 
 
 @dataclass(frozen=True)
-class Stamped:
+class MessageTimes:
     """Times of one sensor topic's messages (n,), int ns: on the recorder's clock, stamped, and received."""
 
     t_ns: np.ndarray
@@ -87,7 +87,7 @@ class Stamped:
 class PoseSeries:
     """Planar poses (n, 3) x, y (m), yaw (rad) with their times; `velocity` (n, 2) v (m/s), w (rad/s) if sent."""
 
-    time: Stamped
+    time: MessageTimes
     pose: np.ndarray
     velocity: np.ndarray | None = None
 
@@ -96,7 +96,7 @@ class PoseSeries:
 class ScanSeries:
     """Scans: ranges (n, beams) in metres as sent; beam k of scan i points at angle_min[i] + k angle_increment[i]."""
 
-    time: Stamped
+    time: MessageTimes
     ranges: np.ndarray
     angle_min_rad: np.ndarray
     angle_increment_rad: np.ndarray
@@ -131,7 +131,7 @@ class RobotData:
 
 
 @dataclass(frozen=True)
-class EpisodeWindow:
+class EpisodeTimes:
     """One episode: recorder-clock times (ns) of its start event and of its end (the event that closed it, else
     the last message read), and its seed if recorded."""
 
@@ -153,7 +153,7 @@ class SessionData:
     session: SessionInfo
     scenario: Scenario
     robots: tuple[RobotData, ...]
-    episodes: tuple[EpisodeWindow, ...]
+    episodes: tuple[EpisodeTimes, ...]
     has_episode_topic: bool
     notes: tuple[str, ...] = ()
     followed_clock: tuple[np.ndarray, np.ndarray] | None = None
@@ -229,11 +229,11 @@ def recorded_scenario(
     return recorded
 
 
-def _stamped(log_ns: list[int], stamp_ns: list[int], windows: Sequence[tuple[int, int]]) -> Stamped:
+def _stamped(log_ns: list[int], stamp_ns: list[int], windows: Sequence[tuple[int, int]]) -> MessageTimes:
     log = np.asarray(log_ns, dtype=np.int64)
     stamp = np.asarray(stamp_ns, dtype=np.int64)
     if len(log) == 0:
-        return Stamped(log, stamp, log, 0)
+        return MessageTimes(log, stamp, log, 0)
     delay = log - stamp
     good = np.abs(delay - np.median(delay)) < OUTLIER_S * NS_PER_S
     inside = np.zeros(len(log), dtype=bool)
@@ -241,14 +241,14 @@ def _stamped(log_ns: list[int], stamp_ns: list[int], windows: Sequence[tuple[int
         inside |= (log >= start) & (log <= end)
     use = good & inside if (good & inside).sum() >= 10 else good
     offset = int(np.percentile(delay[use], OFFSET_QUANTILE))
-    return Stamped(stamp + offset, stamp, log, offset)
+    return MessageTimes(stamp + offset, stamp, log, offset)
 
 
-def _episodes(windows: Sequence[recorded_episodes.EpisodeWindow], last_ns: int, where: str) -> list[EpisodeWindow]:
+def _episodes(windows: Sequence[recorded_episodes.EpisodeWindow], last_ns: int, where: str) -> list[EpisodeTimes]:
     """The recorded windows calibration uses (see the module's description); the one the file stops inside ends at
     `last_ns`, the last log time read."""
     out = [
-        EpisodeWindow(w.episode, w.start_ns, max(w.start_ns, last_ns) if w.end_ns is None else w.end_ns, w.seed)
+        EpisodeTimes(w.episode, w.start_ns, max(w.start_ns, last_ns) if w.end_ns is None else w.end_ns, w.seed)
         for w in windows
         if w.outcome != "unfinished" or w.end_ns is None
     ]
@@ -313,7 +313,7 @@ def reset_boundaries(jumps: Sequence[PoseJump]) -> list[tuple[int, int]]:
     return out
 
 
-def infer_episodes(streams: dict[str, PoseSeries], first_ns: int, last_ns: int) -> list[EpisodeWindow]:
+def infer_episodes(streams: dict[str, PoseSeries], first_ns: int, last_ns: int) -> list[EpisodeTimes]:
     """Episodes from `first_ns` to `last_ns` split at the resets seen on `streams` (topic -> poses)."""
     jumps = [
         PoseJump(topic, int(series.time.t_ns[i - 1]), int(series.time.t_ns[i]))
@@ -327,7 +327,7 @@ def infer_episodes(streams: dict[str, PoseSeries], first_ns: int, last_ns: int) 
             ends.append(end)
             starts.append(start)
     ends.append(last_ns)
-    return [EpisodeWindow(k, a, b) for k, (a, b) in enumerate(zip(starts, ends, strict=True))]
+    return [EpisodeTimes(k, a, b) for k, (a, b) in enumerate(zip(starts, ends, strict=True))]
 
 
 def topics_for(part: Part, pose_source: PoseSourceKind) -> tuple[str, ...]:
@@ -523,7 +523,7 @@ def _poses(bucket: dict[str, list[Any]] | None, windows: Sequence[tuple[int, int
     data = np.asarray(bucket["data"], dtype=np.float64).reshape(len(bucket["data"]), -1)
     time = _stamped(bucket["log"], bucket["stamp"], windows)
     order = np.argsort(time.t_ns, kind="stable")
-    time = Stamped(time.t_ns[order], time.stamp_ns[order], time.log_ns[order], time.offset_ns)
+    time = MessageTimes(time.t_ns[order], time.stamp_ns[order], time.log_ns[order], time.offset_ns)
     data = data[order]
     velocity = data[:, 3:5] if data.shape[1] >= 5 else None
     return PoseSeries(time, data[:, :3], velocity)
@@ -551,7 +551,7 @@ def _scans(
     order = np.argsort(time.t_ns, kind="stable")
     ranges = np.stack([kept[i][0] for i in order])
     cols = np.array([[kept[i][j] for j in range(1, 5)] for i in order], dtype=np.float64)
-    time = Stamped(time.t_ns[order], time.stamp_ns[order], time.log_ns[order], time.offset_ns)
+    time = MessageTimes(time.t_ns[order], time.stamp_ns[order], time.log_ns[order], time.offset_ns)
     return ScanSeries(time, ranges, cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3])
 
 

@@ -31,7 +31,7 @@ def add_parser(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the report of the two sessions and print the gaps of the success and collision rates."""
-    from pipeline.analysis.report import write_report
+    from pipeline.analysis.gap_report import write_report
 
     out = output_folder(args.out)
     with imported(args, [args.sim, args.real]) as (sim, real):

@@ -43,7 +43,8 @@ def add_parser(subparsers: Any) -> None:
         NAME,
         "the episodes table: one row per episode and robot",
         "One row per episode and robot: success, collision, time to goal, path length, ... (needs the\n"
-        "/mrl/episode events this project records). Printed, or written whole to --out.",
+        "/mrl/episode events this project records). Printed, or written to --out: FILE.csv in the\n"
+        "columns of a session's episodes.csv, FILE.parquet with every column of the analysis table.",
     )
     episodes.add_argument("bag", metavar="BAG", help=BAG_HELP)
     episodes.add_argument("--out", default=None, metavar="FILE", help="write the table to FILE.csv or FILE.parquet")
@@ -110,10 +111,24 @@ def _summary(table: Any, world: str) -> str:
 
 
 def _write_table(table: Any, path: Path) -> None:
+    """CSV: the one episodes.csv layout the sessions write (EPISODES_CSV_COLUMNS); Parquet: the whole analysis table
+    (the session's world, scenario, policy, clocks and the episode's end beside them)."""
+    import polars as pl
+
+    from pipeline.record.results import EPISODES_CSV_COLUMNS
+
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         if path.suffix.lower() == ".csv":
-            table.write_csv(path)
+            flags = ("success", "reached", "collided", "aborted", "team_success")
+            rows = table.select(EPISODES_CSV_COLUMNS).with_columns(
+                *(pl.col(c).cast(pl.Int8) for c in flags),
+                pl.col("seed").fill_null(-1),
+                pl.col("stale_s").round(3),
+                pl.col("time_to_goal_s").round(3),
+                pl.col("path_length_m").round(4),
+            )
+            rows.write_csv(path, float_precision=None)
         else:
             table.write_parquet(path)
     except OSError as exc:

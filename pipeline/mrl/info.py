@@ -12,6 +12,7 @@ from pipeline.mrl.common import BAG_HELP, add_verb, bag_options, imported
 
 if TYPE_CHECKING:
     from pipeline.record import ImportedBag
+    from pipeline.record.session import SessionInfo
 
 NAME = "info"
 UNIX_TIME_FROM_NS = 946_684_800 * NS_PER_S
@@ -41,15 +42,16 @@ def run(args: argparse.Namespace) -> int:
 def describe(bag: ImportedBag) -> str:
     """What ``mrl info`` prints about one imported bag."""
     from pipeline.analysis.tables import EPISODE_TOPIC, Recording
+    from pipeline.record.session import session_info
 
     log = bag.log()
-    meta = log.metadata()
+    info = session_info(log.metadata())
     topics = bag.topic_types()
     counts = bag.message_counts()
-    scenario = _recorded_scenario(meta)
+    scenario = info.scenario_name()
     episodes = Recording(log).episodes().height if EPISODE_TOPIC in topics else 0
     truth = [r for r in bag.robots if f"/{r}/ground_truth" in topics]
-    lines = _fact_lines(bag, meta, topics, scenario, episodes, truth)
+    lines = _fact_lines(bag, info, topics, scenario, episodes, truth)
     lines += _topic_lines(bag, topics, counts)
     lines.append("  what the verbs can do with it:")
     lines.append(f"    calibrate: {_calibrate_text(bag.robots, topics, scenario, truth)}")
@@ -64,22 +66,9 @@ def _when(t_ns: int) -> str:
     return f"{t_ns / NS_PER_S:.3f} s on the session clock ({t_ns} ns)"
 
 
-def _recorded_scenario(meta: dict[str, dict[str, str]]) -> str:
-    """The scenario a recording names (its ``scenario`` document or its session's ``scenario``), else ''."""
-    import json
-
-    text = meta.get("scenario", {}).get("text")
-    if text:
-        try:
-            return str(json.loads(text).get("name", "")) or "(a scenario document)"
-        except (ValueError, AttributeError):
-            return "(an unreadable scenario document)"
-    return meta.get("session", {}).get("scenario", "")
-
-
 def _fact_lines(
     bag: ImportedBag,
-    meta: dict[str, dict[str, str]],
+    info: SessionInfo,
     topics: dict[str, str],
     scenario: str,
     episodes: int,
@@ -89,7 +78,7 @@ def _fact_lines(
     from pipeline.analysis.tables import EPISODE_TOPIC
 
     robots = bag.robots
-    session = meta.get("session")
+    session = info.fields if info.recorded else None
     how = "a session recording of this project, read as it is" if not bag.converted else "imported"
     lines = [
         f"bag: {bag.source}",

@@ -86,9 +86,9 @@ def _run_options(sweep: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run (or, with --report-only, collect) the trials, print their statistics and write the report."""
-    from pipeline.bench.report import splice_readme, write_report
     from pipeline.bench.stats import cell_stats, markdown_table
     from pipeline.bench.sweep import collect, run_sweep
+    from pipeline.bench.sweep_report import splice_readme, write_report
 
     if args.readme:  # checked before a sweep of hours, not after it
         _check_readme(args.readme, args.readme_section)
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_readme(readme: str, section: str) -> None:
     """ConfigError unless `section` is a plain name and `readme` holds its start and end markers."""
-    from pipeline.bench.report import marks
+    from pipeline.bench.sweep_report import marks
 
     start_mark, end_mark = marks(section)
     if not re.fullmatch(r"[A-Za-z0-9_-]*", section):

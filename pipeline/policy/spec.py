@@ -125,14 +125,7 @@ class PolicySpec:
 def read_policy_spec(path: str | Path) -> PolicySpec:
     """Read and validate ``policy.json``: PolicyError for an unreadable or old file, ConfigError naming each bad key."""
     p = Path(path)
-    try:
-        data: Any = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise PolicyError(str(p), "missing: export the policy first (dvc repro export)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise PolicyError(str(p), f"unreadable or not JSON ({exc})") from exc
-    if not isinstance(data, dict):
-        raise PolicyError(str(p), "not a policy spec (expected a JSON object)")
+    data = _json_object(p, "export the policy first (dvc repro export)", "a policy spec")
     fmt = data.get("format")
     if fmt != FORMAT:
         if isinstance(fmt, str) and fmt.startswith("mrl-policy/"):
@@ -143,6 +136,19 @@ def read_policy_spec(path: str | Path) -> PolicySpec:
             )
         raise PolicyError(str(p), f"format {fmt!r} is not a policy spec; this runtime reads {FORMAT!r}")
     return from_mapping(PolicySpec, data, str(p))
+
+
+def _json_object(path: Path, remedy: str, what: str) -> dict[str, Any]:
+    """The JSON object in `path`; PolicyError naming it when missing (with `remedy`), unreadable or not an object."""
+    try:
+        data: Any = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PolicyError(str(path), f"missing: {remedy}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PolicyError(str(path), f"unreadable or not JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise PolicyError(str(path), f"not {what} (expected a JSON object)")
+    return data
 
 
 def write_policy_spec(spec: PolicySpec, path: str | Path) -> None:
@@ -190,14 +196,7 @@ def read_golden(path: str | Path) -> GoldenSet:
     """Read ``golden.json``; PolicyError naming the file and what is wrong. Untagged files are the earlier layout of
     the same keys (``compared`` absent: raw actions)."""
     p = Path(path)
-    try:
-        data: Any = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise PolicyError(str(p), "missing golden set: export the policy again (dvc repro export)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise PolicyError(str(p), f"unreadable or not JSON ({exc})") from exc
-    if not isinstance(data, dict):
-        raise PolicyError(str(p), "not a golden set (expected a JSON object)")
+    data = _json_object(p, "export the policy again (dvc repro export)", "a golden set")
     fmt = data.get("format", GOLDEN_FORMAT)
     if fmt != GOLDEN_FORMAT:
         raise PolicyError(str(p), f"format {fmt!r}; this runtime reads {GOLDEN_FORMAT!r}: export the policy again")

@@ -192,6 +192,56 @@ def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
                 )
 
 
+EPISODES_CSV_TYPES = {
+    "episode": int,
+    "seed": int,
+    "robot": str,
+    "success": int,
+    "reached": int,
+    "collided": int,
+    "aborted": int,
+    "abort_kind": str,
+    "abort_reason": str,
+    "stale_s": float,
+    "time_to_goal_s": float,
+    "path_length_m": float,
+    "steps": int,
+    "team_success": int,
+}
+"""The value type of each column of :data:`EPISODES_CSV_COLUMNS` (flags as 0 or 1; an empty time to goal: the robot
+did not arrive)."""
+
+
+def read_episodes_csv(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of an episodes.csv (sessions, ``mrl episodes --out``), typed; RecordError naming the file, the row
+    and the column for another layout or a bad value (files of the earlier layout lack ``abort_kind`` and
+    ``stale_s``: written before every episode counted, re-counted by benchmarks/recount.py)."""
+    p = Path(path)
+    try:
+        with p.open(newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            header = tuple(reader.fieldnames or ())
+            if header != EPISODES_CSV_COLUMNS:
+                raise RecordError(
+                    str(p), f"columns {list(header)}; an episodes.csv has {list(EPISODES_CSV_COLUMNS)}, in that order"
+                )
+            rows = []
+            for line, raw in enumerate(reader, start=2):
+                row: dict[str, Any] = {}
+                for column, kind in EPISODES_CSV_TYPES.items():
+                    text = raw[column]
+                    try:
+                        row[column] = math.nan if (kind is float and text == "") else kind(text)
+                    except (TypeError, ValueError):
+                        raise RecordError(str(p), f"line {line}, {column}: {text!r} is not {kind.__name__}") from None
+                rows.append(row)
+    except FileNotFoundError:
+        raise RecordError(str(p), "missing: the session has not been run (or wrote no episode)") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise RecordError(str(p), f"unreadable ({exc})") from exc
+    return rows
+
+
 class SessionFolder:
     """The output folder of one session, written through a staging folder.
 

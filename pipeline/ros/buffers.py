@@ -264,7 +264,7 @@ def _try_realtime_priority(priority: int = 10) -> bool:
 
 
 @dataclass(frozen=True)
-class Stamped:
+class ReceivedSample:
     """One received sample: the robot's stamp, our receive time, and its content."""
 
     stamp_ns: int
@@ -272,13 +272,13 @@ class Stamped:
 
 
 @dataclass(frozen=True)
-class ScanSample(Stamped):
+class ScanSample(ReceivedSample):
     ranges: np.ndarray
     geometry: ScanGeometry
 
 
 @dataclass(frozen=True)
-class PoseSample(Stamped):
+class PoseSample(ReceivedSample):
     pose: np.ndarray  # (3,) x, y (m), yaw (rad)
     velocity: tuple[float, float] = (0.0, 0.0)
 
@@ -329,14 +329,14 @@ class ReceiverBuffer:
         self.truth_stale_ns = truth_stale_ns
         self.on_timing = on_timing
         self._lock = threading.Lock()
-        self._rings: dict[Channel, dict[str, deque[Stamped]]] = {
+        self._rings: dict[Channel, dict[str, deque[ReceivedSample]]] = {
             c: {r: deque(maxlen=capacity) for r in self.robots} for c in ("scan", "odom", "truth")
         }
         self.counts: dict[Channel, dict[str, int]] = {
             c: dict.fromkeys(self.robots, 0) for c in ("scan", "odom", "truth")
         }
 
-    def _add(self, channel: Channel, robot: str, sample: Stamped, topic: str) -> None:
+    def _add(self, channel: Channel, robot: str, sample: ReceivedSample, topic: str) -> None:
         with self._lock:
             self._rings[channel][robot].append(sample)
             self.counts[channel][robot] += 1
@@ -359,7 +359,7 @@ class ReceiverBuffer:
                 for ring in rings.values():
                     ring.clear()
 
-    def latest(self, channel: Channel, robot: str, at_ns: int | None = None) -> Stamped | None:
+    def latest(self, channel: Channel, robot: str, at_ns: int | None = None) -> ReceivedSample | None:
         """The newest sample of `robot` on `channel` received at or before `at_ns` (any if None)."""
         with self._lock:
             ring = self._rings[channel][robot]
@@ -377,7 +377,7 @@ class ReceiverBuffer:
             odom = self.latest("odom", r, t_ns)
             truth = self.latest("truth", r, t_ns)
 
-            def age(s: Stamped | None) -> int | None:
+            def age(s: ReceivedSample | None) -> int | None:
                 return None if s is None else t_ns - s.receive_ns
 
             state = RobotState(

@@ -1,26 +1,7 @@
-"""Reality profile files: what the twin's robots, sensors, clocks, room and network are really like.
+"""Reality profile files: the bundled ones (``pipeline/twin/profiles/*.yaml``: lab, mild, ...) or a YAML path.
 
-The keys (units in the names; those marked * are optional and default to the ideal value)::
-
-    lidar:     {beams, rate_hz, noise_sigma_m, dropout_prob, bias_m, mount_yaw_rad,
-                noise_per_m*, mount_xy_m*: [dx, dy], blocked_sectors_rad*: [[from, to], ...],
-                motion_distortion*: bool}
-    actuation: {delay_s, time_constant_s, linear_gain, angular_gain}
-    odometry:  {rate_hz, drift_per_m, encoder_ticks_per_rev*}
-    network:   {loss_prob, jitter_s, burst_len*}
-    base*:     {wheel_radius_left_m, wheel_radius_right_m, wheel_separation_m, mass_kg,
-                motor_time_constant_s, deadband_radps, max_wheel_accel_radps2, friction}
-    clock*:    {offset_s, drift_ppm}
-    map*:      {box_offsets_m: [[dx, dy], ...], wall_offset_m}
-
-Lidar noise is ``noise_sigma_m + noise_per_m * range`` (1 sigma); blocked sectors are angles in the
-lidar's frame (radians, from < to, each narrower than 2 pi) where the robot's mast returns nothing
-usable; with ``motion_distortion`` each beam is taken at its own time within the sweep. Odometry
-integrates wheel encoder ticks with the nominal SPARK wheel radius and separation, so the base's
-true radii and separation turn into drift. Stamps are in the robot's clock: ``offset_s`` ahead of
-the host, running ``drift_ppm`` parts per million fast. Boxes and walls stand where ``map`` puts
-them, not where the scenario's map says. Losses come in bursts of ``burst_len`` messages on average
-(1: independent). ``max_wheel_accel_radps2: null`` is no limit.
+The keys, their units and bounds are the schema of :mod:`pipeline.core.reality`, the one definition the twin,
+calibration and the simulator share.
 """
 
 from __future__ import annotations

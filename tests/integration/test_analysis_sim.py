@@ -16,7 +16,7 @@ import polars as pl
 import pytest
 
 from pipeline.analysis.decode import DECODABLE, decode
-from pipeline.analysis.report import write_report
+from pipeline.analysis.gap_report import write_report
 from pipeline.analysis.tables import Recording, episodes_table
 from pipeline.core.episode import EpisodeResult
 from pipeline.mappings import to_mapping

@@ -24,6 +24,7 @@ from pipeline.messages import convert as C
 from pipeline.messages import message_store
 from pipeline.messages import topics as T
 from pipeline.record import McapLog, RawMessage
+from pipeline.record.results import EPISODES_CSV_COLUMNS, read_episodes_csv
 from tests.calibration_helpers import simulate_session
 from tests.golden.make_golden import GOLDEN_MCAP
 from tests.integration.test_calibration_inputs import MILD_WORLD
@@ -240,14 +241,20 @@ def test_episodes_table_printed_and_written_as_csv_and_parquet(session, tmp_path
         assert proc.returncode == 0, proc.stderr
         assert f"-> {out}" in proc.stdout
         tables[suffix] = pl.read_csv(out) if suffix == ".csv" else pl.read_parquet(out)
+    # the CSV is a session's episodes.csv layout (one schema under that name), the Parquet file the whole table
+    assert tables[".csv"].columns == list(EPISODES_CSV_COLUMNS)
+    assert tables[".parquet"].columns == list(EPISODES_SCHEMA)
+    rows = read_episodes_csv(tmp_path / "tables" / "episodes.csv")
+    assert [r["success"] for r in rows] == [int(v) for v in tables[".parquet"]["success"].to_list()]
     for suffix, table in tables.items():
-        assert table.columns == list(EPISODES_SCHEMA), suffix
         assert table.height == EPISODES * 3, suffix
         pairs = set(zip(table["episode"].to_list(), table["robot"].to_list(), strict=True))
         assert pairs == {(e, f"robot_{r}") for e in range(EPISODES) for r in (1, 2, 3)}, suffix
         assert (table["path_length_m"] > 0).all() and table["steps"].to_list() == [STEPS] * table.height
     assert tables[".parquet"].schema == pl.Schema(EPISODES_SCHEMA)
-    assert tables[".csv"]["path_length_m"].to_list() == pytest.approx(tables[".parquet"]["path_length_m"].to_list())
+    assert tables[".csv"]["path_length_m"].to_list() == pytest.approx(
+        tables[".parquet"]["path_length_m"].to_list(), abs=5e-5
+    )
 
 
 # -- calibrate without motion capture -------------------------------------------------------------

@@ -11,8 +11,8 @@ import pytest
 from PIL import Image
 
 from pipeline.analysis.errors import AnalysisError, TableError
+from pipeline.analysis.gap_report import LabelledSession, markdown_table, write_report
 from pipeline.analysis.plots import Rate, plot_learning_curves, plot_success_rates, plot_trajectories
-from pipeline.analysis.report import LabelledSession, markdown_table, write_report
 from tests.unit.test_analysis_tables import write_session
 
 

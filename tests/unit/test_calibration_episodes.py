@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from pipeline.calibration.recording import (
+    MessageTimes,
     PoseJump,
     PoseSeries,
-    Stamped,
     infer_episodes,
     pose_jumps,
     reset_boundaries,
@@ -23,7 +23,7 @@ STARTS = np.array([[1.0, 1.0, 0.0], [3.0, 1.0, 1.5], [2.0, 3.0, -2.0]])
 
 def series(t_ns: np.ndarray, pose: np.ndarray) -> PoseSeries:
     t = np.asarray(t_ns, dtype=np.int64)
-    return PoseSeries(Stamped(t, t, t, 0), np.asarray(pose, dtype=np.float64))
+    return PoseSeries(MessageTimes(t, t, t, 0), np.asarray(pose, dtype=np.float64))
 
 
 def straight(n: int, speed_mps: float, dt_s: float = 0.02) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,7 @@ from pipeline.params import calibrated_world, read_calibration_file, world_confi
 from pipeline.policy.errors import PolicyError
 from pipeline.policy.spec import GoldenSet, read_golden, write_golden
 from pipeline.record.errors import RecordError
-from pipeline.record.results import read_session_metrics, write_metrics
+from pipeline.record.results import read_episodes_csv, read_session_metrics, write_episodes, write_metrics
 from pipeline.record.session import session_info
 from tests.unit.test_episode_summary import episode
 
@@ -132,3 +132,31 @@ def test_a_copied_results_folder_reads_the_same(tmp_path):
     a = read_session_metrics(LAB / "real" / "calibrated" / "metrics.json")
     b = read_session_metrics(tmp_path / "real" / "calibrated" / "metrics.json")
     assert a == b
+
+
+def test_episodes_csv_has_one_layout_written_and_read_back(tmp_path):
+    results = [
+        episode(0, [True, False], [False, True]),
+        episode(1, [True, False], [False, False], aborted=True, stale=[0.0, 5.2]),
+    ]
+    write_episodes(tmp_path / "episodes.csv", results)
+    rows = read_episodes_csv(tmp_path / "episodes.csv")
+    assert [(r["episode"], r["robot"]) for r in rows] == [
+        (0, "robot_1"),
+        (0, "robot_2"),
+        (1, "robot_1"),
+        (1, "robot_2"),
+    ]
+    assert rows[3]["aborted"] == 1 and rows[3]["abort_kind"] == "outage" and rows[3]["stale_s"] == pytest.approx(5.2)
+    assert math.isnan(rows[1]["time_to_goal_s"]) and rows[0]["time_to_goal_s"] == pytest.approx(1.0)
+    committed = read_episodes_csv(LAB / "real" / "nominal" / "episodes.csv")
+    assert len(committed) == 150 and {r["robot"] for r in committed} == {"robot_1", "robot_2", "robot_3"}
+    old = tmp_path / "old.csv"
+    old.write_text("episode,seed,robot,success\n0,0,robot_1,1\n")
+    with pytest.raises(RecordError, match=r"old\.csv: columns \['episode', 'seed', 'robot', 'success'\]; an episodes"):
+        read_episodes_csv(old)
+    bad = tmp_path / "bad.csv"
+    lines = (tmp_path / "episodes.csv").read_text().splitlines()
+    bad.write_text("\n".join([lines[0], lines[1].replace("robot_1,", "robot_1,yes,", 1).rsplit(",", 1)[0]]) + "\n")
+    with pytest.raises(RecordError, match=r"bad\.csv: line 2, success: 'yes' is not int"):
+        read_episodes_csv(bad)
