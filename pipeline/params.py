@@ -8,7 +8,7 @@ out-of-range keys are reported together in one ConfigError naming the file and d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -670,6 +670,10 @@ class CalibrationFile:
     unidentified: dict[str, str]
     speed_limits: dict[str, Any]
     source: dict[str, Any]
+    effective: dict[str, Any] = field(default_factory=dict)
+    """Values of the simulator's model that stand for several profile keys together, with those keys and the model."""
+    ambiguous: tuple[dict[str, Any], ...] = ()
+    """Where two drive models explained the recording alike: the readings, the one kept, what would separate them."""
 
 
 def _calibrated_keys(uncertainty: Any) -> tuple[dict[str, CalibratedKey], list[ConfigProblem]]:
@@ -726,7 +730,7 @@ def read_calibration_file(path: str | Path) -> CalibrationFile:
             ],
         )
     problems: list[ConfigProblem] = []
-    for key in ("world", "profile", "unidentified", "speed_limits", "source"):
+    for key in ("world", "profile", "unidentified", "speed_limits", "source", "effective"):
         if not isinstance(data.get(key, {}), dict):
             problems.append(ConfigProblem(key, data.get(key), "a mapping (the calibrate stage writes it)"))
     if "world" not in data:
@@ -744,6 +748,8 @@ def read_calibration_file(path: str | Path) -> CalibrationFile:
         unidentified={str(k): str(v) for k, v in (data.get("unidentified") or {}).items()},
         speed_limits=dict(data.get("speed_limits") or {}),
         source=dict(data.get("source") or {}),
+        effective=dict(data.get("effective") or {}),
+        ambiguous=tuple(a for a in (data.get("ambiguous") or []) if isinstance(a, dict)),
     )
 
 

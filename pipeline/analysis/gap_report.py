@@ -206,6 +206,21 @@ def _markdown(
     timing: Sequence[tuple[str, TimingFigures]] = (),
 ) -> str:
     parts = [f"# {title}", ""]
+    parts += _sessions_section(recordings)
+    parts += _success_section(comparison, figures, out)
+    parts += _gaps_section(comparison)
+    parts += _robots_section(comparison)
+    parts += _timing_section(timing)
+    parts += ["## Trajectories", "", f"![trajectories]({_relative(figures['trajectories'], out)})", ""]
+    if "learning_curves" in figures:
+        parts += ["## Training", "", f"![learning curves]({_relative(figures['learning_curves'], out)})", ""]
+    if extra_markdown.strip():
+        parts += [f"## {extra_title}", "", extra_markdown.strip(), ""]
+    return "\n".join(parts)
+
+
+def _sessions_section(recordings: Sequence[tuple[LabelledSession, Recording]]) -> list[str]:
+    parts: list[str] = []
     sessions = pl.DataFrame(
         [
             {
@@ -228,6 +243,10 @@ def _markdown(
             "complete chunk and an episode cut off by the end of the file counts as aborted.",
             "",
         ]
+    return parts
+
+
+def _success_section(comparison: Comparison, figures: Mapping[str, Path], out: Path) -> list[str]:
     groups = comparison.groups
     summary = pl.DataFrame(
         [
@@ -265,6 +284,7 @@ def _markdown(
             for row in groups.iter_rows(named=True)
         ]
     )
+    parts: list[str] = []
     parts += [
         "## Success",
         "",
@@ -280,6 +300,11 @@ def _markdown(
         f"![success rates]({_relative(figures['success_rates'], out)})",
         "",
     ]
+    return parts
+
+
+def _gaps_section(comparison: Comparison) -> list[str]:
+    parts: list[str] = []
     if comparison.gaps.height:
         parts += [
             "## Sim vs real",
@@ -291,6 +316,11 @@ def _markdown(
             markdown_table(comparison.gaps, digits=4),
             "",
         ]
+    return parts
+
+
+def _robots_section(comparison: Comparison) -> list[str]:
+    parts: list[str] = []
     robots = comparison.robots.select(
         "world",
         "label",
@@ -313,6 +343,11 @@ def _markdown(
         markdown_table(robots),
         "",
     ]
+    return parts
+
+
+def _timing_section(timing: Sequence[tuple[str, TimingFigures]]) -> list[str]:
+    parts: list[str] = []
     if timing:
         parts += [
             "## Deployment timing",
@@ -323,12 +358,7 @@ def _markdown(
             "",
             timing_markdown(list(timing)),
         ]
-    parts += ["## Trajectories", "", f"![trajectories]({_relative(figures['trajectories'], out)})", ""]
-    if "learning_curves" in figures:
-        parts += ["## Training", "", f"![learning curves]({_relative(figures['learning_curves'], out)})", ""]
-    if extra_markdown.strip():
-        parts += [f"## {extra_title}", "", extra_markdown.strip(), ""]
-    return "\n".join(parts)
+    return parts
 
 
 def _aborted_text(row: Mapping[str, Any]) -> str:

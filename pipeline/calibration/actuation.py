@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import lfilter
@@ -57,6 +57,13 @@ SATURATION_MIN_SHARE = 0.03
 """...with this share of the channel's samples commanded beyond it."""
 BLOCK_S = 5.0
 """With a single robot-episode, its tracks are cut into blocks of this length for the bootstrap."""
+ONE_LEVEL_SPREAD = 0.05
+"""A channel whose moving commands (above 5 % of its largest) lie within this share of their median (5th to 95th
+percentile) is commanded at one speed: a gain and a speed limit explain it alike."""
+MIN_GAIN_SHORTFALL = 0.02
+"""A gain this far below 1 at one commanded speed could as well be a limit (a base that falls short of it)."""
+TRADE_OFF_CORRELATION = -0.9
+"""Delay and lag whose bootstrap draws correlate this strongly trade against each other in the recording."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +104,24 @@ class VelocityTrack:
 
 
 @dataclass(frozen=True)
+class Ambiguity:
+    """Two drive models that explain a recording equally: the keys concerned, each reading in words, the one kept
+    (the reading that changes the simulator least where the data cannot decide) and what recording would tell them
+    apart."""
+
+    keys: tuple[str, ...]
+    readings: tuple[str, ...]
+    kept: str
+    separate: str
+
+    def sentence(self) -> str:
+        return f"{' or '.join(self.readings)}; kept: {self.kept}; to tell them apart: {self.separate}"
+
+    def as_mapping(self) -> dict[str, object]:
+        return {"keys": list(self.keys), "readings": list(self.readings), "kept": self.kept, "separate": self.separate}
+
+
+@dataclass(frozen=True)
 class ActuationFit:
     """The actuation estimates.
 
@@ -114,6 +139,17 @@ class ActuationFit:
     notes: tuple[str, ...] = ()
     speed_limits: tuple[SpeedLimit | None, SpeedLimit | None] = (None, None)
     """Per channel (linear, angular): what the recording says about the base's top speed; None: channel unused."""
+    ambiguities: tuple[Ambiguity, ...] = ()
+    """Where two drive models explain the recording alike (see :class:`Ambiguity`)."""
+    delay_lag_correlation: float | None = None
+    """Correlation of the delay's and the lag's bootstrap draws (None without a bootstrap)."""
+    response_s: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not fitted", "s"))
+    """Delay + lag: the mean time a command takes to act (the first moment of the step response), which a lag and
+    a delay that trade against each other leave well determined."""
+
+    def ambiguous_gain(self, channel: int) -> bool:
+        """The channel's gain could as well be a speed limit (one commanded speed): it is not a setting."""
+        return any(a.keys[0] == f"actuation.{CHANNELS[channel]}_gain" for a in self.ambiguities)
 
 
 @dataclass(frozen=True)
@@ -388,6 +424,33 @@ def estimate_actuation(
         samples = np.full((2, 4), np.nan)
         method = "one robot-episode: no uncertainty"
     values = (delay, tau, float(gains[0]), float(gains[1]))
+    reach = _misfit_reach(fine, fitted, cluster_sums.sum(axis=2), yy, channels, local_d, local_tau)
+    commanded = np.abs(fine.commands(delay)[:, fine.row, fine.idx])
+    limits = list(saturation.limits)
+    ambiguities: list[Ambiguity] = []
+    for c in channels:
+        level = _one_level(commanded[c])
+        limit = limits[c]
+        if level is None or limit is None or limit.saturated or not gains[c] < 1.0 - MIN_GAIN_SHORTFALL:
+            continue
+        g_se, g_interval = spread(samples[:, 2 + c])
+        ambiguity, limits[c] = _gain_or_limit(c, float(gains[c]), g_se, g_interval, level, limit, len(fine.y))
+        ambiguities.append(ambiguity)
+        problems[c] = f"{ambiguity.readings[0]} or {ambiguity.readings[1]} (one commanded speed): {ambiguity.separate}"
+    correlation = _correlation(samples[:, 0], samples[:, 1]) if n_clusters >= 2 else None
+    if correlation is not None and correlation <= TRADE_OFF_CORRELATION:
+        ambiguities.append(
+            Ambiguity(
+                ("actuation.delay_s", "actuation.time_constant_s"),
+                (
+                    f"a delay of {delay:.3g} s before a lag of {tau:.3g} s",
+                    "a longer delay before a shorter lag, or a shorter delay before a longer one "
+                    f"(their bootstrap draws correlate {correlation:+.2f})",
+                ),
+                "the least-squares pair, with intervals that span the trade-off",
+                "commands that reverse sharply, in steps of several sizes, with the base at rest between them",
+            )
+        )
     out: dict[str, Estimate] = {}
     for k, (name, unit) in enumerate(UNITS.items()):
         se, interval = spread(samples[:, k])
@@ -398,9 +461,17 @@ def estimate_actuation(
         elif name == "time_constant_s" and tau >= TAU_MAX_S * 0.95:
             out[name] = Estimate.unidentifiable(f"the velocity does not settle within {TAU_MAX_S:g} s", unit)
         else:
-            out[name] = Estimate.of(values[k], known_se, known_interval, unit, method, len(fine.y))
+            se_k, interval_k = reach.widen(k, values[k], known_se, known_interval)
+            out[name] = Estimate.of(values[k], se_k, interval_k, unit, method + reach.words, len(fine.y))
+    response = Estimate.unidentifiable(out["delay_s"].reason or out["time_constant_s"].reason, "s")
+    if out["delay_s"].ok and out["time_constant_s"].ok:
+        se, interval = spread(samples[:, 0] + samples[:, 1])
+        known = not math.isnan(se)
+        se_r, interval_r = reach.widen(4, delay + tau, se if known else None, interval if known else None)
+        response = Estimate.of(delay + tau, se_r, interval_r, "s", method + reach.words, len(fine.y))
     notes: tuple[str, ...] = (f"{len(tracks)} contact-free tracks, {duration:.1f} s, {n_clusters} robot-episodes",)
-    notes += tuple(limit.sentence() for limit in saturation.limits if limit is not None)
+    notes += tuple(limit.sentence() for limit in limits if limit is not None)
+    notes += tuple(f"ambiguous: {a.sentence()}" for a in ambiguities)
     return ActuationFit(
         out["delay_s"],
         out["time_constant_s"],
@@ -411,8 +482,134 @@ def estimate_actuation(
         tracks=len(tracks),
         duration_s=duration,
         notes=notes,
-        speed_limits=saturation.limits,
+        speed_limits=(limits[0], limits[1]),
+        ambiguities=tuple(ambiguities),
+        delay_lag_correlation=correlation,
+        response_s=response,
     )
+
+
+@dataclass(frozen=True)
+class _Reach:
+    """How far the drive's values can move before the fit is worse than the model's misfit allows: per value
+    (delay, lag, linear gain, angular gain, delay + lag) the range of the grid cells whose cost is within
+    chi2(1, 95 %) / n_eff of the least, n_eff the residual's effective sample count (its lag-one autocorrelation
+    rho: n (1 - rho) / (1 + rho)). A model that misses the robot leaves residuals that run together, so few
+    effective samples and a wide reach: the interval admits the misfit."""
+
+    ranges: tuple[tuple[float, float], ...]
+    correlation: float
+    effective_samples: float
+
+    @property
+    def words(self) -> str:
+        return (
+            f"; widened to the values the fitted model's misfit leaves as good (residual autocorrelation "
+            f"{self.correlation:.3f}: {self.effective_samples:.0f} effective samples)"
+        )
+
+    def widen(
+        self, k: int, value: float, se: float | None, interval: tuple[float, float] | None
+    ) -> tuple[float | None, tuple[float, float] | None]:
+        low, high = self.ranges[k]
+        if not (math.isfinite(low) and math.isfinite(high)):
+            return se, interval
+        low, high = min(low, value), max(high, value)
+        if interval is not None:
+            low, high = min(low, interval[0]), max(high, interval[1])
+        width_se = (high - low) / (2 * 1.96)
+        return (width_se if se is None else max(se, width_se)), (low, high)
+
+
+def _misfit_reach(
+    problem: _Problem,
+    fitted: np.ndarray,
+    sums: np.ndarray,
+    yy: np.ndarray,
+    channels: Sequence[int],
+    delays: np.ndarray,
+    taus: np.ndarray,
+) -> _Reach:
+    """The :class:`_Reach` of the fit over the local grid's summed `sums` (n_delays, n_taus, 2, 3)."""
+    residual = problem.y.T - fitted
+    same = problem.row[1:] == problem.row[:-1]
+    rho = 0.0
+    for c in channels:
+        r = residual[c]
+        den = float(np.sum(r * r))
+        if den > 0:
+            rho = max(rho, float(np.sum(r[1:][same] * r[:-1][same])) / den)
+    rho = min(max(rho, 0.0), 0.999)
+    n_eff = max(len(problem.y) * len(channels) * (1 - rho) / (1 + rho), 2.0)
+    cost = np.array([[_cost(sums[i, j], yy, channels) for j in range(len(taus))] for i in range(len(delays))])
+    nan = (math.nan, math.nan)
+    if not np.isfinite(cost).any():
+        return _Reach((nan,) * 5, rho, n_eff)
+    inside = cost <= float(np.nanmin(cost)) * (1 + 3.84 / n_eff)
+    d_grid, t_grid = np.meshgrid(delays, taus, indexing="ij")
+    half_d = FINE_STEP_S / 2
+    log_half = float(np.log(taus[1] / taus[0])) / 2 if len(taus) > 1 else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gains = np.where(sums[..., 1] > 0, sums[..., 0] / sums[..., 1], np.nan)  # (n_delays, n_taus, 2)
+    ranges: list[tuple[float, float]] = [
+        (max(float(d_grid[inside].min()) - half_d, 0.0), float(d_grid[inside].max()) + half_d),
+        (float(t_grid[inside].min()) * math.exp(-log_half), float(t_grid[inside].max()) * math.exp(log_half)),
+    ]
+    for c in range(2):
+        g = gains[..., c][inside]
+        ranges.append((float(np.nanmin(g)), float(np.nanmax(g))) if c in channels and np.isfinite(g).any() else nan)
+    response = (d_grid + t_grid)[inside]
+    ranges.append((max(float(response.min()) - half_d, 0.0), float(response.max()) + half_d))
+    return _Reach(tuple(ranges), rho, n_eff)
+
+
+def _one_level(commanded: np.ndarray) -> float | None:
+    """The one speed a channel was commanded at (the median of its moving commands), else None."""
+    peak = float(commanded.max()) if commanded.size else 0.0
+    moving = commanded[commanded > 0.05 * peak]
+    if peak <= 0 or len(moving) < 20:
+        return None
+    low, mid, high = np.percentile(moving, [5, 50, 95])
+    return float(mid) if high - low <= ONE_LEVEL_SPREAD * mid else None
+
+
+def _gain_or_limit(
+    c: int,
+    gain: float,
+    gain_se: float,
+    gain_interval: tuple[float, float],
+    level: float,
+    limit: SpeedLimit,
+    n: int,
+) -> tuple[Ambiguity, SpeedLimit]:
+    """One commanded speed `level` achieved at `gain` of it: a gain below 1, or the nominal gain up to a top speed of
+    gain x level. Over the commands up to `level`, the limit changes the simulator by (1 - gain)^2 level / 2 on
+    average, the gain by (1 - gain) level / 2: the limit is kept (commands below it act as nominal), the gain is
+    not a setting."""
+    unit = LIMIT_UNITS[c]
+    top = gain * level
+    known = not math.isnan(gain_se)
+    interval = (gain_interval[0] * level, gain_interval[1] * level) if known else None
+    method = f"one commanded speed ({level:.3g} {unit}) achieved at {gain:.3g} of it: the limit reading"
+    estimate = Estimate.of(top, gain_se * level if known else None, interval, unit, method, n)
+    channel = CHANNELS[c]
+    ambiguity = Ambiguity(
+        (f"actuation.{channel}_gain", f"speed_limits.{channel}"),
+        (
+            f"a {channel} gain of {gain:.3g} without a speed limit",
+            f"the nominal gain up to a limit of {top:.3g} {unit}",
+        ),
+        f"the limit ({top:.3g} {unit}): it changes the simulator least, commands below it acting as nominal",
+        f"commands at several {channel} speeds, some below {top:.3g} {unit} and some above it",
+    )
+    return ambiguity, SpeedLimit(channel, estimate, limit.commanded_max, limit.achieved_max, 1.0)
+
+
+def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
+    good = np.isfinite(a) & np.isfinite(b)
+    if good.sum() < 3 or np.std(a[good]) == 0 or np.std(b[good]) == 0:
+        return None
+    return float(np.corrcoef(a[good], b[good])[0, 1])
 
 
 def _blocks(track: VelocityTrack, block_s: float, name: str) -> list[VelocityTrack]:

@@ -201,6 +201,45 @@ class Source:
 
 
 @dataclass(frozen=True)
+class EffectiveValue:
+    """A value of the simulator's model that stands for several properties of the robot together: what it is, the
+    profile keys it stands for, and the model it belongs to (never written under one of those keys)."""
+
+    estimate: Estimate
+    stands_for: tuple[str, ...]
+    model: str
+
+    def as_mapping(self) -> dict[str, Any]:
+        return {**self.estimate.as_mapping(), "stands_for": list(self.stands_for), "model": self.model}
+
+
+DRIVE_MODEL = (
+    "the simulator's drive: a pure delay, then one first-order lag on the commanded body velocity "
+    "(world.actuation.delay_s, time_constant_s)"
+)
+EFFECTIVE_DRIVE: dict[str, tuple[str, tuple[str, ...], str]] = {
+    "drive_delay_s": ("delay_s", ("actuation.delay_s",), "world.actuation.delay_s"),
+    "drive_lag_s": (
+        "time_constant_s",
+        ("actuation.time_constant_s", "base.motor_time_constant_s", "base.max_wheel_accel_radps2"),
+        "world.actuation.time_constant_s",
+    ),
+    "drive_response_s": (
+        "response_s",
+        ("actuation.delay_s", "actuation.time_constant_s", "base.motor_time_constant_s"),
+        "delay + lag of the simulator's drive: the mean time a command takes to act",
+    ),
+}
+"""The drive chain's effective values: (the actuation fit's field, the profile keys they stand for, the simulator's
+setting or quantity). A robot's body velocity follows its commands through the driver's delay and lag, the motors'
+own lag and their acceleration limit in series; the body-velocity fit sees the chain as the simulator models it."""
+EFFECTIVE_REASON = (
+    "not measured apart: the body velocity follows the commands through the driver's and the motors' lags in series "
+    "(and their acceleration limit); the chain's effective value, which the simulator takes, is effective.{name}"
+)
+
+
+@dataclass(frozen=True)
 class Calibration:
     """Estimates of the reality profile from recordings of one scenario.
 
@@ -221,6 +260,17 @@ class Calibration:
     motors: MotorFit | None = None
     randomization: RandomizationFit | None = None
     pose_source: PoseSource = field(default_factory=lambda: PoseSource("ground_truth"))
+    effective: dict[str, EffectiveValue] = field(default_factory=dict)
+    """Values of the simulator's model that stand for several of the robot's properties together (the drive
+    chain's delay and lag), by name; see :data:`EFFECTIVE_DRIVE`."""
+
+    def simulator_estimate(self, key: str) -> Estimate | None:
+        """The estimate the simulator's setting for profile key `key` takes: the effective value where the profile
+        key is not measured apart (the drive's delay and lag), else the key's own."""
+        for name, (_field, stands_for, _model) in EFFECTIVE_DRIVE.items():
+            if name in self.effective and stands_for[0] == key and name != "drive_response_s":
+                return self.effective[name].estimate
+        return self.values.get(key)
 
     def estimate(self, key: str) -> Estimate:
         """The estimate of a dotted profile key, e.g. ``actuation.delay_s``; KeyError if it was not asked for."""
@@ -295,7 +345,7 @@ class Calibration:
         out: dict[str, dict[str, object]] = {}
 
         def put(group: str, key: str, source: str) -> None:
-            est = self.values.get(source)
+            est = self.simulator_estimate(source)
             if est is not None and est.ok and est.value is not None:
                 out.setdefault(group, {})[key] = round(est.value) if key == "sim_beams" else _short(est.value)
 
@@ -314,7 +364,9 @@ class Calibration:
             put("actuation", key, f"actuation.{key}")
         gains = self.body_gains()
         if gains is not None:
-            out.setdefault("actuation", {}).update(linear_gain=_short(gains[0]), angular_gain=_short(gains[1]))
+            for c, name in enumerate(("linear_gain", "angular_gain")):
+                if self.actuation is None or not self.actuation.ambiguous_gain(c):  # a limit's reading is kept there
+                    out.setdefault("actuation", {})[name] = _short(gains[c])
         arc = self.arc_per_m()
         if arc is not None:
             out.setdefault("actuation", {})["yaw_rate_per_mps"] = _short(arc)
@@ -344,7 +396,7 @@ class Calibration:
         sources["actuation.deadband_radps"] = "base.deadband_radps"
         sources.update({f"network.{k}": v for k, v in NETWORK_SOURCES.items() if not k.startswith("clock_")})
         for world_key, source in sources.items():
-            est = self.values.get(source)
+            est = self.simulator_estimate(source)
             if est is None or not est.ok or est.value is None or est.interval is None:
                 continue
             lo, hi = est.interval
@@ -602,6 +654,7 @@ def calibrate(
     tagged = [(f"recording {k}" if len(read.sessions) > 1 else "recording", d) for k, d in enumerate(read.sessions)]
     data = _gather(tagged, read.pose_sources, parts, settings, read.geometry)
     values: dict[str, Estimate] = {}
+    effective: dict[str, EffectiveValue] = {}
     found = _Fits()
     if "lidar" in parts:
         found.lidar = estimate_lidar(read.geometry, data.spans, settings, rng)
@@ -612,6 +665,11 @@ def calibrate(
         found.actuation = estimate_actuation(data.tracks, settings, rng)
         values.update({f"actuation.{key}": getattr(found.actuation, key) for key in PROFILE_KEYS["actuation"]})
         values = within_physical_ranges(values)
+        effective = _effective_drive(found.actuation, values)
+        for name, value in effective.items():
+            key = value.stands_for[0]
+            if name != "drive_response_s" and values[key].ok:
+                values[key] = Estimate.unidentifiable(EFFECTIVE_REASON.format(name=name), values[key].unit)
     if "odometry" in parts:
         found.wheels, found.odometry = _odometry_fits(values, data, read.sessions, settings)
     if "odometry" in parts and "actuation" in parts:
@@ -620,7 +678,8 @@ def calibrate(
         values["base.deadband_radps"] = found.motors.deadband_radps
         values["base.max_wheel_accel_radps2"] = found.motors.max_wheel_accel_radps2
     if "actuation" in parts:
-        found.randomization = _fitted_randomization(values, data.tracks, settings)
+        drive = {value.stands_for[0]: value.estimate for name, value in effective.items() if name != "drive_response_s"}
+        found.randomization = _fitted_randomization({**values, **drive}, data.tracks, settings)
     if "network" in parts:
         found.network, found.clock = _network_fits(values, data.streams, tagged, read.sessions, settings, rng)
     for key in ("lidar.rate_hz", "odometry.rate_hz"):
@@ -641,6 +700,7 @@ def calibrate(
         motors=found.motors,
         randomization=found.randomization,
         pose_source=_merged(read.pose_sources),
+        effective=effective,
     )
 
 
@@ -795,6 +855,16 @@ def _localized_lidar_values(values: dict[str, Estimate], sessions: list[SessionD
     )
     for key in ("lidar.bias_m", "map.wall_offset_m"):
         out[key] = Estimate.unidentifiable(reason, values[key].unit)
+    return out
+
+
+def _effective_drive(actuation: ActuationFit, values: dict[str, Estimate]) -> dict[str, EffectiveValue]:
+    """The drive chain's delay, lag and response time as the simulator's model takes them (checked against the
+    simulator's ranges: outside them, not a setting)."""
+    out: dict[str, EffectiveValue] = {}
+    for name, (attribute, stands_for, model) in EFFECTIVE_DRIVE.items():
+        estimate = values[stands_for[0]] if attribute != "response_s" else actuation.response_s
+        out[name] = EffectiveValue(estimate, stands_for, f"{model}; {DRIVE_MODEL}")
     return out
 
 

@@ -208,6 +208,21 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
     lines += ["", "| key | estimate | std. error | 95 % interval | method / reason |", "|---|---|---|---|---|"]
     for key, est in calibration.values.items():
         lines.append(_row(key, est))
+    if calibration.effective:
+        lines += [
+            "",
+            "Effective values: the simulator's model stands for several of the robot's properties together.",
+            "",
+            "| effective value | estimate | std. error | 95 % interval | stands for |",
+            "|---|---|---|---|---|",
+        ]
+        for name, value in calibration.effective.items():
+            row = _row(f"effective.{name}", value.estimate).rsplit("|", 2)[0]
+            lines.append(f"{row}| {' + '.join(f'`{k}`' for k in value.stands_for)} |")
+    ambiguities = calibration.actuation.ambiguities if calibration.actuation else ()
+    if ambiguities:
+        lines += ["", "Ambiguous: two drive models explain the recording alike.", ""]
+        lines += [f"- {a.sentence()}" for a in ambiguities]
     ranges = calibration.randomize_ranges()
     if ranges:
         lines += ["", "Training on this calibration randomizes (per episode, uniform):", ""]

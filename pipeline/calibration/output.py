@@ -10,6 +10,10 @@ Layout of ``calibration.yaml``:
   top of params.yaml's ``world`` (:func:`pipeline.params.calibrated_world`); unidentified values are
   left out, so training keeps their nominal values;
 - ``unidentified``: the keys left out and why;
+- ``effective``: values of the simulator's model that stand for several of the robot's properties together (the
+  drive chain's delay, lag and response time), each with the profile keys it stands for and the model it belongs to;
+- ``ambiguous``: where two drive models explain the recording alike (a gain or a speed limit at one commanded speed;
+  a delay or a lag), both readings, the one kept and what recording would tell them apart;
 - ``speed_limits``: per command channel (linear, angular), whether the base saturated and at what speed
   (a top speed, not a gain: the gains are fitted below it), with the largest speeds commanded and achieved;
 - ``source``: the recordings (path and session metadata) and the calibration settings.
@@ -55,6 +59,8 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             "uncertainty": uncertainty,
             "world": world,
             "unidentified": calibration.unidentified(),
+            "effective": {name: value.as_mapping() for name, value in calibration.effective.items()},
+            "ambiguous": [a.as_mapping() for a in (calibration.actuation.ambiguities if calibration.actuation else ())],
             "speed_limits": {
                 limit.channel: limit.as_mapping()
                 for limit in (calibration.actuation.speed_limits if calibration.actuation else ())
@@ -95,6 +101,14 @@ def _header(calibration: Calibration) -> str:
         )
     for limit in calibration.speed_limits():
         lines.append(f"# Saturation: {limit.sentence()}.")
+    for ambiguity in calibration.actuation.ambiguities if calibration.actuation else ():
+        lines.append(f"# Ambiguous: {ambiguity.sentence()}.")
+    for name, value in calibration.effective.items():
+        if value.estimate.ok and value.estimate.value is not None:
+            lines.append(
+                f"# Effective: {name} {value.estimate.value:.3g} {value.estimate.unit} stands for "
+                f"{' + '.join(value.stands_for)} together (the simulator's model)."
+            )
     missing = calibration.unidentified()
     if missing:
         lines.append("# Not identified (training keeps the nominal value):")

@@ -370,16 +370,7 @@ def read_session(
     topics = log.topics()
     if pose_source == "auto":
         pose_source = "ground_truth" if all(f"/{ns}/ground_truth" in topics for ns in robots) else "scans"
-    needed: dict[str, list[str]] = {}
-    for part in parts:
-        for kind in topics_for(part, pose_source):
-            for ns in robots:
-                topic = f"/{ns}/{kind}"
-                if topic not in topics:
-                    needed.setdefault(topic, []).append(part)
-    if needed:
-        uses = sorted({part for parts_ in needed.values() for part in parts_})
-        raise MissingTopicError(where, sorted(needed), "the " + ", ".join(uses) + " calibration")
+    _check_topics(where, topics, robots, parts, pose_source)
     if session.robots and len(robots) != scen.n_robots:
         raise CalibrationError(
             where, f"the recording has {len(robots)} robots, scenario {scen.name!r} has {scen.n_robots}"
@@ -393,6 +384,63 @@ def read_session(
     if not has_episodes:  # poses that show the resets
         wanted += [f"/{ns}/{kind}" for ns in robots for kind in ("ground_truth", "odom")]
         wanted = list(dict.fromkeys(t for t in wanted if t in topics))
+    raw, frames = _read_streams(log, wanted)
+    notes: tuple[str, ...] = ()
+    if has_episodes:
+        last_ns = max((max(b["log"]) for b in raw.values() if b["log"]), default=0)
+        last_ns = max([last_ns, *(e.t_ns for w in recorded for e in w.events)])
+        episodes = _episodes(recorded, last_ns, where)
+    else:
+        episodes, notes = _inferred_episodes(raw, p)
+    windows = [(e.start_ns, e.end_ns) for e in episodes]
+    robot_data = []
+    for ns in robots:
+        robot_data.append(
+            RobotData(
+                ns,
+                truth=_poses(raw.get(f"/{ns}/ground_truth"), windows),
+                scans=_scans(raw.get(f"/{ns}/scan"), windows, where, f"/{ns}/scan"),
+                odom=_poses(raw.get(f"/{ns}/odom"), windows) if "odom" in kinds else None,
+                commands=_commands(raw.get(f"/{ns}/cmd_vel")),
+            )
+        )
+    followed = _followed_clock(log) if session.clock == "ros_clock" and CLOCK_TOPIC in topics else None
+    if TF_STATIC_TOPIC in topics:
+        statics = _static_transforms(log)
+        robot_data = [replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data]
+    return SessionData(
+        p,
+        session,
+        scen,
+        tuple(robot_data),
+        tuple(episodes),
+        has_episodes,
+        notes,
+        followed,
+        pose_source,
+        log.salvage_note,
+    )
+
+
+def _check_topics(
+    where: str, topics: dict[str, str], robots: Sequence[str], parts: Sequence[Part], pose_source: PoseSourceKind
+) -> None:
+    """MissingTopicError naming every per-robot topic that a requested part needs and the recording lacks."""
+    needed: dict[str, list[str]] = {}
+    for part in parts:
+        for kind in topics_for(part, pose_source):
+            for ns in robots:
+                topic = f"/{ns}/{kind}"
+                if topic not in topics:
+                    needed.setdefault(topic, []).append(part)
+    if needed:
+        uses = sorted({part for parts_ in needed.values() for part in parts_})
+        raise MissingTopicError(where, sorted(needed), "the " + ", ".join(uses) + " calibration")
+
+
+def _read_streams(log: McapLog, wanted: list[str]) -> tuple[dict[str, dict[str, list[Any]]], dict[str, str]]:
+    """Log times, stamps and the fields calibration uses of every message on `wanted` topics; the scans' frame per
+    robot."""
     raw: dict[str, dict[str, list[Any]]] = {t: {"log": [], "stamp": [], "data": []} for t in wanted}
     frames: dict[str, str] = {}
     for m in log.messages(wanted, skip_undecodable=True):
@@ -425,53 +473,26 @@ def read_session(
                     float(msg.range_max),
                 )
             )
-    notes: tuple[str, ...] = ()
-    if has_episodes:
-        last_ns = max((max(b["log"]) for b in raw.values() if b["log"]), default=0)
-        last_ns = max([last_ns, *(e.t_ns for w in recorded for e in w.events)])
-        episodes = _episodes(recorded, last_ns, where)
-    else:
-        all_log = [t for b in raw.values() for t in b["log"]]
-        if not all_log:
-            raise CalibrationError(where, "the recording holds no messages on the robots' topics")
-        first_ns, last_ns = int(min(all_log)), int(max(all_log))
-        whole = [(first_ns, last_ns)]
-        poses = {
-            t: _poses(b, whole) for t, b in raw.items() if t.endswith(("/ground_truth", "/odom")) and len(b["log"]) >= 2
-        }
-        episodes = infer_episodes({t: s for t, s in poses.items() if s is not None}, first_ns, last_ns)
-        notes = (
-            f"{p.name}: no /mrl/episode; {len(episodes)} episode(s) inferred from "
-            f"{len(episodes) - 1} reset(s) (simultaneous jumps of the robots' ground-truth or odometry poses)",
-        )
-    windows = [(e.start_ns, e.end_ns) for e in episodes]
-    robot_data = []
-    for ns in robots:
-        robot_data.append(
-            RobotData(
-                ns,
-                truth=_poses(raw.get(f"/{ns}/ground_truth"), windows),
-                scans=_scans(raw.get(f"/{ns}/scan"), windows, where, f"/{ns}/scan"),
-                odom=_poses(raw.get(f"/{ns}/odom"), windows) if "odom" in kinds else None,
-                commands=_commands(raw.get(f"/{ns}/cmd_vel")),
-            )
-        )
-    followed = _followed_clock(log) if session.clock == "ros_clock" and CLOCK_TOPIC in topics else None
-    if TF_STATIC_TOPIC in topics:
-        statics = _static_transforms(log)
-        robot_data = [replace(r, lidar_mount=lidar_mount(statics, r.name, frames.get(r.name, ""))) for r in robot_data]
-    return SessionData(
-        p,
-        session,
-        scen,
-        tuple(robot_data),
-        tuple(episodes),
-        has_episodes,
-        notes,
-        followed,
-        pose_source,
-        log.salvage_note,
+    return raw, frames
+
+
+def _inferred_episodes(raw: dict[str, dict[str, list[Any]]], path: Path) -> tuple[list[EpisodeTimes], tuple[str, ...]]:
+    """Episodes of a recording without /mrl/episode, from the resets its poses show, and the note that says so."""
+    where = str(path)
+    all_log = [t for b in raw.values() for t in b["log"]]
+    if not all_log:
+        raise CalibrationError(where, "the recording holds no messages on the robots' topics")
+    first_ns, last_ns = int(min(all_log)), int(max(all_log))
+    whole = [(first_ns, last_ns)]
+    poses = {
+        t: _poses(b, whole) for t, b in raw.items() if t.endswith(("/ground_truth", "/odom")) and len(b["log"]) >= 2
+    }
+    episodes = infer_episodes({t: s for t, s in poses.items() if s is not None}, first_ns, last_ns)
+    notes = (
+        f"{path.name}: no /mrl/episode; {len(episodes)} episode(s) inferred from "
+        f"{len(episodes) - 1} reset(s) (simultaneous jumps of the robots' ground-truth or odometry poses)",
     )
+    return episodes, notes
 
 
 CLOCK_TOPIC = "/clock"

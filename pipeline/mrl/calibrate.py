@@ -109,6 +109,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"calibrate: {key} unidentifiable: {reason}")
     for limit in calibration.speed_limits():
         print(f"calibrate: {limit.sentence()}")
+    for ambiguity in calibration.actuation.ambiguities if calibration.actuation else ():
+        print(f"calibrate: ambiguous: {ambiguity.sentence()}")
+    for name, value in calibration.effective.items():
+        if value.estimate.ok and value.estimate.value is not None:
+            print(
+                f"calibrate: effective.{name} {value.estimate.value:.3g} {value.estimate.unit} stands for "
+                f"{' + '.join(value.stands_for)} together (the simulator's drive model)"
+            )
     poses = calibration.pose_source
     if poses.kind == "localized":
         print(f"calibrate: poses localized from scans and odometry in the {poses.map}, match score "

@@ -20,7 +20,15 @@ from pipeline.calibration import CalibrationSettings, calibrate
 from pipeline.calibration.recording import read_session
 from tests.calibration_helpers import record_twin_session
 from tests.integration.test_calibration_inputs import rosbag2_copy
-from tests.integration.test_calibration_twin import EPISODES, STEPS, TIME_SCALE, TOLERANCES, with_ideal_defaults
+from tests.integration.test_calibration_twin import (
+    EFFECTIVE_KEYS,
+    EPISODES,
+    STEPS,
+    TIME_SCALE,
+    TOLERANCES,
+    truth_of_effective,
+    with_ideal_defaults,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -88,6 +96,9 @@ def test_the_bag_calibrates_to_the_drift_of_the_full_recording_and_the_profile(p
         if group not in ("lidar", "actuation"):
             continue
         est, expected = bag.values[key], float(profile[group][field])
+        if key in EFFECTIVE_KEYS:  # the drive's delay and lag: the simulator's effective values
+            effective = bag.effective[EFFECTIVE_KEYS[key]]
+            est, expected = effective.estimate, truth_of_effective(with_ideal_defaults(profile), effective.stands_for)
         if not est.ok or est.value is None or abs(est.value - expected) > tol.abs + tol.rel * abs(expected) + 1e-12:
             misses.append(f"{key}: {est.value}, profile {expected:.5g} ({tol.reason})")
     assert not misses, f"profile {name}:\n" + "\n".join(misses)

@@ -260,6 +260,56 @@ def test_episodes_table_printed_and_written_as_csv_and_parquet(session, tmp_path
 # -- calibrate without motion capture -------------------------------------------------------------
 
 
+def _keyboard(levels: tuple[float, ...]):
+    """Commands as a keyboard teleoperation sends them: forward speed from `levels`, held 1 s each in turn, while
+    the turn rate steps through five values every 0.7 s."""
+    turns = np.array([-0.3, -0.15, 0.0, 0.15, 0.3])
+
+    def commands(truth: np.ndarray, tick: int) -> np.ndarray:
+        t = tick * 0.02
+        v = levels[int(t) % len(levels)]
+        w = turns[int(t / 0.7) % len(turns)]
+        return np.tile([v, w], (len(truth), 1))
+
+    return commands
+
+
+def test_calibrate_names_a_gain_or_limit_ambiguity_and_a_recording_that_separates_them(tmp_path):
+    """One forward speed (0.5 m/s or stop) into a base capped at 0.31 m/s: the gain and the limit explain the bag
+    alike; mrl calibrate prints both, keeps the limit and says what would separate them. Forward speeds below and
+    above the cap separate them: the limit is found, the gain is the base's."""
+    world = {"actuation": {"max_linear_mps": 0.31}}
+    runs = {}
+    for name, levels in (("one", (0.0, 0.5)), ("several", (0.0, 0.1, 0.5, 0.2, 0.5, 0.3))):
+        bag = simulate_session(
+            tmp_path / f"{name}.mcap", world, episodes=3, steps=60, seed=5, commands=_keyboard(levels)
+        )
+        proc = mrl("calibrate", bag, "--parts", "actuation", "--bootstrap", "30", "--out", tmp_path / name, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        runs[name] = (proc.stdout, yaml.safe_load((tmp_path / name / "calibration.yaml").read_text()))
+    printed, data = runs["one"]
+    assert "calibrate: ambiguous: a linear gain of" in printed and "the nominal gain up to a limit of" in printed
+    assert "several linear speeds" in printed
+    (ambiguity,) = [a for a in data["ambiguous"] if a["keys"][0] == "actuation.linear_gain"]
+    assert ambiguity["kept"].startswith("the limit")
+    assert data["world"]["actuation"]["max_linear_mps"] == pytest.approx(0.31, rel=0.06)
+    assert "linear_gain" not in data["world"]["actuation"]
+    assert "actuation.linear_gain" in data["unidentified"]
+    printed, data = runs["several"]
+    assert "ambiguous: a linear gain" not in printed
+    assert not [a for a in data["ambiguous"] if a["keys"][0] == "actuation.linear_gain"]
+    assert data["world"]["actuation"]["max_linear_mps"] == pytest.approx(0.31, rel=0.06)
+    assert data["world"]["actuation"]["linear_gain"] == pytest.approx(1.0, rel=0.05)
+    # the drive's delay and lag are the simulator's effective values, not the profile's keys
+    assert set(data["effective"]) == {"drive_delay_s", "drive_lag_s", "drive_response_s"}
+    assert data["effective"]["drive_lag_s"]["stands_for"][:2] == [
+        "actuation.time_constant_s",
+        "base.motor_time_constant_s",
+    ]
+    assert "delay_s" not in data["profile"].get("actuation", {})
+    assert data["world"]["actuation"]["delay_s"] == data["effective"]["drive_delay_s"]["value"]
+
+
 def test_calibrate_a_bag_without_ground_truth_in_a_map_server_map(tmp_path):
     from pipeline.calibration.localize import OccupancyMap
     from pipeline.core.scenario import load_scenario

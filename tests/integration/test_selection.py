@@ -86,8 +86,8 @@ def test_evaluations_do_not_change_training_and_best_weights_are_exported(tmp_pa
     keys = [(float(r["robot_success"]), float(r["team_success"]), int(r["world_steps"])) for r in table]
     winner = max(keys)
     assert best.selected_at_steps == winner[2] and best.selected_robot_success == pytest.approx(winner[0], abs=1e-4)
-    meta = load_checkpoint(best.checkpoint).meta
-    assert meta["selection"]["best_at_steps"] == winner[2] and meta["world_steps"] == 240
+    record = load_checkpoint(best.checkpoint).record
+    assert record.selection is not None and record.selection.best_at_steps == winner[2] and record.world_steps == 240
     assert best.metrics()["train/selected_at_steps"] == float(winner[2])
 
 

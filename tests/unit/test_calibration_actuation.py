@@ -24,6 +24,7 @@ def simulate(
     noise: float = 0.003,
     start_s: float = 100.0,
     limits: tuple[float, float] = (math.inf, math.inf),
+    v_levels: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4),
 ) -> tuple[np.ndarray, np.ndarray, CommandTimeline]:
     """Truth sample times (ns), achieved (v, w) at them with noise, and the commands as sent every 20 ms.
 
@@ -31,13 +32,13 @@ def simulate(
     h = 0.001
     t = start_s + np.arange(0, duration_s, h)
     # a new command every 0.1 s, sent (repeated) on a 20 ms grid
-    steps = rng.integers(0, 5, size=int(duration_s / 0.1) + 1)
-    v_levels = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    steps = rng.integers(0, len(v_levels), size=int(duration_s / 0.1) + 1)
+    v_choices = np.array(v_levels)
     w_levels = np.array([0.0, -0.2, -0.1, 0.1, 0.2]) if turning else np.zeros(5)
     w_steps = rng.integers(0, 5, size=len(steps))
     send = start_s + np.arange(0, duration_s, 0.02)
     k = np.minimum((np.round(send - start_s, 6) / 0.1).astype(int), len(steps) - 1)
-    cmd = np.stack([v_levels[steps[k]], w_levels[w_steps[k]]], axis=1)
+    cmd = np.stack([v_choices[steps[k]], w_levels[w_steps[k]]], axis=1)
     timeline = CommandTimeline(np.round(send * NS).astype(np.int64), cmd)
     acting = timeline.at(np.round((t - delay_s) * NS).astype(np.int64), timeout_s=0.5)
     y = np.zeros((len(t), 2))
@@ -141,3 +142,56 @@ def test_a_base_below_its_limit_shows_none_and_keeps_its_fit():
     high = tracks(rng, 6, delay_s=0.08, tau_s=0.2, gains=(0.95, 0.9), limits=(0.5, 0.5))
     again = estimate_actuation(high, SETTINGS, np.random.default_rng(7))
     assert again.linear_gain.value == fit.linear_gain.value and again.delay_s.value == fit.delay_s.value
+
+
+KEYBOARD = (0.0, 0.5)
+"""A keyboard's forward commands: stop or 0.5 m/s."""
+
+
+def test_one_commanded_speed_into_a_capped_base_is_ambiguous_and_the_limit_is_kept():
+    """Every forward command 0.5 m/s or 0, the base capped at 0.31 m/s: a gain of 0.62 and the nominal gain up to
+    0.31 m/s explain the recording alike. Both are named, the limit is kept (commands below it act as nominal),
+    the gain is no setting, and what would separate them is said."""
+    rng = np.random.default_rng(11)
+    fit = estimate_actuation(
+        tracks(rng, 6, delay_s=0.1, tau_s=0.2, gains=(1.0, 1.0), limits=(0.31, math.inf), v_levels=KEYBOARD),
+        SETTINGS,
+        rng,
+    )
+    assert not fit.linear_gain.ok and "one commanded speed" in fit.linear_gain.reason
+    assert fit.angular_gain.ok and fit.angular_gain.value == pytest.approx(1.0, rel=0.03)
+    limit = fit.speed_limits[0]
+    assert limit is not None and limit.saturated and limit.limit.value == pytest.approx(0.31, rel=0.03)
+    assert limit.limit.interval is not None and limit.limit.interval[0] <= 0.31 <= limit.limit.interval[1]
+    (ambiguity,) = [a for a in fit.ambiguities if a.keys[0] == "actuation.linear_gain"]
+    assert fit.ambiguous_gain(0) and not fit.ambiguous_gain(1)
+    assert "gain of 0.6" in ambiguity.readings[0] and "limit of 0.31" in ambiguity.readings[1]
+    assert ambiguity.kept.startswith("the limit") and "several linear speeds" in ambiguity.separate
+
+
+def test_a_true_gain_at_one_commanded_speed_reads_the_same_and_is_not_claimed():
+    """The same recording made by a base with gain 0.62 and no limit: indistinguishable, so the same two readings."""
+    rng = np.random.default_rng(11)
+    fit = estimate_actuation(
+        tracks(rng, 6, delay_s=0.1, tau_s=0.2, gains=(0.62, 1.0), v_levels=KEYBOARD), SETTINGS, rng
+    )
+    assert not fit.linear_gain.ok and fit.ambiguous_gain(0)
+    limit = fit.speed_limits[0]
+    assert limit is not None and limit.limit.value == pytest.approx(0.31, rel=0.03)
+
+
+def test_several_commanded_speeds_separate_a_limit_from_a_gain():
+    """Commands at several speeds below and above the cap: the knee is found, the gain is the base's below it, and
+    nothing is ambiguous."""
+    rng = np.random.default_rng(11)
+    levels = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+    fit = estimate_actuation(
+        tracks(rng, 6, delay_s=0.1, tau_s=0.2, gains=(1.0, 1.0), limits=(0.31, math.inf), v_levels=levels),
+        SETTINGS,
+        rng,
+    )
+    assert fit.linear_gain.ok and fit.linear_gain.value == pytest.approx(1.0, rel=0.03)
+    limit = fit.speed_limits[0]
+    assert limit is not None and limit.saturated and limit.limit.value == pytest.approx(0.31, rel=0.05)
+    assert not [a for a in fit.ambiguities if a.keys[0] == "actuation.linear_gain"]
+    assert fit.response_s.ok and fit.response_s.value == pytest.approx(0.3, abs=0.03)

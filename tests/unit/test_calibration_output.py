@@ -58,10 +58,12 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
         "uncertainty",
         "world",
         "unidentified",
+        "effective",
+        "ambiguous",
         "speed_limits",
         "source",
     }
-    assert data["speed_limits"] == {}  # no actuation fit
+    assert data["speed_limits"] == {} and data["effective"] == {} and data["ambiguous"] == []  # no actuation fit
     assert data["profile"]["lidar"] == {
         "beams": 360,
         "rate_hz": 10.0,
