@@ -240,6 +240,26 @@ def recount() -> str:
     )
 
 
+def scale() -> str:
+    folder = RESULTS / "calibration_scale"
+    text = (folder / "summary.txt").read_text(encoding="utf-8")
+    cells = re.search(r"map: (\d+) x (\d+) cells at ([0-9.]+) m, (\d+) faces", text)
+    bag = re.search(r"bag: (\d+) s, .* (\d+) scans of (\d+) beams", text)
+    last = dict(pair.split("=") for pair in text.strip().splitlines()[-1].split())
+    if cells is None or bag is None:
+        raise SystemExit(f"{folder / 'summary.txt'}: not the output of benchmarks/calibration_scale.py")
+    side = int(cells.group(1)) * float(cells.group(3))
+    return prose(
+        f"**Calibration at building scale** (`{run_of(folder)['command']}`; "
+        "[benchmarks/results/calibration_scale/](benchmarks/results/calibration_scale/summary.txt)): a generated "
+        f"building of {side:.0f} x {side:.0f} m as a map_server map at {cells.group(3)} m ({cells.group(4)} wall "
+        f"faces), a {bag.group(1)} s bag of {bag.group(2)} scans of a {bag.group(3)}-beam lidar without motion "
+        f"capture, calibrated with the robot localized in the map: peak memory {last['peak_mib']} MiB "
+        f"({last['limit_ratio']} of the 2 GiB limit), {last['wall_s']} s ({last['duration_ratio']} of the bag's "
+        "duration)."
+    )
+
+
 LAYOUT_SETTINGS = (
     ("five DAgger rounds (`layouts_dagger.yaml` as committed)", "dagger5", (1, 2)),
     ("three rounds, each fit at learning rate 5e-4", "dagger3_lr5e-4", (1, 2)),
@@ -369,6 +389,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "sim2real": sim2real,
     "ten": ten,
     "recount": recount,
+    "scale": scale,
     "layouts": layouts,
     "scenarios": scenarios,
 }

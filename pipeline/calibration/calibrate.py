@@ -59,6 +59,7 @@ PROFILE_KEYS: dict[str, tuple[str, ...]] = {
         "wheel_separation_m",
         "deadband_radps",
         "max_wheel_accel_radps2",
+        "motor_time_constant_s",
     ),
     "clock": ("offset_s", "drift_ppm"),
     "map": ("wall_offset_m",),
@@ -677,6 +678,14 @@ def calibrate(
         found.motors = estimate_motors(wheel_episodes, _odometry_period_s(data.odom_stamps), settings, rng)
         values["base.deadband_radps"] = found.motors.deadband_radps
         values["base.max_wheel_accel_radps2"] = found.motors.max_wheel_accel_radps2
+        values["base.motor_time_constant_s"] = found.motors.motor_time_constant_s
+        # the drive as the robot has it, read at the wheels: the driver's delay and lag where the transients tell them
+        for key, est in (
+            ("actuation.delay_s", found.motors.delay_s),
+            ("actuation.time_constant_s", found.motors.driver_time_constant_s),
+        ):
+            if est.ok:
+                values[key] = est
     if "actuation" in parts:
         drive = {value.stands_for[0]: value.estimate for name, value in effective.items() if name != "drive_response_s"}
         found.randomization = _fitted_randomization({**values, **drive}, data.tracks, settings)

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import lfilter
@@ -92,6 +92,16 @@ class MotorFit:
     gains: tuple[float, float] | None = None
     """(linear, angular) gains of the wheel chain (stage 1), free of the deadband."""
     notes: tuple[str, ...] = ()
+    motor_time_constant_s: Estimate = field(
+        default_factory=lambda: Estimate.unidentifiable("the transients were not fitted", "s")
+    )
+    """The motors' own lag (after the acceleration limit): the motor's share of the total lag of the transients."""
+    delay_s: Estimate = field(default_factory=lambda: Estimate.unidentifiable("the transients were not fitted", "s"))
+    """The driver's delay, read at the wheels (before the deadband, the limit and the motors' lag)."""
+    driver_time_constant_s: Estimate = field(
+        default_factory=lambda: Estimate.unidentifiable("the transients were not fitted", "s")
+    )
+    """The driver's lag: the rest of the transients' total lag."""
 
 
 def wheel_speeds(v_mps: np.ndarray, w_radps: np.ndarray) -> np.ndarray:
@@ -249,11 +259,23 @@ def estimate_motors(
     used = [e for e in episodes if int(e.free.sum()) >= 3]
     if len(used) < MIN_EPISODES:
         reason = f"{len(used)} robot-episodes with contact-free odometry; the fit needs {MIN_EPISODES}"
-        return MotorFit(Estimate.unidentifiable(reason, "rad/s"), Estimate.unidentifiable(reason, "rad/s^2"))
+        return MotorFit(
+            Estimate.unidentifiable(reason, "rad/s"),
+            Estimate.unidentifiable(reason, "rad/s^2"),
+            motor_time_constant_s=Estimate.unidentifiable(reason, "s"),
+            delay_s=Estimate.unidentifiable(reason, "s"),
+            driver_time_constant_s=Estimate.unidentifiable(reason, "s"),
+        )
     moving = [e for e in used if np.any(np.abs(np.concatenate(_parts(e.commands.values), axis=1)) > MOVING_RADPS)]
     if len(moving) < MIN_EPISODES:
         reason = f"{len(moving)} robot-episodes commanded the wheels to turn; the robots must drive ({MIN_EPISODES})"
-        return MotorFit(Estimate.unidentifiable(reason, "rad/s"), Estimate.unidentifiable(reason, "rad/s^2"))
+        return MotorFit(
+            Estimate.unidentifiable(reason, "rad/s"),
+            Estimate.unidentifiable(reason, "rad/s^2"),
+            motor_time_constant_s=Estimate.unidentifiable(reason, "s"),
+            delay_s=Estimate.unidentifiable(reason, "s"),
+            driver_time_constant_s=Estimate.unidentifiable(reason, "s"),
+        )
     timeout = settings.command_timeout_s
     steady = [_steady(e, odometry_period_s, timeout) for e in used]
     n_steady = sum(len(s.y) for s in steady)
@@ -308,6 +330,8 @@ def estimate_motors(
     else:
         accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(transient), followed)
     d, lag, share = delays[int(best[0])], LAGS_S[int(best[1])], MOTOR_SHARES[int(best[2])]
+    motor = _motor_lag(best, accel_draws, n_free, len(transient))
+    delay, driver = _driver(best, accel_draws, delays, n_free, len(transient), motor)
     notes = (
         f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
         f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples of {len(transient)} of them give "
@@ -318,7 +342,7 @@ def estimate_motors(
             else ""
         ),
     )
-    return MotorFit(deadband, accel, (g_lin, g_ang), notes)
+    return MotorFit(deadband, accel, (g_lin, g_ang), notes, motor, delay, driver)
 
 
 def _interval(indices: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
@@ -355,6 +379,67 @@ def _deadband(value: float, draws: np.ndarray, commanded: np.ndarray, n: int, ep
         f"{episodes} robot-episodes"
     )
     return Estimate.of(value, se, (lo, hi), "rad/s", method, n)
+
+
+def _motor_lag(best: np.ndarray, draws: np.ndarray, n: int, episodes: int) -> Estimate:
+    """The motor's lag, share x total lag of the transients' grid: its bootstrap values' percentiles, widened by half
+    a share step of the total lag on each side (the grid's resolution). Unidentifiable where the draws span every
+    share tried: the transients do not tell the motor's lag from the driver's."""
+    good = draws[np.all(np.isfinite(draws[:, 1:3]), axis=1)]
+    if len(good) < 2:
+        return Estimate.unidentifiable("too few transients for a bootstrap", "s")
+    lags = LAGS_S[good[:, 1].astype(int)]
+    shares = MOTOR_SHARES[good[:, 2].astype(int)]
+    spread = np.unique(good[:, 2].astype(int))
+    if len(spread) == len(MOTOR_SHARES) or (spread.min() == 0 and spread.max() == len(MOTOR_SHARES) - 1):
+        return Estimate.unidentifiable(
+            "the transients fit every share of the lag between the driver and the motors alike: the motors' own lag "
+            "is part of effective.drive_lag_s",
+            "s",
+        )
+    value = float(LAGS_S[int(best[1])] * MOTOR_SHARES[int(best[2])])
+    motor = lags * shares
+    half_step = float(MOTOR_SHARES[1] - MOTOR_SHARES[0]) / 2 * lags
+    lo = max(float(np.percentile(motor - half_step, 2.5)), 0.0)
+    hi = float(np.percentile(motor + half_step, 97.5))
+    method = (
+        "transients of the wheel speeds: the motor's share of the total lag; bootstrap over "
+        f"{episodes} robot-episodes, widened by half a share step"
+    )
+    return Estimate.of(value, float(np.std(motor, ddof=1)), (min(lo, value), max(hi, value)), "s", method, n)
+
+
+def _driver(
+    best: np.ndarray, draws: np.ndarray, delays: np.ndarray, n: int, episodes: int, motor: Estimate
+) -> tuple[Estimate, Estimate]:
+    """The driver's delay and lag from the transients' grid (bootstrap percentiles widened by half a grid step); its
+    lag is the total less the motors' share, unidentifiable where the motors' lag is."""
+    good = draws[np.all(np.isfinite(draws[:, :3]), axis=1)]
+    method = (
+        f"transients of the wheel speeds: grid over delay, lag, the motor's share and the limit; bootstrap over "
+        f"{episodes} robot-episodes, widened by half a grid step"
+    )
+    if len(good) < 2:
+        reason = "too few transients for a bootstrap"
+        return Estimate.unidentifiable(reason, "s"), Estimate.unidentifiable(reason, "s")
+    step = float(DELAYS_S[1] - DELAYS_S[0])
+    d_draws = delays[good[:, 0].astype(int)]
+    d_value = float(delays[int(best[0])])
+    d_lo = max(float(np.percentile(d_draws, 2.5)) - step / 2, 0.0)
+    d_hi = float(np.percentile(d_draws, 97.5)) + step / 2
+    delay = Estimate.of(d_value, float(np.std(d_draws, ddof=1)), (d_lo, d_hi), "s", method, n)
+    if not motor.ok:
+        return delay, Estimate.unidentifiable(motor.reason, "s")
+    lags = LAGS_S[good[:, 1].astype(int)]
+    shares = MOTOR_SHARES[good[:, 2].astype(int)]
+    own = lags * (1 - shares)
+    ratio = float(LAGS_S[1] / LAGS_S[0])
+    half = (MOTOR_SHARES[1] - MOTOR_SHARES[0]) / 2 * lags + own * (math.sqrt(ratio) - 1)
+    value = float(LAGS_S[int(best[1])] * (1 - MOTOR_SHARES[int(best[2])]))
+    lo = max(float(np.percentile(own - half, 2.5)), 0.0)
+    hi = float(np.percentile(own + half, 97.5))
+    lag = Estimate.of(value, float(np.std(own, ddof=1)), (min(lo, value), max(hi, value)), "s", method, n)
+    return delay, lag
 
 
 def _accel(best: int, draws: np.ndarray, n: int, episodes: int, followed: float) -> Estimate:
