@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import statistics
 import sys
 import textwrap
 from collections.abc import Callable
@@ -260,6 +261,62 @@ def scale() -> str:
     )
 
 
+def _coverage_rows() -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    import csv
+
+    folder = RESULTS / "calibration_coverage"
+    with (folder / "coverage.csv").open(newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    return run_of(folder), rows
+
+
+def _coverage_table() -> list[tuple[str, int, int, float, float]]:
+    """Per key: (key, identified, profiles, coverage, median relative error)."""
+    _, rows = _coverage_rows()
+    out = []
+    for key in dict.fromkeys(r["key"] for r in rows):
+        mine = [r for r in rows if r["key"] == key]
+        ok = [r for r in mine if r["covered"] != ""]
+        if not ok:
+            out.append((key, 0, len(mine), float("nan"), float("nan")))
+            continue
+        rel = [float(r["rel_error"]) for r in ok if r["rel_error"] not in ("", "nan")]
+        median = statistics.median(rel) if rel else float("nan")
+        out.append((key, len(ok), len(mine), sum(int(r["covered"]) for r in ok) / len(ok), median))
+    return out
+
+
+def coverage_docs() -> str:
+    run, _ = _coverage_rows()
+    lines = [
+        f"Measured with `{run['command']}` ([run.json](../benchmarks/results/calibration_coverage/run.json), "
+        "[coverage.csv](../benchmarks/results/calibration_coverage/coverage.csv)):",
+        "",
+        "| key | identified | coverage of the 95 % interval | median relative error |",
+        "|---|---|---|---|",
+    ]
+    for key, ok, total, cov, med in _coverage_table():
+        if not ok:
+            lines.append(f"| `{key}` | 0 of {total} | - | - |")
+            continue
+        lines.append(f"| `{key}` | {ok} of {total} | {100 * cov:.0f} % | {100 * med:.1f} % |")
+    return "\n".join(lines)
+
+
+def coverage() -> str:
+    run, _ = _coverage_rows()
+    table = [t for t in _coverage_table() if t[1]]
+    at_target = sum(t[3] >= 0.9 for t in table)
+    worst = min(table, key=lambda t: t[3])
+    return prose(
+        f"**Honest intervals on robots calibration was not drawn for** (`{run['command']}`: 20 realities drawn "
+        "over the ranges of real robots, each deployed and calibrated; "
+        "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)): "
+        f"{at_target} of {len(table)} estimated keys have intervals that cover the truth in >= 90 % of the "
+        f"realities; the least covered is `{worst[0]}` ({100 * worst[3]:.0f} %)."
+    )
+
+
 LAYOUT_SETTINGS = (
     ("five DAgger rounds (`layouts_dagger.yaml` as committed)", "dagger5", (1, 2)),
     ("three rounds, each fit at learning rate 5e-4", "dagger3_lr5e-4", (1, 2)),
@@ -390,10 +447,12 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "ten": ten,
     "recount": recount,
     "scale": scale,
+    "coverage": coverage,
+    "coverage-docs": coverage_docs,
     "layouts": layouts,
     "scenarios": scenarios,
 }
-FILES = (ROOT / "README.md", ROOT / "docs" / "world.md")
+FILES = (ROOT / "README.md", ROOT / "docs" / "world.md", ROOT / "docs" / "calibration.md")
 
 
 def regenerate(text: str, where: str) -> tuple[str, list[str]]:

@@ -75,6 +75,7 @@ def test_robots_standing_still_leave_actuation_and_odometry_unidentifiable(tmp_p
         "base.wheel_separation_m",
         "base.deadband_radps",
         "base.max_wheel_accel_radps2",
+        "base.motor_time_constant_s",
     }
     unidentified = set(data["unidentified"])
     assert "robots must drive" in data["unidentified"]["base.deadband_radps"]

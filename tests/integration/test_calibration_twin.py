@@ -102,6 +102,12 @@ TOLERANCES: dict[str, Tolerance] = {
     "map.wall_offset_m": Tolerance(0.004, 0, "beams on the walls from every stationary span: SE about 1 mm"),
     "base.deadband_radps": Tolerance(0.1, 0, "no deadband in the profile: within two 0.05 rad/s grid steps of 0"),
     "network.burst_len": Tolerance(0, 0.3, "missing / runs of missing messages: independent losses give about 1"),
+    "base.motor_time_constant_s": Tolerance(
+        0.03,
+        0,
+        "no motor lag in these profiles: the transients' grid puts a sixth of the total lag per share step, so the "
+        "motors' share reads within about one step of 0 (or every share fits alike: unidentifiable)",
+    ),
     "network.jitter_s": Tolerance(
         0.003,
         0.3,
@@ -142,6 +148,8 @@ def with_ideal_defaults(truth: dict) -> dict:
     return {g: {**ideal.get(g, {}), **truth.get(g, {})} for g in {*ideal, *truth}}
 
 
+MAY_BE_UNIDENTIFIED = {"base.motor_time_constant_s": "every share"}
+"""Keys these profiles leave at zero, which the data may read near zero or leave open, with the word that says so."""
 UNIDENTIFIABLE_ON_THE_TWIN = {"clock.offset_s": "/clock", "base.max_wheel_accel_radps2": "no limit binds"}
 """Keys the mild and harsh recordings cannot tell, and a word their reason must name: the clock offset on a
 time-scaled twin, and an acceleration limit these profiles do not have."""
@@ -180,7 +188,8 @@ def test_every_estimate_lies_within_its_tolerance_of_the_profile(twin_calibratio
                 misses.append(f"{key}: at the wheels {est.value} {wheels}, profile {expected:.4g}")
             est, expected = effective.estimate, truth_of_effective(truth, effective.stands_for)
         if not est.ok or est.value is None:
-            misses.append(f"{key}: unidentifiable ({est.reason})")
+            if key not in MAY_BE_UNIDENTIFIED or MAY_BE_UNIDENTIFIED[key] not in est.reason:
+                misses.append(f"{key}: unidentifiable ({est.reason})")
             continue
         allowed = tol.abs + tol.rel * abs(expected)
         se = est.std_error if est.std_error is not None else float("nan")
@@ -199,7 +208,7 @@ def test_the_calibration_file_trains_the_simulator_toward_the_profile(twin_calib
     path = write_calibration(result, tmp_path)
     data = yaml.safe_load(path.read_text())
     # boxes that few beams see from the stationary spans of short episodes may stay unidentified; nothing else
-    expected = ("map.box_offsets_m[", *UNIDENTIFIABLE_ON_THE_TWIN, *EFFECTIVE_KEYS)
+    expected = ("map.box_offsets_m[", *UNIDENTIFIABLE_ON_THE_TWIN, *EFFECTIVE_KEYS, *MAY_BE_UNIDENTIFIED)
     assert all(key.startswith(expected) for key in data["unidentified"]), data["unidentified"]
     assert {"lidar", "actuation", "odometry", "network", "base", "clock", "map"} == set(data["profile"])
     world = calibrated_world(WorldConfig(), path)
