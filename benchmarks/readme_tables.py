@@ -309,7 +309,7 @@ def coverage() -> str:
     at_target = sum(t[3] >= 0.9 for t in table)
     worst = min(table, key=lambda t: t[3])
     return prose(
-        f"**Honest intervals on robots calibration was not drawn for** (`{run['command']}`: 20 realities drawn "
+        f"**Interval coverage on robots calibration was not drawn for** (`{run['command']}`: 20 realities drawn "
         "over the ranges of real robots, each deployed and calibrated; "
         "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)): "
         f"{at_target} of {len(table)} estimated keys have intervals that cover the truth in >= 90 % of the "

@@ -252,6 +252,17 @@ def _transient_costs(
     return costs
 
 
+def _unfitted(reason: str) -> MotorFit:
+    """Every motor key unidentifiable for `reason`."""
+    return MotorFit(
+        Estimate.unidentifiable(reason, "rad/s"),
+        Estimate.unidentifiable(reason, "rad/s^2"),
+        motor_time_constant_s=Estimate.unidentifiable(reason, "s"),
+        delay_s=Estimate.unidentifiable(reason, "s"),
+        driver_time_constant_s=Estimate.unidentifiable(reason, "s"),
+    )
+
+
 def estimate_motors(
     episodes: Sequence[WheelEpisode], odometry_period_s: float, settings: CalibrationSettings, rng: np.random.Generator
 ) -> MotorFit:
@@ -259,23 +270,11 @@ def estimate_motors(
     used = [e for e in episodes if int(e.free.sum()) >= 3]
     if len(used) < MIN_EPISODES:
         reason = f"{len(used)} robot-episodes with contact-free odometry; the fit needs {MIN_EPISODES}"
-        return MotorFit(
-            Estimate.unidentifiable(reason, "rad/s"),
-            Estimate.unidentifiable(reason, "rad/s^2"),
-            motor_time_constant_s=Estimate.unidentifiable(reason, "s"),
-            delay_s=Estimate.unidentifiable(reason, "s"),
-            driver_time_constant_s=Estimate.unidentifiable(reason, "s"),
-        )
+        return _unfitted(reason)
     moving = [e for e in used if np.any(np.abs(np.concatenate(_parts(e.commands.values), axis=1)) > MOVING_RADPS)]
     if len(moving) < MIN_EPISODES:
         reason = f"{len(moving)} robot-episodes commanded the wheels to turn; the robots must drive ({MIN_EPISODES})"
-        return MotorFit(
-            Estimate.unidentifiable(reason, "rad/s"),
-            Estimate.unidentifiable(reason, "rad/s^2"),
-            motor_time_constant_s=Estimate.unidentifiable(reason, "s"),
-            delay_s=Estimate.unidentifiable(reason, "s"),
-            driver_time_constant_s=Estimate.unidentifiable(reason, "s"),
-        )
+        return _unfitted(reason)
     timeout = settings.command_timeout_s
     steady = [_steady(e, odometry_period_s, timeout) for e in used]
     n_steady = sum(len(s.y) for s in steady)
