@@ -144,6 +144,9 @@ class ActuationFit:
     delay_lag_correlation: float | None = None
     """Correlation of the delay's and the lag's bootstrap draws (None without a bootstrap)."""
     response_s: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not fitted", "s"))
+    bootstrap_se: dict[str, float | None] = field(default_factory=dict)
+    """Each value's standard error over the bootstrap alone, before the misfit widens it (the domain
+    randomization's fit starts from these)."""
     """Delay + lag: the mean time a command takes to act (the first moment of the step response), which a lag and
     a delay that trade against each other leave well determined."""
 
@@ -452,6 +455,7 @@ def estimate_actuation(
             )
         )
     out: dict[str, Estimate] = {}
+    bootstrap_se: dict[str, float | None] = {}
     for k, (name, unit) in enumerate(UNITS.items()):
         se, interval = spread(samples[:, k])
         known_se = None if math.isnan(se) else se
@@ -461,6 +465,7 @@ def estimate_actuation(
         elif name == "time_constant_s" and tau >= TAU_MAX_S * 0.95:
             out[name] = Estimate.unidentifiable(f"the velocity does not settle within {TAU_MAX_S:g} s", unit)
         else:
+            bootstrap_se[name] = known_se
             se_k, interval_k = reach.widen(k, values[k], known_se, known_interval)
             out[name] = Estimate.of(values[k], se_k, interval_k, unit, method + reach.words, len(fine.y))
     response = Estimate.unidentifiable(out["delay_s"].reason or out["time_constant_s"].reason, "s")
@@ -486,6 +491,7 @@ def estimate_actuation(
         ambiguities=tuple(ambiguities),
         delay_lag_correlation=correlation,
         response_s=response,
+        bootstrap_se=bootstrap_se,
     )
 
 

@@ -687,8 +687,9 @@ def calibrate(
             if est.ok:
                 values[key] = est
     if "actuation" in parts:
-        drive = {value.stands_for[0]: value.estimate for name, value in effective.items() if name != "drive_response_s"}
-        found.randomization = _fitted_randomization({**values, **drive}, data.tracks, settings)
+        found.randomization = _fitted_randomization(
+            _randomization_start(values, effective, found.actuation), data.tracks, settings
+        )
     if "network" in parts:
         found.network, found.clock = _network_fits(values, data.streams, tagged, read.sessions, settings, rng)
     for key in ("lidar.rate_hz", "odometry.rate_hz"):
@@ -874,6 +875,21 @@ def _effective_drive(actuation: ActuationFit, values: dict[str, Estimate]) -> di
     for name, (attribute, stands_for, model) in EFFECTIVE_DRIVE.items():
         estimate = values[stands_for[0]] if attribute != "response_s" else actuation.response_s
         out[name] = EffectiveValue(estimate, stands_for, f"{model}; {DRIVE_MODEL}")
+    return out
+
+
+def _randomization_start(
+    values: dict[str, Estimate], effective: dict[str, EffectiveValue], actuation: ActuationFit | None
+) -> dict[str, Estimate]:
+    """The estimates the domain randomization's fit starts from: the simulator's drive values (the effective delay
+    and lag, the gains) with their bootstrap standard errors, before the misfit widens them."""
+    out = dict(values)
+    out.update({v.stands_for[0]: v.estimate for name, v in effective.items() if name != "drive_response_s"})
+    if actuation is not None:
+        for name, se in actuation.bootstrap_se.items():
+            key = f"actuation.{name}"
+            if key in out and out[key].ok:
+                out[key] = replace(out[key], std_error=se)
     return out
 
 
