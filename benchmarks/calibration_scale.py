@@ -205,6 +205,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--keep", type=Path, default=None, help="keep the map and the bag in this folder")
     args = parser.parse_args(argv)
+    if args.size < 20:
+        parser.error(f"--size {args.size:g}: the building needs at least 20 m (two corridors 10 m apart)")
+    if not 0 < args.resolution <= 0.5:
+        parser.error(f"--resolution {args.resolution:g}: a map cell of more than 0 and at most 0.5 m")
+    if not args.minutes > 0:
+        parser.error(f"--minutes {args.minutes:g}: the bag must last more than 0 minutes")
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)

@@ -11,8 +11,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.core.episode import ABORT_KINDS
 from pipeline.record.live import live_view
+from pipeline.record.results import Rate, session_metrics
 from pipeline.rollout.deployment import DeployRequest, deploy_session
 
 if TYPE_CHECKING:
@@ -77,26 +77,19 @@ def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
 
 
 def session_summary(metrics: dict[str, float], world: str) -> str:
-    """What happened in a session, from its metrics (``<world>/...``): episodes, aborted (and why), robot and team
-    success over every episode with 95 % intervals, the completed-only robot rate, stale seconds per robot."""
-    nan = float("nan")
+    """What happened in a session, from its metrics (``<world>/...``, read by
+    :func:`pipeline.record.results.session_metrics`): episodes, aborted (and why), robot and team success over every
+    episode with 95 % intervals, the completed-only rate, stale seconds per robot."""
+    m = session_metrics(metrics, f"the session's {world} metrics", world)
 
-    def get(key: str) -> float:
-        return metrics.get(f"{world}/{key}", nan)
+    def rate(r: Rate) -> str:
+        return f"{r.value:.3f} [{r.ci_low:.3f}, {r.ci_high:.3f}]"
 
-    def rate(key: str) -> str:
-        return f"{get(key):.3f} [{get(key + '_ci_low'):.3f}, {get(key + '_ci_high'):.3f}]"
-
-    why = ", ".join(f"{get('aborted_' + k):.0f} {k}" for k in ABORT_KINDS if get("aborted_" + k) > 0)
-    robots = sorted(
-        k.split("/")[1][: -len("_stale_s")]
-        for k in metrics
-        if k.startswith(f"{world}/robot_") and k.endswith("_stale_s")
-    )
-    stale = ", ".join(f"{r} {get(r + '_stale_s'):.1f} s" for r in robots)
+    why = ", ".join(f"{n} {kind}" for kind, n in m.aborted_by_kind.items() if n > 0)
+    stale = ", ".join(f"robot_{i + 1} {s:.1f} s" for i, s in enumerate(m.stale_s_each))
     return (
-        f"{get('episodes'):.0f} episodes, {get('aborted_episodes'):.0f} aborted{f' ({why})' if why else ''}: "
-        f"robot success {rate('robot_success')}, team success {rate('team_success')} over every episode; "
-        f"completed episodes only {get('robot_success_completed'):.3f} robot, "
-        f"{get('team_success_completed'):.3f} team; stale {stale or 'none'}"
+        f"{m.episodes} episodes, {m.aborted_episodes} aborted{f' ({why})' if why else ''}: "
+        f"robot success {rate(m.robot_success)}, team success {rate(m.team_success)} over every episode; "
+        f"completed episodes only {m.robot_success_completed.value:.3f} robot, "
+        f"{m.team_success_completed.value:.3f} team; stale {stale or 'none'}"
     )

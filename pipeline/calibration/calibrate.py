@@ -218,22 +218,23 @@ DRIVE_MODEL = (
     "the simulator's drive: a pure delay, then one first-order lag on the commanded body velocity "
     "(world.actuation.delay_s, time_constant_s)"
 )
-EFFECTIVE_DRIVE: dict[str, tuple[str, tuple[str, ...], str]] = {
-    "drive_delay_s": ("delay_s", ("actuation.delay_s",), "world.actuation.delay_s"),
+EFFECTIVE_DRIVE: dict[str, tuple[str | None, tuple[str, ...], str]] = {
+    "drive_delay_s": ("actuation.delay_s", ("actuation.delay_s",), "world.actuation.delay_s"),
     "drive_lag_s": (
-        "time_constant_s",
+        "actuation.time_constant_s",
         ("actuation.time_constant_s", "base.motor_time_constant_s", "base.max_wheel_accel_radps2"),
         "world.actuation.time_constant_s",
     ),
     "drive_response_s": (
-        "response_s",
+        None,
         ("actuation.delay_s", "actuation.time_constant_s", "base.motor_time_constant_s"),
         "delay + lag of the simulator's drive: the mean time a command takes to act",
     ),
 }
-"""The drive chain's effective values: (the actuation fit's field, the profile keys they stand for, the simulator's
-setting or quantity). A robot's body velocity follows its commands through the driver's delay and lag, the motors'
-own lag and their acceleration limit in series; the body-velocity fit sees the chain as the simulator models it."""
+"""The drive chain's effective values: (the profile key whose simulator setting takes it, None for a quantity no setting
+takes; the profile keys it stands for; the simulator's setting or quantity). A robot's body velocity follows its
+commands through the driver's delay and lag, the motors' own lag and their acceleration limit in series; the
+body-velocity fit sees the chain as the simulator models it."""
 EFFECTIVE_REASON = (
     "not measured apart: the body velocity follows the commands through the driver's and the motors' lags in series "
     "(and their acceleration limit); the chain's effective value, which the simulator takes, is effective.{name}"
@@ -268,8 +269,8 @@ class Calibration:
     def simulator_estimate(self, key: str) -> Estimate | None:
         """The estimate the simulator's setting for profile key `key` takes: the effective value where the profile
         key is not measured apart (the drive's delay and lag), else the key's own."""
-        for name, (_field, stands_for, _model) in EFFECTIVE_DRIVE.items():
-            if name in self.effective and stands_for[0] == key and name != "drive_response_s":
+        for name, (setting_of, _stands_for, _model) in EFFECTIVE_DRIVE.items():
+            if name in self.effective and setting_of == key:
                 return self.effective[name].estimate
         return self.values.get(key)
 
@@ -667,9 +668,9 @@ def calibrate(
         values.update({f"actuation.{key}": getattr(found.actuation, key) for key in PROFILE_KEYS["actuation"]})
         values = within_physical_ranges(values)
         effective = _effective_drive(found.actuation, values)
-        for name, value in effective.items():
-            key = value.stands_for[0]
-            if name != "drive_response_s" and values[key].ok:
+        for name in effective:
+            key = EFFECTIVE_DRIVE[name][0]
+            if key is not None and values[key].ok:
                 values[key] = Estimate.unidentifiable(EFFECTIVE_REASON.format(name=name), values[key].unit)
     if "odometry" in parts:
         found.wheels, found.odometry = _odometry_fits(values, data, read.sessions, settings)
@@ -872,8 +873,8 @@ def _effective_drive(actuation: ActuationFit, values: dict[str, Estimate]) -> di
     """The drive chain's delay, lag and response time as the simulator's model takes them (checked against the
     simulator's ranges: outside them, not a setting)."""
     out: dict[str, EffectiveValue] = {}
-    for name, (attribute, stands_for, model) in EFFECTIVE_DRIVE.items():
-        estimate = values[stands_for[0]] if attribute != "response_s" else actuation.response_s
+    for name, (setting_of, stands_for, model) in EFFECTIVE_DRIVE.items():
+        estimate = values[setting_of] if setting_of is not None else actuation.response_s
         out[name] = EffectiveValue(estimate, stands_for, f"{model}; {DRIVE_MODEL}")
     return out
 
@@ -884,7 +885,10 @@ def _randomization_start(
     """The estimates the domain randomization's fit starts from: the simulator's drive values (the effective delay
     and lag, the gains) with their bootstrap standard errors, before the misfit widens them."""
     out = dict(values)
-    out.update({v.stands_for[0]: v.estimate for name, v in effective.items() if name != "drive_response_s"})
+    for name, value in effective.items():
+        setting_of = EFFECTIVE_DRIVE[name][0]
+        if setting_of is not None:
+            out[setting_of] = value.estimate
     if actuation is not None:
         for name, se in actuation.bootstrap_se.items():
             key = f"actuation.{name}"

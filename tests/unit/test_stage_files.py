@@ -160,3 +160,18 @@ def test_episodes_csv_has_one_layout_written_and_read_back(tmp_path):
     bad.write_text("\n".join([lines[0], lines[1].replace("robot_1,", "robot_1,yes,", 1).rsplit(",", 1)[0]]) + "\n")
     with pytest.raises(RecordError, match=r"bad\.csv: line 2, success: 'yes' is not int"):
         read_episodes_csv(bad)
+
+
+def test_the_session_summary_line_reads_the_metrics_through_their_reader():
+    from pipeline.runs import session_summary
+
+    results = [
+        episode(0, [True, True], [False, False], stale=[0.5, 0.0]),
+        episode(1, [True, False], [False, False], aborted=True, stale=[0.0, 5.2]),
+    ]
+    line = session_summary(summarize(results, prefix="real"), "real")
+    assert line.startswith("2 episodes, 1 aborted (1 outage): robot success 0.750 [")
+    assert "team success 0.500 [" in line and "completed episodes only 1.000 robot, 1.000 team" in line
+    assert line.endswith("stale robot_1 0.5 s, robot_2 5.2 s")
+    with pytest.raises(RecordError, match="real/episodes"):
+        session_summary({"real/robot_success": 1.0}, "real")
