@@ -31,11 +31,14 @@ The interval takes the bound over every slope inside the drift interval and adds
 block minima about the line (what a straight line does not explain) on both sides.
 
 A time-scaled fleet: the recorder's clock is its own copy of the fleet's published ``/clock``,
-re-anchored on each message, which runs ahead or behind when the fleet does not keep its nominal
-rate (a loaded host). That error changes slowly over a recording and shifts every delay with it,
-so it reads as drift. The recorded ``/clock`` messages (logged at the recorder's reading, stamped
-with their value) measure it: the same envelope fit on them gives the copy's apparent drift, which
-is subtracted from each robot's, and its uncertainty is added in quadrature.
+re-anchored on each message and extrapolated at the nominal rate between messages. When the fleet
+does not keep its rate (a loaded host) the copy runs ahead or behind between messages by an error
+that follows the host's load. The recorded ``/clock`` messages, logged just before they re-anchor
+the copy, show that error at its largest: the same envelope fit on them gives the copy's apparent
+drift. A robot's envelope holds between none of it (messages logged just after a re-anchoring) and
+all of it, so the drift keeps its measured value and its interval spans the measured drift less
+none to all of the apparent one. (On twin recordings at 3x, subtracting all of it moved the robots'
+drifts away from the truth by up to 20 ppm: the envelope sits near the re-anchoring.)
 
 Only topics stamped by the robot's clock belong here (scan, odom). Ground truth from a motion
 capture system is stamped by the host (or the capture system's own clock) and must be left out;
@@ -153,7 +156,7 @@ def estimate_clock(
         offset, drift, robot_notes = _robot_clock(robot, streams_by_robot[robot], settings, rng)
         reference = (followed or {}).get(robot)
         if reference is not None:
-            drift, reference_note = _take_out_follower(robot, drift, reference, settings, rng)
+            drift, reference_note = _take_in_follower(robot, drift, reference, settings, rng)
             robot_notes.append(reference_note)
         per_robot[robot] = (offset, drift)
         notes += robot_notes
@@ -224,32 +227,36 @@ def _robot_clock(
     return offset, drift, notes
 
 
-def _take_out_follower(
+def _take_in_follower(
     robot: str, drift: Estimate, reference: StampStream, settings: CalibrationSettings, rng: np.random.Generator
 ) -> tuple[Estimate, str]:
-    """A robot's drift measured against a recorder that followed a published clock, less the apparent drift of
-    that clock against the recorder (zero when the copy kept pace); the two errors add in quadrature."""
+    """A robot's drift measured against a recorder that followed a published clock: the copy's error at the
+    envelope lies between none (a message logged just after a re-anchoring) and the error the ``/clock``
+    messages show (logged just before one), so the drift lies between the one measured and that less the copy's
+    apparent drift. The value is the one measured; the interval spans both."""
     _, apparent, _ = _robot_clock(f"{robot} /clock", [reference], settings, rng)
     if not drift.ok or drift.value is None:
-        return drift, f"{robot}: drift not measured, so the followed /clock's apparent drift is not taken out"
-    if not apparent.ok or apparent.value is None or apparent.std_error is None or drift.std_error is None:
+        return drift, f"{robot}: drift not measured, so the followed /clock's extrapolation is not bounded"
+    if not apparent.ok or apparent.value is None or drift.interval is None:
         reason = (
-            f"measured against a recorder that followed a published /clock whose own wander could not be measured "
-            f"({apparent.reason or 'no standard error'}), so the slope may be the copy's, not the robot's"
+            f"measured against a recorder that followed a published /clock whose extrapolation error could not be "
+            f"measured ({apparent.reason or 'no interval'}), so the slope may be the copy's, not the robot's"
         )
         return Estimate.unidentifiable(reason, drift.unit, drift.n), f"{robot}: {reason}"
-    value = drift.value - apparent.value
-    se = math.hypot(drift.std_error, apparent.std_error)
-    d_lo, d_hi = drift.interval or normal_interval(drift.value, drift.std_error)
-    a_lo, a_hi = apparent.interval or normal_interval(apparent.value, apparent.std_error)
-    half = math.hypot(d_hi - drift.value, a_hi - apparent.value)
-    half_low = math.hypot(drift.value - d_lo, apparent.value - a_lo)
-    method = f"{drift.method}; less the followed /clock's apparent drift {apparent.value:+.1f} ppm (in quadrature)"
-    note = (
-        f"{robot}: the published /clock runs {apparent.value:+.1f} ppm [{a_lo:+.1f}, {a_hi:+.1f}] against the "
-        f"recorder's copy of it (the copy's wander); taken out of the robot's {drift.value:+.1f} ppm"
+    a_lo, a_hi = apparent.interval or (apparent.value, apparent.value)
+    d_lo, d_hi = drift.interval
+    low, high = min(d_lo, d_lo - a_hi), max(d_hi, d_hi - a_lo)
+    se = max(drift.std_error or 0.0, (high - low) / (2 * Z_95))
+    method = (
+        f"{drift.method}; the interval spans the drift less none to all of the followed /clock's apparent drift "
+        f"{apparent.value:+.1f} ppm (the copy's extrapolation error, read before each re-anchoring)"
     )
-    return Estimate.of(value, se, (value - half_low, value + half), drift.unit, method, drift.n), note
+    note = (
+        f"{robot}: the recorder's copy of the published /clock, read just before each re-anchoring, runs "
+        f"{apparent.value:+.1f} ppm [{a_lo:+.1f}, {a_hi:+.1f}] against it; the robot's envelope holds between none "
+        f"and all of it, so its drift {drift.value:+.1f} ppm has the interval [{low:+.1f}, {high:+.1f}]"
+    )
+    return Estimate.of(drift.value, se, (low, high), drift.unit, method, drift.n), note
 
 
 def _blocks_by_topic(minima: _Minima, n_topics: int) -> list[set[int]]:

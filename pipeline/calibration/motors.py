@@ -22,9 +22,10 @@ deadband into smaller gains and a slew limit into a longer lag:
    `TRANSIENT_DEADBANDS_RADPS` within the range the held commands leave open: an arbitrary deadband
    there biased the limit upwards by about one grid step.
 Both stages keep per-episode sums, so a bootstrap over robot-episodes gives the intervals (percentiles
-widened by half a grid step). A deadband is identifiable only where commands asked for wheel speeds
-near it, an acceleration limit only where they asked for more than it: otherwise the key is reported
-unidentifiable with the bound the data do give.
+widened by half a grid step; the delay by a whole step, which the coarse deadband and limit grids bend).
+A deadband is identifiable only where commands asked for wheel speeds near it, an acceleration limit
+only where they asked for more than it: otherwise the key is reported unidentifiable with the bound the
+data do give.
 """
 
 from __future__ import annotations
@@ -411,12 +412,12 @@ def _motor_lag(best: np.ndarray, draws: np.ndarray, n: int, episodes: int) -> Es
 def _driver(
     best: np.ndarray, draws: np.ndarray, delays: np.ndarray, n: int, episodes: int, motor: Estimate
 ) -> tuple[Estimate, Estimate]:
-    """The driver's delay and lag from the transients' grid (bootstrap percentiles widened by half a grid step); its
-    lag is the total less the motors' share, unidentifiable where the motors' lag is."""
+    """The driver's delay and lag from the transients' grid (bootstrap percentiles widened by a delay step, the lag
+    by half a grid step); its lag is the total less the motors' share, unidentifiable where the motors' lag is."""
     good = draws[np.all(np.isfinite(draws[:, :3]), axis=1)]
     method = (
         f"transients of the wheel speeds: grid over delay, lag, the motor's share and the limit; bootstrap over "
-        f"{episodes} robot-episodes, widened by half a grid step"
+        f"{episodes} robot-episodes, the delay widened by a grid step, the lag by half of one"
     )
     if len(good) < 2:
         reason = "too few transients for a bootstrap"
@@ -424,8 +425,10 @@ def _driver(
     step = float(DELAYS_S[1] - DELAYS_S[0])
     d_draws = delays[good[:, 0].astype(int)]
     d_value = float(delays[int(best[0])])
-    d_lo = max(float(np.percentile(d_draws, 2.5)) - step / 2, 0.0)
-    d_hi = float(np.percentile(d_draws, 97.5)) + step / 2
+    # a delay between two grid values fits as well as either (the deadband's and the limit's grids bend the
+    # transients the same way): one grid step more on each side, as for the deadband
+    d_lo = max(float(np.percentile(d_draws, 2.5)) - step, 0.0)
+    d_hi = float(np.percentile(d_draws, 97.5)) + step
     delay = Estimate.of(d_value, float(np.std(d_draws, ddof=1)), (d_lo, d_hi), "s", method, n)
     if not motor.ok:
         return delay, Estimate.unidentifiable(motor.reason, "s")
