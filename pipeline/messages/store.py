@@ -105,6 +105,22 @@ class MessageStore:
         except Exception as exc:  # truncated or garbled buffers surface as struct/index errors
             raise MessageError(typename, f"malformed CDR ({len(data)} bytes): {exc}") from exc
 
+    def serialize_ros1(self, msg: Any, typename: str) -> bytes:
+        """ROS 1 serialization of `msg` (a ``std_msgs/Header`` gains ``seq`` 0), as a ROS 1 node sends it."""
+        try:
+            # through CDR: the type store's conversion is the one that gives a Header its ROS 1 seq
+            return bytes(self._ts.cdr_to_ros1(self._ts.serialize_cdr(msg, typename), typename))
+        except Exception as exc:
+            raise MessageError(typename, f"cannot serialize {type(msg).__name__} for ROS 1: {exc}") from exc
+
+    def deserialize_ros1(self, data: bytes | memoryview, typename: str) -> Any:
+        """The message of `typename` in ROS 1 serialization `data` (a Header's ``seq`` dropped)."""
+        self.cls(typename)
+        try:
+            return self._ts.deserialize_cdr(self._ts.ros1_to_cdr(bytes(data), typename), typename)
+        except Exception as exc:
+            raise MessageError(typename, f"malformed ROS 1 message ({len(data)} bytes): {exc}") from exc
+
 
 @cache
 def message_store() -> MessageStore:

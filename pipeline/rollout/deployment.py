@@ -272,6 +272,7 @@ def deploy_policy(
             profile=profile,
             extra={
                 "target": fleet.target,
+                "transport": fleet.transport,
                 "time_scale": repr(scale),
                 "fleet": fleet_source,
                 **clock_metadata(scale),

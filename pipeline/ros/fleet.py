@@ -3,9 +3,9 @@
 A fleet file is YAML (see ``pipeline/ros/fleets/twin.yaml``)::
 
     target: twin            # twin: start the bundled hardware twin; robots: use the running graph
-    transport: dds          # dds (Cyclone DDS from Python) | rclpy (ROS 2 installed)
+    transport: dds          # dds (Cyclone DDS from Python) | rclpy (ROS 2 installed) | ros1 (a ROS 1 master)
     scenario: obstacles     # the map the robots drive in: bundled name or scenario YAML path
-    network: {domain_id: 0, loopback_only: true, peers: []}
+    network: {domain_id: 0, loopback_only: true, peers: []}   # ros1: master_uri: http://HOST:PORT
     robots:                 # in scenario order: the i-th entry drives the scenario's i-th robot
       - {name: robot_1, namespace: robot_1, v_max_mps: 0.4, w_max_radps: 0.2}
     twin: {profile: mild, time_scale: 1.0, seed: 0}
@@ -55,6 +55,8 @@ class FleetNetwork:
     domain_id: int = setting(0, ge=0, le=232)
     loopback_only: bool = setting(True)
     peers: tuple[str, ...] = setting(())
+    master_uri: str = setting("")
+    """The ROS 1 master of a ros1 fleet (``http://HOST:PORT``); empty: ``ROS_MASTER_URI``."""
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,7 @@ class FleetTiming:
 class Fleet:
     target: Literal["twin", "robots"] = setting()
     robots: tuple[FleetRobot, ...] = setting(min_len=1)
-    transport: Literal["dds", "rclpy"] = setting("dds")
+    transport: Literal["dds", "rclpy", "ros1"] = setting("dds")
     scenario: str = setting("obstacles")
     network: FleetNetwork = setting(FleetNetwork())
     twin: TwinSettings = setting(TwinSettings())
@@ -131,7 +133,9 @@ class Fleet:
 
     def network_settings(self, source: str = "<fleet>") -> NetworkSettings:
         try:
-            return NetworkSettings(self.network.domain_id, self.network.loopback_only, self.network.peers)
+            return NetworkSettings(
+                self.network.domain_id, self.network.loopback_only, self.network.peers, self.network.master_uri
+            )
         except NetworkSettingsError as exc:
             raise ConfigError(source, [ConfigProblem(f"network.{exc.setting}", exc.value, exc.allowed)]) from exc
 

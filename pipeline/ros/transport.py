@@ -1,6 +1,6 @@
-"""The network transport interface shared by the Cyclone DDS backend and the rclpy backend.
+"""The network transport interface shared by the Cyclone DDS, rclpy and ROS 1 (rospy) backends.
 
-A :class:`Transport` joins one ROS 2 domain and gives publishers and subscriptions for the
+A :class:`Transport` joins one ROS 2 domain (or one ROS 1 master) and gives publishers and subscriptions for the
 topics of the contract (:class:`~pipeline.messages.topics.TopicSpec`). Messages are the message
 store's objects (``message_store().new(...)`` or the builders in ``pipeline.messages.convert``).
 
@@ -26,8 +26,8 @@ from pipeline.messages.store import message_store
 from pipeline.messages.topics import TopicSpec
 from pipeline.ros.errors import NetworkSettingsError, TransportError
 
-BackendKind = Literal["dds", "rclpy"]
-BACKENDS: tuple[BackendKind, ...] = ("dds", "rclpy")
+BackendKind = Literal["dds", "rclpy", "ros1"]
+BACKENDS: tuple[BackendKind, ...] = ("dds", "rclpy", "ros1")
 
 MAX_DOMAIN_ID = 232
 """Largest ROS 2 domain id (ports of higher ids overflow the RTPS port mapping on Linux)."""
@@ -50,11 +50,14 @@ class NetworkSettings:
     transport uses the loopback interface only and finds peers on this host by unicast (like
     ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``); `peers` are extra unicast discovery addresses
     (like ``ROS_STATIC_PEERS``), which must themselves be loopback addresses when `loopback_only`.
+    `master_uri` is the ROS 1 master (``http://HOST:PORT``; empty: ``ROS_MASTER_URI``), used by the
+    ros1 transport only; there `loopback_only` makes the node advertise 127.0.0.1 (``ROS_IP``).
     """
 
     domain_id: int = 0
     loopback_only: bool = True
     peers: tuple[str, ...] = field(default=())
+    master_uri: str = ""
 
     def __post_init__(self) -> None:
         if isinstance(self.domain_id, bool) or not isinstance(self.domain_id, int):
@@ -77,6 +80,17 @@ class NetworkSettings:
                     "set loopback_only to false to talk to other hosts",
                 )
         object.__setattr__(self, "peers", peers)
+        if not isinstance(self.master_uri, str):
+            raise NetworkSettingsError("master_uri", self.master_uri, "must be a URI http://HOST:PORT or empty")
+        if self.master_uri:
+            scheme, _, rest = self.master_uri.partition("://")
+            if scheme != "http" or not rest:
+                raise NetworkSettingsError(
+                    "master_uri", self.master_uri, "must be http://HOST:PORT, e.g. http://127.0.0.1:11311"
+                )
+            _check_peer("master_uri", rest.rstrip("/"))
+            if ":" not in rest:
+                raise NetworkSettingsError("master_uri", self.master_uri, "needs its port, e.g. http://127.0.0.1:11311")
 
 
 def _check_peer(setting: str, peer: object) -> str:
@@ -292,7 +306,8 @@ class Transport(ABC):
 
 
 def open_transport(kind: BackendKind = "dds", settings: NetworkSettings | None = None) -> Transport:
-    """A transport of backend `kind` ('dds': Cyclone DDS from Python; 'rclpy': a ROS 2 installation)."""
+    """A transport of backend `kind` ('dds': Cyclone DDS from Python; 'rclpy': a ROS 2 installation; 'ros1': a ROS 1
+    master through rospy)."""
     settings = settings if settings is not None else NetworkSettings()
     if kind == "dds":
         from pipeline.ros.dds import DdsTransport
@@ -302,4 +317,8 @@ def open_transport(kind: BackendKind = "dds", settings: NetworkSettings | None =
         from pipeline.ros.rclpy_transport import RclpyTransport
 
         return RclpyTransport(settings)
+    if kind == "ros1":
+        from pipeline.ros.ros1 import Ros1Transport
+
+        return Ros1Transport(settings)
     raise TransportError(f"transport kind {kind!r}", f"must be one of {', '.join(BACKENDS)}")
