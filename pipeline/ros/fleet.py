@@ -55,7 +55,7 @@ class FleetNetwork:
     domain_id: int = setting(0, ge=0, le=232)
     loopback_only: bool = setting(True)
     peers: tuple[str, ...] = setting(())
-    master_uri: str = setting("")
+    master_uri: str = setting("", allow_empty=True, optional=True)
     """The ROS 1 master of a ros1 fleet (``http://HOST:PORT``); empty: ``ROS_MASTER_URI``."""
 
 

@@ -9,9 +9,7 @@
 //
 // stdin takes an operator's lines: "reset" puts the robot at its start (answers "reset <n>" on stdout),
 // "quit" ends the process. stdout announces "ready" once the endpoints exist.
-// --log FILE gets one line per command received and per scan published:
-//   cmd <receive unix ns> <linear.x %a> <angular.z %a>
-//   scan <stamp sec> <stamp nanosec> <ranges as %a, space separated>
+// --log FILE gets one line per command received and per scan published (see robot_world.hpp).
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -42,6 +40,7 @@
 #include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
 #include <fastrtps/utils/IPLocator.h>
 
+#include "robot_world.hpp"
 #include "ros2_types.h"
 #include "ros2_typesPubSubTypes.h"
 
@@ -57,20 +56,10 @@ struct QosSpec {
     std::string type_hash;
 };
 
-struct Box {
-    double x, y, hx, hy, yaw;
-};
-
 struct Options {
+    robot_world::World world;
     int domain = 0;
-    std::string ns = "robot_1";
-    double x = 0, y = 0, yaw = 0;
-    double xmin = 0, ymin = 0, xmax = 4, ymax = 6, radius = 0.165;
-    std::vector<Box> boxes;
-    int beams = 360;
-    double scan_hz = 10, odom_hz = 50, truth_hz = 50, cmd_timeout = 0.5, range_max = 12.0, range_min = 0.12;
     QosSpec scan, odom, truth, cmd;
-    std::string log;
     bool loopback = true;
 };
 
@@ -83,24 +72,8 @@ struct Options {
     std::exit(2);
 }
 
-std::vector<std::string> split(const std::string& text, char sep) {
-    std::vector<std::string> out;
-    std::stringstream ss(text);
-    std::string item;
-    while (std::getline(ss, item, sep)) out.push_back(item);
-    return out;
-}
-
-std::vector<double> numbers(const std::string& text, size_t n, const std::string& flag) {
-    auto parts = split(text, ',');
-    if (parts.size() != n) usage(flag + " takes " + std::to_string(n) + " comma-separated numbers");
-    std::vector<double> out;
-    for (auto& p : parts) out.push_back(std::stod(p));
-    return out;
-}
-
 QosSpec qos_of(const std::string& text, const std::string& flag) {
-    auto parts = split(text, ',');
+    auto parts = robot_world::split(text, ',');
     if (parts.size() != 4) usage(flag + " takes RELIABILITY,DURABILITY,DEPTH,TYPEHASH");
     QosSpec q;
     q.reliable = parts[0] == "reliable";
@@ -116,30 +89,18 @@ Options parse(int argc, char** argv) {
         std::string flag = argv[i];
         if (i + 1 >= argc) usage(flag + " needs a value");
         std::string v = argv[++i];
-        if (flag == "--domain") o.domain = std::stoi(v);
-        else if (flag == "--ns") o.ns = v;
-        else if (flag == "--start") { auto n = numbers(v, 3, flag); o.x = n[0]; o.y = n[1]; o.yaw = n[2]; }
-        else if (flag == "--room") { auto n = numbers(v, 4, flag); o.xmin = n[0]; o.ymin = n[1]; o.xmax = n[2]; o.ymax = n[3]; }
-        else if (flag == "--box") { auto n = numbers(v, 5, flag); o.boxes.push_back({n[0], n[1], n[2], n[3], n[4]}); }
-        else if (flag == "--beams") o.beams = std::stoi(v);
-        else if (flag == "--scan-hz") o.scan_hz = std::stod(v);
-        else if (flag == "--odom-hz") o.odom_hz = std::stod(v);
-        else if (flag == "--truth-hz") o.truth_hz = std::stod(v);
+        std::string bad;
+        if (robot_world::world_flag(o.world, flag, v, bad)) {
+            if (!bad.empty()) usage(bad);
+        } else if (flag == "--domain") o.domain = std::stoi(v);
         else if (flag == "--qos-scan") o.scan = qos_of(v, flag);
         else if (flag == "--qos-odom") o.odom = qos_of(v, flag);
         else if (flag == "--qos-truth") o.truth = qos_of(v, flag);
         else if (flag == "--qos-cmd") o.cmd = qos_of(v, flag);
-        else if (flag == "--log") o.log = v;
         else if (flag == "--loopback") o.loopback = v == "1";
         else usage("unknown option " + flag);
     }
     return o;
-}
-
-int64_t unix_ns() {
-    return std::chrono::duration_cast<std::chrono::nanoseconds>(
-               std::chrono::system_clock::now().time_since_epoch())
-        .count();
 }
 
 template <class Header>
@@ -147,37 +108,6 @@ void stamp(Header& h, int64_t ns, const std::string& frame) {
     h.stamp().sec(static_cast<int32_t>(ns / 1000000000LL));
     h.stamp().nanosec(static_cast<uint32_t>(ns % 1000000000LL));
     h.frame_id(frame);
-}
-
-// distance along the ray (ox, oy) + t (dx, dy) to the first wall or box face; +inf if none
-double cast(const Options& o, double ox, double oy, double dx, double dy) {
-    double best = std::numeric_limits<double>::infinity();
-    auto slab = [&](double px, double py, double ux, double uy, double hx, double hy, bool inside) {
-        // ray in a rectangle's frame, centred at the origin with half sizes hx, hy
-        double t0 = -std::numeric_limits<double>::infinity(), t1 = std::numeric_limits<double>::infinity();
-        double p[2] = {px, py}, u[2] = {ux, uy}, h[2] = {hx, hy};
-        for (int k = 0; k < 2; ++k) {
-            if (std::abs(u[k]) < 1e-12) {
-                if (std::abs(p[k]) > h[k]) return;
-                continue;
-            }
-            double a = (-h[k] - p[k]) / u[k], b = (h[k] - p[k]) / u[k];
-            if (a > b) std::swap(a, b);
-            t0 = std::max(t0, a);
-            t1 = std::min(t1, b);
-        }
-        if (t0 > t1) return;
-        double t = inside ? t1 : t0;
-        if (t > 0 && t < best) best = t;
-    };
-    double cx = 0.5 * (o.xmin + o.xmax), cy = 0.5 * (o.ymin + o.ymax);
-    slab(ox - cx, oy - cy, dx, dy, 0.5 * (o.xmax - o.xmin), 0.5 * (o.ymax - o.ymin), true);
-    for (const Box& b : o.boxes) {
-        double c = std::cos(-b.yaw), s = std::sin(-b.yaw);
-        double px = ox - b.x, py = oy - b.y;
-        slab(c * px - s * py, s * px + c * py, c * dx - s * dy, s * dx + c * dy, b.hx, b.hy, false);
-    }
-    return best;
 }
 
 class CommandListener : public DataReaderListener {
@@ -192,7 +122,7 @@ public:
         SampleInfo info;
         while (reader->take_next_sample(&msg, &info) == ReturnCode_t::RETCODE_OK) {
             if (!info.valid_data) continue;
-            int64_t now = unix_ns();
+            int64_t now = robot_world::unix_ns();
             std::lock_guard<std::mutex> guard(lock);
             v = msg.linear().x();
             w = msg.angular().z();
@@ -217,13 +147,14 @@ std::vector<eprosima::fastrtps::rtps::octet> user_data(const QosSpec& q) {
 }  // namespace
 
 int main(int argc, char** argv) {
-    Options o = parse(argc, argv);
+    Options opts = parse(argc, argv);
+    const robot_world::World& o = opts.world;
     FILE* log = o.log.empty() ? nullptr : std::fopen(o.log.c_str(), "w");
     if (!o.log.empty() && !log) usage("cannot write " + o.log);
 
     DomainParticipantQos pqos;
     pqos.name("mrl_fastdds_robot_" + o.ns);
-    if (o.loopback) {
+    if (opts.loopback) {
         // loopback only, unicast discovery of 127.0.0.1 (as ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)
         pqos.transport().use_builtin_transports = false;
         auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
@@ -235,9 +166,9 @@ int main(int argc, char** argv) {
         pqos.wire_protocol().builtin.initialPeersList.push_back(peer);
         pqos.wire_protocol().builtin.avoid_builtin_multicast = true;
     }
-    DomainParticipant* participant = DomainParticipantFactory::get_instance()->create_participant(o.domain, pqos);
+    DomainParticipant* participant = DomainParticipantFactory::get_instance()->create_participant(opts.domain, pqos);
     if (!participant) {
-        std::cerr << "mrl_fastdds_robot: cannot create a participant on domain " << o.domain << "\n";
+        std::cerr << "mrl_fastdds_robot: cannot create a participant on domain " << opts.domain << "\n";
         return 1;
     }
     TypeSupport scan_type(new sensor_msgs::msg::dds_::LaserScan_PubSubType());
@@ -261,14 +192,14 @@ int main(int argc, char** argv) {
         wq.representation().m_value.push_back(XCDR_DATA_REPRESENTATION);
         return pub->create_datawriter(topic, wq);
     };
-    DataWriter* scan_writer = writer(scan_topic, o.scan);
-    DataWriter* odom_writer = writer(odom_topic, o.odom);
-    DataWriter* truth_writer = writer(truth_topic, o.truth);
+    DataWriter* scan_writer = writer(scan_topic, opts.scan);
+    DataWriter* odom_writer = writer(odom_topic, opts.odom);
+    DataWriter* truth_writer = writer(truth_topic, opts.truth);
     CommandListener listener;
     listener.log = log;
     DataReaderQos rq = DATAREADER_QOS_DEFAULT;
-    apply(o.cmd, rq.reliability(), rq.durability(), rq.history());
-    rq.user_data().data_vec(user_data(o.cmd));
+    apply(opts.cmd, rq.reliability(), rq.durability(), rq.history());
+    rq.user_data().data_vec(user_data(opts.cmd));
     DataReader* cmd_reader = sub->create_datareader(cmd_topic, rq, &listener);
     if (!scan_writer || !odom_writer || !truth_writer || !cmd_reader) {
         std::cerr << "mrl_fastdds_robot: cannot create the endpoints of " << o.ns << "\n";
@@ -288,7 +219,7 @@ int main(int argc, char** argv) {
     std::cout << "ready " << o.ns << std::endl;
 
     // state: pose in the map (ground truth) and the odometry's own integration from where it started
-    double x = o.x, y = o.y, th = o.yaw, ox = 0, oy = 0, oth = 0;
+    robot_world::Unicycle body{o.x, o.y, o.yaw};
     int handled_resets = 0;
     const double dt = 0.005;
     const auto t0 = std::chrono::steady_clock::now();
@@ -307,7 +238,7 @@ int main(int argc, char** argv) {
     while (!quit) {
         if (resets > handled_resets) {
             handled_resets = resets;
-            x = o.x, y = o.y, th = o.yaw;
+            body = robot_world::Unicycle{o.x, o.y, o.yaw};
             {
                 std::lock_guard<std::mutex> guard(listener.lock);
                 listener.v = listener.w = 0;
@@ -315,28 +246,22 @@ int main(int argc, char** argv) {
             std::cout << "reset " << handled_resets << std::endl;
         }
         double v, w;
-        int64_t now = unix_ns();
+        int64_t now = robot_world::unix_ns();
         {
             std::lock_guard<std::mutex> guard(listener.lock);
             bool fresh = (now - listener.received_ns) < static_cast<int64_t>(o.cmd_timeout * 1e9);
             v = fresh ? listener.v : 0.0;
             w = fresh ? listener.w : 0.0;
         }
-        // a unicycle kept off the walls; odometry integrates the same motion in its own frame
-        double nx = x + v * std::cos(th) * dt, ny = y + v * std::sin(th) * dt;
-        nx = std::min(std::max(nx, o.xmin + o.radius), o.xmax - o.radius);
-        ny = std::min(std::max(ny, o.ymin + o.radius), o.ymax - o.radius);
-        double moved = std::hypot(nx - x, ny - y);
-        x = nx, y = ny, th = std::remainder(th + w * dt, 2 * M_PI);
-        ox += moved * std::cos(oth), oy += moved * std::sin(oth), oth = std::remainder(oth + w * dt, 2 * M_PI);
+        body.step(o, v, w, dt);
         if (step >= next_truth) {
             next_truth += truth_every;
             geometry_msgs::msg::dds_::PoseStamped_ pose;
             stamp(pose.header(), now, "map");
-            pose.pose().position().x(x);
-            pose.pose().position().y(y);
-            pose.pose().orientation().z(std::sin(th / 2));
-            pose.pose().orientation().w(std::cos(th / 2));
+            pose.pose().position().x(body.x);
+            pose.pose().position().y(body.y);
+            pose.pose().orientation().z(std::sin(body.th / 2));
+            pose.pose().orientation().w(std::cos(body.th / 2));
             truth_writer->write(&pose);
         }
         if (step >= next_odom) {
@@ -344,30 +269,23 @@ int main(int argc, char** argv) {
             nav_msgs::msg::dds_::Odometry_ odom;
             stamp(odom.header(), now, o.ns + "/odom");
             odom.child_frame_id(o.ns + "/base_link");
-            odom.pose().pose().position().x(ox);
-            odom.pose().pose().position().y(oy);
-            odom.pose().pose().orientation().z(std::sin(oth / 2));
-            odom.pose().pose().orientation().w(std::cos(oth / 2));
+            odom.pose().pose().position().x(body.ox);
+            odom.pose().pose().position().y(body.oy);
+            odom.pose().pose().orientation().z(std::sin(body.oth / 2));
+            odom.pose().pose().orientation().w(std::cos(body.oth / 2));
             odom.twist().twist().linear().x(v);
             odom.twist().twist().angular().z(w);
             odom_writer->write(&odom);
         }
         if (step >= next_scan) {
             next_scan += scan_every;
-            std::vector<float> ranges(o.beams);
-            for (int i = 0; i < o.beams; ++i) {
-                double a = th - M_PI + 2 * M_PI * i / o.beams;
-                double r = cast(o, x, y, std::cos(a), std::sin(a));
-                ranges[i] = r > o.range_max ? std::numeric_limits<float>::infinity() : static_cast<float>(r);
-            }
+            std::vector<float> ranges = robot_world::scan_ranges(o, body.x, body.y, body.th);
             scan.ranges(ranges);
             stamp(scan.header(), now, o.ns + "/laser");
             scan_writer->write(&scan);
             if (log) {  // the listener logs commands from its own thread: one line at a time
                 std::lock_guard<std::mutex> guard(listener.lock);
-                std::fprintf(log, "scan %d %u", scan.header().stamp().sec(), scan.header().stamp().nanosec());
-                for (float r : ranges) std::fprintf(log, " %a", static_cast<double>(r));
-                std::fprintf(log, "\n");
+                robot_world::log_scan(log, scan.header().stamp().sec(), scan.header().stamp().nanosec(), ranges);
             }
         }
         if (log) {
