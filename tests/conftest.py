@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -22,3 +23,16 @@ def write_params(tmp_path: Path):
         return path
 
     return write
+
+
+@pytest.fixture(scope="session")
+def ros1_master(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A private ROS 1 master (Debian's rosmaster on a free loopback port) for the whole session: rospy binds a
+    process to one master. Skips where Debian's ROS 1 is absent."""
+    from tests.peers import ros1
+
+    why = ros1.missing()
+    if why is not None:
+        pytest.skip(why)
+    with ros1.master(tmp_path_factory.mktemp("ros1")) as uri:
+        yield uri

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -158,6 +158,9 @@ class SessionLog:
         overwrite: bool = True,
     ) -> None:
         self.robots = tuple(robots)
+        self._announce: Callable[[Any], None] | None = None
+        self.unannounced = 0
+        """Episode events the network publisher refused (the recording has them all)."""
         self.store = message_store()
         self.topics = fleet_topics(self.robots)
         metadata: dict[str, dict[str, str]] = {SESSION_META: dict(session), "versions": versions_metadata()}
@@ -252,9 +255,22 @@ class SessionLog:
         detail: str = "",
         seed: int = C.NO_SEED,
     ) -> None:
-        """One ``/mrl/episode`` event; `seed` (>= 0) belongs on ``start`` events (see :meth:`start_episode`)."""
+        """One ``/mrl/episode`` event; `seed` (>= 0) belongs on ``start`` events (see :meth:`start_episode`).
+
+        Also sent on the network where :meth:`announce_events` gave a publisher."""
         msg = C.episode_event(t_ns, episode, step, event, robot, detail, store=self.store, seed=seed)
         self.recorder.write("/mrl/episode", msg, t_ns)
+        if self._announce is not None:
+            try:
+                self._announce(msg)
+            except Exception:  # the network's failure; the recording has the event
+                self.unannounced += 1
+
+    def announce_events(self, send: Callable[[Any], None]) -> None:
+        """Hand every episode event to `send` too (a ``/mrl/episode`` publisher's), so a recorder of the network
+        (``rosbag record``, ``ros2 bag record``) has the episodes; events it refuses are counted in
+        :attr:`unannounced`."""
+        self._announce = send
 
     def start_episode(self, t_ns: int, episode: int, seed: int) -> None:
         """The ``start`` event of `episode`, which runs from the seed `seed` (>= 0), carried in its ``seed`` field.

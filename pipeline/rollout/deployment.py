@@ -14,7 +14,8 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -35,7 +36,8 @@ from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetCon
 from pipeline.rollout.runner import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.fleet import Fleet
-from pipeline.ros.transport import Transport, open_transport
+from pipeline.ros.ros1 import private_master
+from pipeline.ros.transport import NetworkSettings, Transport, open_transport
 
 TWIN_START_TIMEOUT_S = 60.0
 SWITCH_INTERVAL_S = 0.00005
@@ -247,6 +249,50 @@ def deploy_policy(
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     check_policy_fits_fleet(runtime, fleet, scenario)
     settings = fleet.network_settings(fleet_source)
+    with ExitStack() as stack:
+        if _needs_own_master(fleet, settings):
+            # a ROS 1 twin fleet without a master brings its own, as it brings its twin; the twin process and this
+            # one find it through ROS_MASTER_URI
+            uri = stack.enter_context(private_master())
+            stack.enter_context(_environment("ROS_MASTER_URI", uri))
+            settings = replace(settings, master_uri=uri)
+        return _deploy(runtime, fleet, fleet_source, request, scenario, settings, confirm_reset, twin_extra_args, live)
+
+
+def _needs_own_master(fleet: Fleet, settings: NetworkSettings) -> bool:
+    """A ROS 1 fleet played by the twin whose fleet file and environment name no master."""
+    return (
+        fleet.transport == "ros1"
+        and fleet.target == "twin"
+        and not settings.master_uri
+        and not os.environ.get("ROS_MASTER_URI")
+    )
+
+
+@contextmanager
+def _environment(name: str, value: str) -> Iterator[None]:
+    saved = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = saved
+
+
+def _deploy(
+    runtime: PolicyRuntime,
+    fleet: Fleet,
+    fleet_source: str,
+    request: DeployRequest,
+    scenario: Scenario,
+    settings: NetworkSettings,
+    confirm_reset: Callable[[int], None] | None,
+    twin_extra_args: list[str] | None,
+    live: LiveView | None,
+) -> tuple[list[EpisodeResult], str]:
     twin: TwinProcess | None = None
     profile = "robots"
     scale = 1.0
@@ -287,6 +333,7 @@ def deploy_policy(
         log = SessionLog(
             request.recording, [r.namespace for r in fleet.robots], session, documents, request.chunk_size_bytes
         )
+        log.announce_events(transport.publisher(T.FLEET_TOPICS["episode"]).publish)  # for recorders of the network
         if live is not None:
             live.attach(log.recorder)
         runner = DeployRunner(

@@ -35,19 +35,26 @@ import itertools
 import logging
 import os
 import queue
+import shutil
 import socket
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import message_store, schema_files
 from pipeline.messages.topics import TopicSpec
 from pipeline.ros.errors import BackendUnavailableError, TransportError
@@ -171,6 +178,70 @@ def check_master(uri: str, timeout_s: float = MASTER_TIMEOUT_S) -> None:
         raise TransportError(where, f"accepts connections but is no ROS master ({exc})") from None
 
 
+def free_port() -> int:
+    """A TCP port free on the loopback interface now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def ros_environment(uri: str, home: Path) -> dict[str, str]:
+    """The environment of a ROS 1 process on master `uri` with its logs under `home`."""
+    return {**os.environ, "ROS_MASTER_URI": uri, "ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log")}
+
+
+@contextmanager
+def private_master(home: Path | None = None, timeout_s: float = 15.0) -> Iterator[str]:
+    """A ROS 1 master of its own (``rosmaster --core`` on a free loopback port, its logs in `home` or a temporary
+    folder) while the block runs; yields its URI. BackendUnavailableError where rosmaster is not installed."""
+    if shutil.which("rosmaster") is None:
+        raise BackendUnavailableError(
+            "transport 'ros1'", "rosmaster is not installed (apt-get install ros-core python3-rospy)"
+        )
+    with tempfile.TemporaryDirectory(prefix="mrl_rosmaster_") as scratch:
+        folder = Path(home) if home is not None else Path(scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        port = free_port()
+        uri = f"http://127.0.0.1:{port}"
+        with (folder / "rosmaster.log").open("w") as out:
+            proc = subprocess.Popen(
+                ["rosmaster", "--core", "-p", str(port)],
+                env=ros_environment(uri, folder),
+                stdout=out,
+                stderr=subprocess.STDOUT,
+            )
+            try:
+                deadline = time.monotonic() + timeout_s
+                while True:
+                    try:
+                        check_master(uri, timeout_s=1.0)
+                        break
+                    except TransportError:
+                        if proc.poll() is not None or time.monotonic() > deadline:
+                            log_text = (folder / "rosmaster.log").read_text()
+                            raise TransportError(f"ROS master {uri}", f"rosmaster did not start: {log_text}") from None
+                        time.sleep(0.1)
+                yield uri
+            finally:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+
+def _which_field(msg: Any, typename: str, exc: MessageError) -> str:
+    """The serializer's complaint, with the member it is about where the DDS type's checks name it."""
+    from pipeline.ros.idl import dds_type
+
+    try:
+        dds_type(typename).to_dds(msg)
+    except Exception as found:  # the converters raise ValueError/TypeError naming the member
+        return f"{exc}: {found}"
+    return str(exc)
+
+
 def _writer_id(caller_id: str) -> int:
     return zlib.crc32(caller_id.encode()) & 0x7FFFFFFF
 
@@ -195,7 +266,10 @@ class Ros1Publisher(Publisher):
                 f"topic {self.spec.name}", f"expected a {self.spec.typename} message, got {type(msg).__name__}"
             )
         raw = self._raw_class()
-        raw._buff = encode(msg, self.spec.typename)
+        try:
+            raw._buff = encode(msg, self.spec.typename)
+        except MessageError as exc:
+            raise TransportError(f"topic {self.spec.name}", _which_field(msg, self.spec.typename, exc)) from exc
         return raw
 
     def publish(self, msg: Any) -> None:

@@ -88,7 +88,12 @@ class NetworkSettings:
                 raise NetworkSettingsError(
                     "master_uri", self.master_uri, "must be http://HOST:PORT, e.g. http://127.0.0.1:11311"
                 )
-            _check_peer("master_uri", rest.rstrip("/"))
+            try:
+                _check_peer("master_uri", rest.rstrip("/"))
+            except NetworkSettingsError:
+                raise NetworkSettingsError(
+                    "master_uri", self.master_uri, "has a bad host or port (1..65535); must be http://HOST:PORT"
+                ) from None
             if ":" not in rest:
                 raise NetworkSettingsError("master_uri", self.master_uri, "needs its port, e.g. http://127.0.0.1:11311")
 

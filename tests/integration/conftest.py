@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -76,16 +75,3 @@ def write_fleet(path: Path, **changes: object) -> Path:
             fleet[key] = value
     path.write_text(yaml.safe_dump(fleet, sort_keys=False))
     return path
-
-
-@pytest.fixture(scope="session")
-def ros1_master(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """A private ROS 1 master (Debian's rosmaster on a free loopback port) for the whole session: rospy binds a
-    process to one master. Skips where Debian's ROS 1 is absent."""
-    from tests.peers import ros1
-
-    why = ros1.missing()
-    if why is not None:
-        pytest.skip(why)
-    with ros1.master(tmp_path_factory.mktemp("ros1")) as uri:
-        yield uri

@@ -52,3 +52,28 @@ def test_without_ground_truth_its_staleness_limit_does_not_bind():
     from pipeline.ros.fleet import Fleet
 
     assert from_mapping(Fleet, fleet_file, "fleet").timing.outage_limit_s == 1.0
+
+
+def test_the_bundled_ros1_twin_fleet_names_no_master():
+    fleet = load_fleet("twin_ros1")
+    assert fleet.transport == "ros1" and fleet.target == "twin"
+    assert fleet.network_settings().master_uri == ""  # the deployment brings its own
+
+
+@pytest.mark.parametrize(
+    ("uri", "needle"),
+    [
+        ("127.0.0.1:11311", "network.master_uri = '127.0.0.1:11311': must be http://HOST:PORT"),
+        ("http://", "network.master_uri = 'http://': must be http://HOST:PORT"),
+        ("http://robot-1.local", "network.master_uri = 'http://robot-1.local': needs its port"),
+        ("http://10.0.0.5:99999", "network.master_uri = 'http://10.0.0.5:99999': has a bad host or port"),
+    ],
+)
+def test_a_bad_master_uri_names_the_key(tmp_path, uri, needle):
+    data = yaml.safe_load(fleet_path("twin_ros1").read_text())
+    data["network"]["master_uri"] = uri
+    path = tmp_path / "fleet.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_fleet(path)
+    assert needle in str(err.value) and str(path) in str(err.value)

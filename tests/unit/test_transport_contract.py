@@ -1,6 +1,7 @@
 """Behaviour every transport backend shares: refusals with clear errors, closing, in-process delivery.
 
-Runs on the 'dds' backend everywhere and on 'rclpy' where a ROS 2 installation provides it.
+Runs on the 'dds' backend everywhere, on 'ros1' where Debian's ROS 1 is installed (a private rosmaster for the
+session) and on 'rclpy' where a ROS 2 installation provides it.
 """
 
 from __future__ import annotations
@@ -23,12 +24,13 @@ from pipeline.ros import NetworkSettings, Transport, TransportError, open_transp
 _domains = itertools.count()
 
 
-@pytest.fixture(params=["dds", "rclpy"])
+@pytest.fixture(params=["dds", "ros1", "rclpy"])
 def transport(request: pytest.FixtureRequest) -> Iterator[Transport]:
     if request.param == "rclpy":
         pytest.importorskip("rclpy", reason="rclpy (a ROS 2 installation) is not available in this environment")
+    master = request.getfixturevalue("ros1_master") if request.param == "ros1" else ""
     domain_id = 102 + (os.getpid() + next(_domains)) % 30
-    with open_transport(request.param, NetworkSettings(domain_id=domain_id)) as t:
+    with open_transport(request.param, NetworkSettings(domain_id=domain_id, master_uri=master)) as t:
         yield t
 
 

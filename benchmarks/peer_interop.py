@@ -1,16 +1,21 @@
-"""Interoperability with a peer we did not write: the deploy runner (Cyclone DDS) and three Fast DDS drivers.
+"""Interoperability with peers we did not write: the deploy runner and three robot drivers in C++.
 
-Builds the C++ robot-driver stand-in (``tests/peers/fastdds_robot``, from the pipeline's IDL with
-Debian's fastddsgen and libfastrtps-dev), trains and exports a tiny shared policy for the obstacles
-room, and deploys it for `--episodes` episodes on three drivers over DDS discovery on loopback
-(1x, target ``robots``, the benchmark playing the operator who puts the robots back).
+--peer fastdds: the runner on Cyclone DDS and drivers on Debian's Fast DDS (``tests/peers/fastdds_robot``,
+from the pipeline's IDL with fastddsgen), over DDS discovery on loopback. --peer roscpp: the runner on
+rospy and drivers on Debian's roscpp (``tests/peers/roscpp_robot``), through a private rosmaster on a
+free loopback port. The benchmark builds the driver, trains and exports a tiny shared policy for the
+obstacles room, and deploys it for `--episodes` episodes on three drivers (1x, target ``robots``, the
+benchmark playing the operator who puts the robots back).
 
-Printed: episodes completed (and aborted); per robot and over all, commands sent during episodes,
+Printed: the jitter of a bare 20 ms timer loop on this machine (the limit the emitter can reach), the
+runner's emitter tick jitter p99 and cross-robot send skew p99 from the recorded /mrl/timing (targets
+1 ms and 0.5 ms); episodes completed (and aborted); per robot and over all, commands sent during episodes,
 commands the driver never received (lost), one-way delay p50/p99 (driver receive time minus the
 recorded send time, one host clock); command round trip p50/p99: from sending a new command value
 to receiving the first odometry whose twist reports it (the driver applies the command and
 publishes it back at 50 Hz); scans recorded vs published.
-Last line: ``episodes=<done>/<asked> lost=<n> delay_p50_ms=<..> delay_p99_ms=<..> rtt_p50_ms=<..> rtt_p99_ms=<..>``.
+Last line: ``peer=<peer> episodes=<done>/<asked> lost=<n> jitter_p99_ms=<..> jitter_ratio=<jitter p99 / bare timer
+p99> skew_p99_ms=<..> delay_p50_ms=<..> delay_p99_ms=<..> rtt_p50_ms=<..> rtt_p99_ms=<..>``.
 """
 
 from __future__ import annotations
@@ -18,17 +23,21 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
-from deploy_timing import tiny_policy  # noqa: E402
+from deploy_timing import bare_timer_jitter_ms, tiny_policy  # noqa: E402
 
+from pipeline.analysis.timing import timing_figures  # noqa: E402
 from pipeline.record import McapLog  # noqa: E402
-from tests.peers import fastdds  # noqa: E402
+from tests.peers import drivers, fastdds, ros1, roscpp  # noqa: E402
 
 
 def round_trips_s(sent: list[tuple[int, float, float]], odom: list[tuple[int, float, float]]) -> list[float]:
@@ -50,29 +59,44 @@ def round_trips_s(sent: list[tuple[int, float, float]], odom: list[tuple[int, fl
     return out
 
 
+@contextmanager
+def deployer(peer: str, folder: Path) -> Iterator[Any]:
+    """``deploy(policy, folder, episodes)`` on three drivers of `peer` (with its master, for roscpp)."""
+    if peer == "fastdds":
+        binary = fastdds.build()
+        yield lambda policy, out, episodes: fastdds.deploy_on_drivers(binary, policy, out, episodes, domain=173)
+        return
+    binary = roscpp.build()
+    with ros1.master(folder / "ros_home") as uri:
+        yield lambda policy, out, episodes: roscpp.deploy_on_drivers(binary, uri, policy, out, episodes)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--peer", choices=("fastdds", "roscpp"), default="fastdds")
     parser.add_argument("--episodes", type=int, default=20)
     args = parser.parse_args()
-    reason = fastdds.missing()
+    reason = fastdds.missing() if args.peer == "fastdds" else roscpp.missing()
     if reason:
-        print(f"fastdds_interop: skipped: {reason}")
+        print(f"peer_interop: skipped: {reason}")
         return 1
-    binary = fastdds.build()
-    with tempfile.TemporaryDirectory() as tmp:
+    bare = bare_timer_jitter_ms(10.0)
+    print(f"bare 20 ms timer loop: jitter p99 {bare:.3f} ms (the limit on this machine)")
+    with tempfile.TemporaryDirectory() as tmp, deployer(args.peer, Path(tmp)) as deploy:
         folder = Path(tmp)
         policy = tiny_policy(folder / "p", Path("obstacles"), 100)
-        recording, logs, results = fastdds.deploy_on_drivers(binary, policy, folder, args.episodes, domain=173)
+        recording, logs, results = deploy(policy, folder, args.episodes)
+        timing = timing_figures(recording)
         log = McapLog(recording)
         episode_times = [m.log_time_ns for m in log.messages(["/mrl/episode"])]
         first, last = min(episode_times), max(episode_times)
         delays: list[float] = []
         rtts: list[float] = []
         lost = sent_total = 0
-        for ns in fastdds.NAMESPACES:
-            driver = fastdds.read_log(logs[ns])
+        for ns in drivers.NAMESPACES:
+            driver = drivers.read_log(logs[ns])
             sent = [(m.log_time_ns, m.msg.linear.x, m.msg.angular.z) for m in log.messages([f"/{ns}/cmd_vel"])]
-            got = fastdds.delivery(sent, driver)
+            got = drivers.delivery(sent, driver)
             during = [i for i, s in enumerate(sent) if first <= s[0] <= last]
             missing = sum(1 for i in during if i < got.first_matched)
             if not got.matched:
@@ -98,7 +122,13 @@ def main() -> int:
     done = sum(1 for r in results if not r.aborted)
     print(f"episodes completed {done} of {args.episodes} ({len(results) - done} aborted); {sent_total} commands")
     print(
-        f"episodes={done}/{args.episodes} lost={lost} delay_p50_ms={np.median(delays):.2f} "
+        f"emitter: tick p50 {timing.tick_p50_ms:.3f} ms, jitter p99 {timing.tick_jitter_p99_ms:.3f} ms "
+        f"({timing.ticks} ticks), send skew p99 {timing.skew_p99_ms:.3f} ms"
+    )
+    print(
+        f"peer={args.peer} episodes={done}/{args.episodes} lost={lost} jitter_p99_ms={timing.tick_jitter_p99_ms:.3f} "
+        f"jitter_ratio={timing.tick_jitter_p99_ms / max(bare, 1e-6):.2f} skew_p99_ms={timing.skew_p99_ms:.3f} "
+        f"delay_p50_ms={np.median(delays):.2f} "
         f"delay_p99_ms={np.percentile(delays, 99):.2f} rtt_p50_ms={np.median(rtts):.1f} "
         f"rtt_p99_ms={np.percentile(rtts, 99):.1f}"
     )
