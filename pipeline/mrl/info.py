@@ -116,6 +116,8 @@ def _topic_lines(bag: ImportedBag, topics: dict[str, str], counts: dict[str, int
     for name in sorted(topics):
         origin = f"  (from {renamed[name]})" if name in renamed else ""
         lines.append(f"    {name:<{width}}  {topics[name]:<{type_width}}  {counts[name]:>8}{origin}")
+    if bag.salvaged:
+        lines.append(f"  salvaged: {bag.salvaged}")
     if bag.skipped:
         lines.append("  left out:")
         lines += [f"    {topic}: {why}" for topic, why in bag.skipped.items()]

@@ -77,6 +77,7 @@ from pipeline.record.errors import (
     UnknownMessageTypeError,
 )
 from pipeline.record.reader import McapLog
+from pipeline.record.ros1_salvage import salvage_ros1
 from pipeline.record.session import SESSION_META, session_info
 
 BagFormat = Literal["mcap", "rosbag2-mcap", "rosbag2-sqlite3", "ros1"]
@@ -122,6 +123,7 @@ class ImportedBag:
         topics: every topic of `path` with its type and message count.
         start_ns, end_ns: log times of the first and last message (ns, the bag's clock, usually Unix time).
         skipped: source topics left out of `path` and why.
+        salvaged: for a cut or damaged ROS 1 bag read record by record, what was saved and lost ('' otherwise).
     """
 
     path: Path
@@ -133,6 +135,7 @@ class ImportedBag:
     start_ns: int
     end_ns: int
     skipped: dict[str, str] = field(default_factory=dict)
+    salvaged: str = ""
 
     @property
     def duration_ns(self) -> int:
@@ -573,7 +576,7 @@ def import_bag(
         return _session_bag(source_path, source, session, robots)
     with tempfile.TemporaryDirectory(prefix="mrl-bag-links-") as links:
         readable = _readable_path(source, Path(links))
-        return _convert(source_path, source, readable, robots, topic_map, work_dir)
+        return _convert(source_path, source, readable, robots, topic_map, work_dir, Path(links))
 
 
 def _session_bag(path: Path, source: _Source, log: McapLog, robots: Sequence[str] | None) -> ImportedBag:
@@ -621,6 +624,27 @@ def _open_reader(readable: Path, where: str) -> AnyReader:
     return reader
 
 
+def _open_or_salvage(readable: Path, source: _Source, where: str, scratch: Path) -> tuple[AnyReader, str]:
+    """The bag's reader; a ROS 1 bag whose index cannot be read is walked record by record into a new bag in
+    `scratch` (see :mod:`pipeline.record.ros1_salvage`) and that is read, with a line on what was saved and lost."""
+    try:
+        return _open_reader(readable, where), ""
+    except BagReadError as exc:
+        if source.format != "ros1":
+            raise
+        failure = exc.problem
+    saved = scratch / f"{readable.stem}.salvaged.bag"
+    try:
+        found = salvage_ros1(source.path, saved)
+    except Exception as exc:  # rosbags' ReaderError and WriterError, OSError
+        raise BagReadError(where, f"{failure}; and no message could be saved from its records: {exc}") from exc
+    note = found.lost or (
+        f"the bag has no readable index ({failure}); all {found.messages} messages were read from its chunks"
+    )
+    warnings.warn(BagImportWarning(f"{where}: {note}"), stacklevel=4)
+    return _open_reader(saved, where), note
+
+
 def _output_dir(work_dir: str | os.PathLike[str] | None, stem: str) -> tuple[Path, bool]:
     """A new folder path for the converted bag (not created), and whether its parent is a new temp folder."""
     if work_dir is None:
@@ -645,9 +669,10 @@ def _convert(
     robots: Sequence[str] | None,
     topic_map: Mapping[str, str] | None,
     work_dir: str | os.PathLike[str] | None,
+    scratch: Path,
 ) -> ImportedBag:
     where = str(path)
-    reader = _open_reader(readable, where)
+    reader, salvaged = _open_or_salvage(readable, source, where, scratch)
     try:
         if not reader.message_count:
             raise EmptyBagError(where, "the bag holds no messages")
@@ -686,7 +711,7 @@ def _convert(
         stem = source.path.stem if source.path.is_file() else source.path.resolve().name
         out_dir, temporary = _output_dir(work_dir, stem or "bag")
         try:
-            return _write(path, source.format, reader, plan, chosen, skipped, out_dir)
+            return _write(path, source.format, reader, plan, chosen, skipped, out_dir, salvaged)
         except BaseException:
             shutil.rmtree(out_dir.parent if temporary else out_dir, ignore_errors=True)
             raise
@@ -702,6 +727,7 @@ def _write(
     chosen: list[tuple[Connection, str, _Codec]],
     skipped: dict[str, str],
     out_dir: Path,
+    salvaged: str = "",
 ) -> ImportedBag:
     where = str(path)
     contract = {name: spec.qos for name, spec in fleet_topics(plan.robots).items()}
@@ -775,4 +801,4 @@ def _write(
     topics = tuple(BagTopic(dest, types[dest], n, sources[dest]) for dest, n in counts.items())
     if end_ns < 0:
         raise EmptyBagError(where, "no message of the bag could be imported")
-    return ImportedBag(mcap, path, source_format, True, plan.robots, topics, start_ns, end_ns, skipped)
+    return ImportedBag(mcap, path, source_format, True, plan.robots, topics, start_ns, end_ns, skipped, salvaged)

@@ -21,6 +21,7 @@ from mcap.writer import Writer as McapWriter
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag1.reader import Header
 from rosbags.rosbag2 import Reader as Reader2
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
@@ -240,6 +241,35 @@ def test_ros1_bag_without_its_suffix(tmp_path):
     bag = import_bag(renamed, work_dir=tmp_path / "work")
     assert bag.source_format == "ros1"
     check_import(bag, STANDARD)
+
+
+def _index_pos(bag: Path) -> int:
+    """Where the bag header says the index starts."""
+    with bag.open("rb") as f:
+        f.readline()
+        header = Header.read(f)
+    return header.get_uint64("index_pos")
+
+
+def test_a_cut_ros1_bag_is_salvaged_and_says_what_was_lost(tmp_path):
+    messages = golden_raw(STANDARD)
+    source = write_ros1(tmp_path / "fleet.bag", messages)
+    data = source.read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(data[: _index_pos(source) * 2 // 3])  # inside the (uncompressed) chunk
+    with pytest.warns(BagImportWarning, match=r"cut\.bag: the bag is cut or damaged at byte \d+ of \d+"):
+        bag = import_bag(cut, work_dir=tmp_path / "work")
+    assert "messages saved" in bag.salvaged and "everything after that is lost" in bag.salvaged
+    got = [(m.topic, m.log_time_ns, m.data) for m in McapLog(bag.path).raw()]
+    # the whole messages before the cut, in the order recorded, each byte for byte
+    whole = [(m.topic, m.log_time_ns, m.data) for m in messages][: len(got)]
+    assert 0 < len(got) < len(messages) and sorted(got, key=lambda g: g[1]) == sorted(whole, key=lambda g: g[1])
+    # a recorder killed before it wrote the index: every message is read from the chunks
+    unindexed = tmp_path / "active.bag"
+    unindexed.write_bytes(data[: _index_pos(source)])
+    with pytest.warns(BagImportWarning, match="no readable index"):
+        whole_bag = import_bag(unindexed, work_dir=tmp_path / "work2")
+    assert sum(t.message_count for t in whole_bag.topics) == len(messages)
 
 
 def test_ros1_types_that_ros2_lacks_or_renamed(tmp_path):
