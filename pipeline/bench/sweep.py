@@ -1,16 +1,25 @@
 """A training sweep on Ray: every trial of the matrix is a Ray task; finished trials are never run again.
 
 The driver starts a local Ray instance (``workers`` x ``cpus_per_trial`` CPUs) or joins a cluster at
-``address`` (its nodes need this package installed), submits one task per unfinished trial with
-``num_cpus=cpus_per_trial`` and collects them as they finish, printing each trial's progress lines
-(forwarded by Ray from the workers) and the sweep's (trials done, elapsed, estimated time left). A
-trial that fails is reported and left without a row; the sweep goes on. The rows of every finished
-trial, this run's and earlier runs', make the sweep's table: ``results.parquet`` and ``results.csv``.
+``address`` (``HOST:PORT`` of its head, or ``ray://HOST:PORT`` of its client server; checked to answer
+before anything starts; its nodes need only this package installed), submits one task per unfinished
+trial with ``num_cpus=cpus_per_trial`` and collects them as they finish, printing each trial's progress
+lines (forwarded by Ray from the workers) and the sweep's (trials done, elapsed, estimated time left).
+What a trial reads from the driver's disk travels with its task: the base settings as a mapping, a
+scenario given as a file as its text (a node that lacks the file writes it to a folder of its own).
+Each row names the node that ran it (``node_id``). A node that dies takes its running trials with it:
+Ray runs them again on the nodes left (system failures are retried, a trial's own error is not), and
+the row the driver writes is that run's, so no row is lost or doubled. A trial that fails is reported
+and left without a row; the sweep goes on. The rows of every finished trial, this run's and earlier
+runs', make the sweep's table: ``results.parquet`` and ``results.csv``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import socket
+import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -24,6 +33,10 @@ from pipeline.errors import MrlError
 
 RESULTS = "results"
 """The table's file stem in the sweep folder (``results.parquet``, ``results.csv``)."""
+NODE_RETRIES = 3
+"""Times a trial is run again after the node running it died (Ray's system-failure retries)."""
+ADDRESS_TIMEOUT_S = 5.0
+"""How long a cluster's head may take to accept a connection before it counts as not answering."""
 
 
 class SweepError(MrlError):
@@ -43,8 +56,67 @@ def trial_folder(out: Path, trial: Trial) -> Path:
     return out / "trials" / trial.name
 
 
-def _task(trial: Trial, base: Mapping[str, Any], folder: str, eval_episodes: int) -> dict[str, Any]:
-    return run_trial(trial, base, Path(folder), eval_episodes, say=lambda line: print(line, flush=True))
+def _task(
+    trial: Trial, base: Mapping[str, Any], folder: str, eval_episodes: int, scenario_text: str | None
+) -> dict[str, Any]:
+    """One trial on a Ray worker: the row, with the node that ran it."""
+    import ray
+
+    scenario_file = _scenario_here(trial.scenario, scenario_text)
+    row = run_trial(
+        trial, base, Path(folder), eval_episodes, say=lambda line: print(line, flush=True), scenario_file=scenario_file
+    )
+    return {**row, "node_id": ray.get_runtime_context().get_node_id()}
+
+
+def _scenario_here(scenario: str, text: str | None) -> Path | None:
+    """Where this node reads a scenario given as a file: the file itself where it exists here with the driver's
+    text, else a copy of that text in a folder of this node's (None: a bundled scenario)."""
+    if text is None:
+        return None
+    path = Path(scenario)
+    try:
+        if path.is_file() and path.read_text(encoding="utf-8") == text:
+            return path
+    except OSError:
+        pass
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    copy = Path(tempfile.gettempdir()) / "mrl-sweep-files" / digest / path.name
+    if not copy.is_file():
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        tmp = copy.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(copy)
+    return copy
+
+
+def check_address(address: str, timeout_s: float = ADDRESS_TIMEOUT_S) -> None:
+    """SweepError unless a Ray head answers at `address`: ``HOST:PORT`` (its GCS, for a driver on a node of the
+    cluster) or ``ray://HOST:PORT`` (its client server, for a driver elsewhere)."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit() or "/" in host:
+        raise SweepError(
+            f"sweep: --address {address!r}: must be HOST:PORT of a Ray head (ray start --head prints it) or "
+            "ray://HOST:PORT of its client server"
+        )
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise SweepError(
+            f"sweep: --address {address}: no Ray head answers there ({exc.strerror or exc}); start one with "
+            f"`ray start --head --port={port}` or fix the address"
+        ) from None
+
+
+def _scenario_texts(trials: Sequence[Trial]) -> dict[str, str]:
+    """The text of every scenario given as a file, read on the driver (it travels with the trials)."""
+    texts = {}
+    for trial in trials:
+        path = Path(trial.scenario)
+        if trial.scenario not in texts and path.suffix in (".yaml", ".yml") and path.is_file():
+            texts[trial.scenario] = path.read_text(encoding="utf-8")
+    return texts
 
 
 def run_sweep(
@@ -60,6 +132,8 @@ def run_sweep(
     """Run the unfinished `trials` as Ray tasks; the table of all finished ones (see the module's description)."""
     for trial in trials:  # every trial's settings are valid before anything starts
         trial.params(base)
+    if address:
+        check_address(address)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     pending = [t for t in trials if read_row(trial_folder(out, t), t.digest(base)) is None]
@@ -95,6 +169,7 @@ def _run_on_ray(
             ray.init(address=address, log_to_driver=True)
         else:
             ray.init(
+                address="local",  # a Ray of its own, even where RAY_ADDRESS or a `ray start` on this machine is found
                 num_cpus=max(1, round(workers * cpus_per_trial)),
                 include_dashboard=False,
                 log_to_driver=True,
@@ -106,8 +181,13 @@ def _run_on_ray(
         ) from exc
     failed: dict[str, str] = {}
     try:
-        task = ray.remote(num_cpus=cpus_per_trial, max_retries=0)(_task)
-        refs = {task.remote(t, dict(base), str(trial_folder(out, t)), eval_episodes): t for t in pending}
+        # a dead node's trials run again elsewhere; a trial's own exception is not retried
+        task = ray.remote(num_cpus=cpus_per_trial, max_retries=NODE_RETRIES, retry_exceptions=False)(_task)
+        texts = _scenario_texts(pending)
+        refs = {
+            task.remote(t, dict(base), str(trial_folder(out, t)), eval_episodes, texts.get(t.scenario)): t
+            for t in pending
+        }
         done = 0
         while refs:
             ready, _ = ray.wait(list(refs), num_returns=1)

@@ -87,15 +87,24 @@ class Trial:
     keys: tuple[tuple[str, Any], ...] = ()
 
     @property
+    def scenario_label(self) -> str:
+        """The scenario in names and tables: a bundled one's name; a file's stem and a short digest of its path
+        (a path's slashes would split the cell and nest the trial's folder)."""
+        if "/" not in self.scenario and not self.scenario.endswith((".yaml", ".yml")):
+            return self.scenario
+        digest = hashlib.sha256(self.scenario.encode()).hexdigest()[:6]
+        return f"{Path(self.scenario).stem}.{digest}"
+
+    @property
     def cell(self) -> str:
         """The trial without its seed: what seeds are aggregated over."""
         extra = ",".join(f"{k}={v}" for k, v in self.keys)
-        return f"{self.algorithm}/{self.mode}/{self.scenario}" + (f"/{extra}" if extra else "")
+        return f"{self.algorithm}/{self.mode}/{self.scenario_label}" + (f"/{extra}" if extra else "")
 
     @property
     def name(self) -> str:
         """A folder name, unique per trial (the keys by a short digest)."""
-        base = f"{self.algorithm}-{self.mode}-{self.scenario}-seed{self.seed}"
+        base = f"{self.algorithm}-{self.mode}-{self.scenario_label}-seed{self.seed}"
         if not self.keys:
             return base
         digest = hashlib.sha256(json.dumps(self.keys, sort_keys=True).encode()).hexdigest()[:8]
@@ -253,8 +262,10 @@ def run_trial(
     folder: Path,
     eval_episodes: int,
     say: Callable[[str], None] = print,
+    scenario_file: Path | None = None,
 ) -> dict[str, Any]:
-    """Train, export and evaluate `trial`; write and return its row (see the module's description)."""
+    """Train, export and evaluate `trial`; write and return its row (see the module's description). With
+    `scenario_file`, the trial's scenario is read from there (its copy on this node; the row keeps its name)."""
     import torch
 
     from pipeline.core.episode import summarize
@@ -266,6 +277,8 @@ def run_trial(
     from pipeline.sim.env import MultiRobotSim
 
     params = trial.params(base)
+    if scenario_file is not None:
+        params = replace(params, world=replace(params.world, scenario=str(scenario_file)))
     torch.manual_seed(trial.seed)
     scenario, world = make_world(world=params.world)
     folder.mkdir(parents=True, exist_ok=True)

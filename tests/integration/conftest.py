@@ -12,9 +12,10 @@ import yaml
 from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
 from pipeline.mappings import from_mapping, merge, to_mapping
-from pipeline.params import TrainConfig, world_config
+from pipeline.params import TrainConfig, load_params, world_config
 from pipeline.sim import make_world
 
+ROOT = Path(__file__).resolve().parents[2]
 TINY_TRAIN = {
     "algorithm": "sac",
     "mode": "shared",
@@ -74,4 +75,29 @@ def write_fleet(path: Path, **changes: object) -> Path:
         else:
             fleet[key] = value
     path.write_text(yaml.safe_dump(fleet, sort_keys=False))
+    return path
+
+
+TINY_SWEEP = {
+    "world": {"max_steps": 80},
+    "train": {
+        "total_steps": 600,
+        "n_envs": 2,
+        "net_arch": [16, 16],
+        "batch_size": 32,
+        "buffer_size": 2000,
+        "learning_starts": 100,
+        "checkpoint_every_episodes": 4,
+        "selection": {"keep": "last"},
+    },
+}
+
+
+@pytest.fixture(scope="session")
+def tiny_params(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """params.yaml with tiny training settings for sweeps, written to a file of its own."""
+    path = tmp_path_factory.mktemp("sweep_params") / "params.yaml"
+    data = merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY_SWEEP)
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    load_params(path)  # valid
     return path

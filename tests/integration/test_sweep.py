@@ -10,39 +10,15 @@ from pathlib import Path
 
 import polars as pl
 import pytest
-import yaml
 
 from pipeline.bench.sweep import run_sweep, trial_folder
 from pipeline.bench.trials import ROW_FILE, base_mapping, expand
-from pipeline.mappings import merge
 from pipeline.params import load_params
 
 pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
 MRL = Path(sys.executable).parent / "mrl"
-TINY = {
-    "world": {"max_steps": 80},
-    "train": {
-        "total_steps": 600,
-        "n_envs": 2,
-        "net_arch": [16, 16],
-        "batch_size": 32,
-        "buffer_size": 2000,
-        "learning_starts": 100,
-        "checkpoint_every_episodes": 4,
-        "selection": {"keep": "last"},
-    },
-}
-
-
-@pytest.fixture(scope="module")
-def tiny_params(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("sweep_params") / "params.yaml"
-    data = merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
-    path.write_text(yaml.safe_dump(data), encoding="utf-8")
-    load_params(path)  # valid
-    return path
 
 
 def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
