@@ -441,6 +441,30 @@ def scenarios() -> str:
     )
 
 
+def peers() -> str:
+    folder = RESULTS / "peer_interop"
+    run = run_of(folder)
+    lines = [
+        f"Measured with `{run['command']}` at {run['commit']} "
+        "([run.json](../benchmarks/results/peer_interop/run.json)):",
+        "",
+        "| peer | episodes | commands lost | emitter tick jitter p99 | send skew p99 | command delay p50 / p99 | "
+        "command -> odometry p50 / p99 |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, label in (
+        ("roscpp", "roscpp 1.15 (rospy runner, rosmaster)"),
+        ("fastdds", "Fast DDS 2.9 (Cyclone runner)"),
+    ):
+        last = (folder / f"{name}.txt").read_text(encoding="utf-8").strip().splitlines()[-1]
+        f = dict(pair.split("=", 1) for pair in last.split())
+        lines.append(
+            f"| {label} | {f['episodes']} | {f['lost']} | {f['jitter_p99_ms']} ms | {f['skew_p99_ms']} ms | "
+            f"{f['delay_p50_ms']} / {f['delay_p99_ms']} ms | {f['rtt_p50_ms']} / {f['rtt_p99_ms']} ms |"
+        )
+    return "\n".join(lines)
+
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "loop-lab": loop_lab,
     "sim2real": sim2real,
@@ -451,8 +475,14 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage-docs": coverage_docs,
     "layouts": layouts,
     "scenarios": scenarios,
+    "peers": peers,
 }
-FILES = (ROOT / "README.md", ROOT / "docs" / "world.md", ROOT / "docs" / "calibration.md")
+FILES = (
+    ROOT / "README.md",
+    ROOT / "docs" / "world.md",
+    ROOT / "docs" / "calibration.md",
+    ROOT / "docs" / "deployment.md",
+)
 
 
 def regenerate(text: str, where: str) -> tuple[str, list[str]]:
