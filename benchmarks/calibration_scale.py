@@ -8,8 +8,9 @@ no ground truth, no episode events: a bag as a robot records it), writes it as a
 ``--map`` in a child process (the robot localized in the map from its scans and odometry). Printed: the map's cells
 and faces, the bag's duration and size, the calibration's peak memory (the child's maximum resident set) and wall
 time, and their ratios to the limits (2 GiB; the bag's duration); then the lidar and drive estimates beside the
-values the bag was made with. Last line: ``peak_mib=<..> limit_ratio=<peak / 2 GiB> wall_s=<..> duration_ratio=<wall
-/ bag>``.
+values the bag was made with; then the bag's commands open loop in the nominal and in the calibrated simulator
+against the localized path (``mrl replay BAG --map``): the drift at 5, 10 and 30 s. Last line:
+``peak_mib=<..> limit_ratio=<peak / 2 GiB> wall_s=<..> duration_ratio=<wall / bag>``.
 
     python benchmarks/calibration_scale.py                       # 60 x 60 m at 0.05 m, 10 minutes
     python benchmarks/calibration_scale.py --size 20 --minutes 1 # the slow test's size
@@ -33,9 +34,11 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from pipeline.calibration.localize import OccupancyMap  # noqa: E402
+from pipeline.calibration.map_replay import MapReplay, map_replay  # noqa: E402
 from pipeline.core.scan import ScanGeometry  # noqa: E402
 from pipeline.messages import convert as C  # noqa: E402
 from pipeline.messages.topics import robot_topics  # noqa: E402
+from pipeline.params import calibrated_world, world_config  # noqa: E402
 from pipeline.record.writer import McapRecorder  # noqa: E402
 
 MEMORY_LIMIT_MIB = 2048
@@ -180,7 +183,8 @@ def write_bag(path: Path, floor: OccupancyMap, run: dict[str, np.ndarray], seed:
 
 CHILD = """
 import json, resource, sys, time
-from pipeline.calibration import CalibrationSettings, calibrate
+from pathlib import Path
+from pipeline.calibration import CalibrationSettings, calibrate, write_calibration
 start = time.perf_counter()
 settings = CalibrationSettings(
     parts=("lidar", "actuation", "odometry"), pose_source="scans", map_file=sys.argv[2],
@@ -193,8 +197,16 @@ values = {k: [cal.values[k].value, cal.values[k].interval, cal.values[k].reason]
 for k, v in cal.effective.items():
     values[f"effective.{k}"] = [v.estimate.value, v.estimate.interval, v.estimate.reason]
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+write_calibration(cal, Path(sys.argv[4]))
 print(json.dumps({"wall_s": wall, "peak_mib": peak, "score": cal.pose_source.median_score, "values": values}))
 """
+
+
+def replay(bag: Path, map_yaml: Path, calibration: Path, start: np.ndarray) -> MapReplay:
+    """The bag's commands open loop in the nominal and the calibrated simulator against its localized path."""
+    nominal = world_config({})
+    worlds = {"nominal": nominal, "calibrated": calibrated_world(nominal, calibration)}
+    return map_replay([bag], map_yaml, worlds, initial_pose=[float(v) for v in start])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -229,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         start = ",".join(f"{v:.3f}" for v in run["pose"][0])
         child = subprocess.run(
-            [sys.executable, "-c", CHILD, str(bag), str(map_yaml), start],
+            [sys.executable, "-c", CHILD, str(bag), str(map_yaml), start, str(folder / "calibration")],
             capture_output=True,
             text=True,
             cwd=ROOT,
@@ -239,6 +251,7 @@ def main(argv: list[str] | None = None) -> int:
             print(child.stderr[-3000:])
             return 1
         result = json.loads(child.stdout.strip().splitlines()[-1])
+        replayed = replay(bag, map_yaml, folder / "calibration" / "calibration.yaml", run["pose"][0])
     print(f"localization: median match score {result['score']:.2f}")
     truth = {
         "lidar.noise_sigma_m": NOISE_M,
@@ -257,6 +270,12 @@ def main(argv: list[str] | None = None) -> int:
         within = "" if interval is None else ("  covered" if interval[0] <= truth[key] <= interval[1] else "  missed")
         shown = "" if interval is None else f" [{interval[0]:.4g}, {interval[1]:.4g}]"
         print(f"  {key:28s} {value:.4g}{shown}  made with {truth[key]:.4g}{within}")
+    print(
+        f"open-loop replay against the localized path ({replayed.windows} windows of {replayed.window_s:g} s), "
+        "mean (p90) distance:"
+    )
+    for line in replayed.lines():
+        print(f"  {line}")
     peak, wall = result["peak_mib"], result["wall_s"]
     print(
         f"calibration: peak memory {peak:.0f} MiB (limit {MEMORY_LIMIT_MIB}), {wall:.0f} s for a {duration:.0f} s bag"

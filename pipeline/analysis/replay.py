@@ -23,13 +23,13 @@ import numpy as np
 
 from pipeline.analysis.errors import ReplayError
 from pipeline.core.scenario import Scenario
-from pipeline.core.timebase import NS_PER_S
 from pipeline.messages import convert as C
 from pipeline.params import RandomizeConfig, WorldConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC, read_episode_windows
 from pipeline.record.session import session_info
+from pipeline.sim.open_loop import Track, open_loop_errors
 from pipeline.sim.world import SimWorld
 
 REPLAY_TICK_S = 0.02
@@ -127,7 +127,6 @@ def open_loop_divergence(
         base=replace(world, randomize=RandomizeConfig()),
     )
     sim = SimWorld(scenario, replay_world)
-    tick_ns = round(REPLAY_TICK_S * NS_PER_S)
     n_ticks = int(horizon_s / REPLAY_TICK_S)
     errors = []
     for start_ns, end_ns in finished_episodes(log)[:max_episodes]:
@@ -144,28 +143,15 @@ def open_loop_divergence(
             continue
         t0 = max(truth[ns][0][0] for ns in names)
         first = np.stack([next(p for t, p in truth[ns] if t >= t0) for ns in names])
-        sim.reset(0, first)
-        cmd_times = {ns: np.array([t for t, _ in cmds[ns]], dtype=np.int64) for ns in names}
-        cmd_vals = {ns: np.array([c for _, c in cmds[ns]]).reshape(-1, 2) for ns in names}
-        truth_t = {ns: np.array([t for t, _ in truth[ns]], dtype=np.int64) for ns in names}
-        truth_xy = {ns: np.stack([p[:2] for _, p in truth[ns]]) for ns in names}
-        err = np.full((n_ticks, len(names)), np.nan)
-        for k in range(n_ticks):
-            t = t0 + k * tick_ns
-            if t > end_ns:
-                break
-            command = np.zeros((len(names), 2))
-            for i, ns in enumerate(names):
-                j = np.searchsorted(cmd_times[ns], t, side="right") - 1
-                if j >= 0:
-                    command[i] = cmd_vals[ns][j]
-            sim.step(command)
-            t_next = t + tick_ns
-            for i, ns in enumerate(names):
-                j = np.searchsorted(truth_t[ns], t_next)
-                if j < len(truth_t[ns]):
-                    err[k, i] = float(np.hypot(*(sim.truth[i, :2] - truth_xy[ns][j])))
-        errors.append(err)
+        commands = [
+            Track(np.array([t for t, _ in cmds[ns]], dtype=np.int64), np.array([c for _, c in cmds[ns]]).reshape(-1, 2))
+            for ns in names
+        ]
+        poses = [
+            Track(np.array([t for t, _ in truth[ns]], dtype=np.int64), np.stack([p for _, p in truth[ns]]))
+            for ns in names
+        ]
+        errors.append(open_loop_errors(sim, first, commands, poses, t0, end_ns, n_ticks, REPLAY_TICK_S))
     if not errors:
         raise ReplayError(f"{path}: no finished episode with ground truth for every robot")
     stack = np.stack(errors)  # (episodes, ticks, robots)

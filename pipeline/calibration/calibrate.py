@@ -786,6 +786,22 @@ def _read_sessions(paths: Sequence[str | Path], parts: tuple[Part, ...], setting
     return _Sessions(sessions, pose_sources, scenario, geometry)
 
 
+def localized_recordings(
+    recordings: Sequence[str | Path],
+    map_file: str | Path,
+    scenario: str = "",
+    initial_pose: Sequence[float] = (),
+) -> tuple[list[SessionData], Scenario]:
+    """The recordings as calibration reads them for their drive (commands, scans, odometry), each robot's poses
+    localized in the map_server map `map_file` where the recording has no motion capture; and the scenario they
+    drove in (the map's stand-in room when none is named); `initial_pose` as for calibration."""
+    settings = CalibrationSettings(
+        map_file=str(map_file), parts=("actuation",), scenario=scenario, initial_pose=tuple(initial_pose)
+    )
+    read = _read_sessions(recordings, ("actuation",), settings)
+    return read.sessions, read.scenario
+
+
 def _gather(
     tagged: list[tuple[str, SessionData]],
     pose_sources: list[PoseSource],

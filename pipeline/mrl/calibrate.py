@@ -4,11 +4,18 @@ file and its fit report (poses from motion capture, or localized in the map with
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import replace
 from typing import Any
 
-from pipeline.mrl.common import BAG_HELP, OPTIONS_SOURCE, add_verb, bag_options, imported, output_folder
+from pipeline.mrl.common import (
+    BAG_HELP,
+    OPTIONS_SOURCE,
+    add_verb,
+    bag_options,
+    imported,
+    output_folder,
+    pose_argument,
+)
 
 NAME = "calibrate"
 
@@ -77,7 +84,7 @@ def _pose_options(calibrate: argparse.ArgumentParser) -> None:
     )
     calibrate.add_argument(
         "--initial-pose",
-        type=_pose,
+        type=pose_argument,
         default=None,
         metavar="X,Y,YAW",
         help="where the (single) robot starts, for localization (default: global localization)",
@@ -133,13 +140,3 @@ def _parts(text: str) -> list[str]:
     if bad or not parts:
         raise argparse.ArgumentTypeError(f"{text!r}: expected some of {','.join(PARTS)} separated by commas")
     return parts
-
-
-def _pose(text: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected x,y,yaw (metres, metres, radians)")
-    return values

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
@@ -149,3 +150,14 @@ def live_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--live-port", type=int, default=8765, metavar="PORT", help="the live view's port (default: 8765)"
     )
+
+
+def pose_argument(text: str) -> list[float]:
+    """An X,Y,YAW option's three finite numbers (argparse type)."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected x,y,yaw (metres, metres, radians)")
+    return values

@@ -1,5 +1,6 @@
 """``mrl replay RECORDING --policy DIR [--out DIR]``: the policy on the recorded observations, and the recorded
-commands open loop in the policy's simulator."""
+commands open loop in the policy's simulator; ``mrl replay BAG --map MAP [--calibration FILE]``: a bag without
+motion capture, its commands open loop against its path localized in the map."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pipeline.mrl.common import (
     config_from_options,
     imported,
     output_folder,
+    pose_argument,
     source_name,
 )
 
@@ -32,12 +34,25 @@ def add_parser(subparsers: Any) -> None:
         "a policy on a recording's observations, and its commands open loop in the simulator",
         "Re-runs the policy on the recorded observations (does it give the recorded actions?) and drives\n"
         "the simulator the policy was trained in (and a calibrated one) open loop with the recorded\n"
-        "commands, measuring the drift from the recorded ground truth: replay.md, replay.json, divergence.png.",
+        "commands, measuring the drift from the recorded ground truth: replay.md, replay.json, divergence.png.\n"
+        "With --map instead of --policy: a bag of robots without motion capture, its commands open loop in the\n"
+        "nominal simulator (and a calibrated one) against its path localized in the map, the drift at 5, 10\n"
+        "and 30 s: replay_map.md, replay_map.json.",
     )
     replay.add_argument(
         "recording", metavar="RECORDING", help="a session with observations and actions (" + BAG_HELP + ")"
     )
-    replay.add_argument("--policy", required=True, metavar="DIR", help="the exported policy folder (policy.json)")
+    replay.add_argument("--policy", default=None, metavar="DIR", help="the exported policy folder (policy.json)")
+    replay.add_argument(
+        "--map", default=None, metavar="MAP", help="a map_server map (YAML): replay against the path localized in it"
+    )
+    replay.add_argument(
+        "--initial-pose",
+        type=pose_argument,
+        default=None,
+        metavar="X,Y,YAW",
+        help="with --map: where the (single) robot starts, for localization (default: global localization)",
+    )
     replay.add_argument("--out", default="replay", metavar="DIR", help="the output folder (default: replay)")
     replay.add_argument(
         "--calibration", default=None, metavar="FILE", help="calibration.yaml: also replay in the calibrated simulator"
@@ -64,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.params import ReplayConfig, calibrated_world
     from pipeline.policy.runtime import PolicyRuntime
 
+    if (args.policy is None) == (args.map is None):
+        raise CommandError("replay: give --policy DIR (a session with observations) or --map MAP (a bag), not both")
+    if args.map is not None:
+        return _map_run(args)
     out = output_folder(args.out)
     options = {"horizon_s": args.horizon_s, "max_episodes": args.max_episodes, "tolerance": args.tolerance}
     cfg = config_from_options(ReplayConfig, options)
@@ -91,4 +110,46 @@ def run(args: argparse.Namespace) -> int:
     for key, value in sorted(metrics.items()):
         print(f"replay: {key} = {value}")
     print(f"replay: {out / 'replay.md'}")
+    return 0
+
+
+def _map_run(args: argparse.Namespace) -> int:
+    """The bag's commands open loop in the nominal simulator (and the calibrated one) against its localized path."""
+    import json
+
+    from pipeline.calibration.map_replay import map_replay
+    from pipeline.params import calibrated_world, world_config
+
+    out = output_folder(args.out)
+    worlds = {"nominal": world_config({})}
+    if args.calibration:
+        worlds["calibrated"] = calibrated_world(worlds["nominal"], Path(args.calibration))
+    with imported(args, [args.recording]) as (bag,):
+        result = map_replay([bag.path], args.map, worlds, initial_pose=args.initial_pose or ())
+    table = result.lines()
+    text = "\n".join(
+        [
+            f"# Open-loop replay of {source_name(bag)} against its path {result.localization}",
+            "",
+            f"{result.windows} windows of {result.window_s:g} s; the distance from the simulated robot to the path:",
+            "",
+            *table,
+            "",
+        ]
+    )
+    figures = {
+        f"{d.world}/drift_{h:g}s_{kind}_m": value
+        for d in result.drifts
+        for kind, values in (("mean", d.mean_m), ("p90", d.p90_m))
+        for h, value in values.items()
+    }
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "replay_map.md").write_text(text, encoding="utf-8")
+        (out / "replay_map.json").write_text(json.dumps({"windows": result.windows, **figures}, indent=2) + "\n")
+    except OSError as exc:
+        raise CommandError(f"--out {out}: cannot write ({exc.strerror or exc})") from exc
+    for line in table:
+        print(f"replay: {line}")
+    print(f"replay: {out / 'replay_map.md'}")
     return 0

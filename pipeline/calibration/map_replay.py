@@ -1,0 +1,170 @@
+"""Fidelity on real data without motion capture: a bag's commands open loop in the simulator, against its path
+localized in the building's map.
+
+:func:`map_replay` reads the recordings as calibration does with ``--map`` (each robot localized from its scans
+and odometry in the map_server map), cuts every robot's localized path into windows of the longest horizon (one
+every `every_s` seconds at most), and drives each simulator of `worlds` (the nominal one, a calibrated one) open
+loop from the window's first localized pose with the commands as sent
+(:func:`pipeline.sim.open_loop.open_loop_errors`, on the map's stand-in room: the drive, not the walls, is what is
+compared). A window starts where every robot has stood still (commanded zero) for a second, just before it moves
+again: the simulator starts at rest. The drift at each horizon (5, 10, 30 s by default) is the distance from the
+simulated robot to the localized path then: its mean and 90th percentile over the windows, per simulator. The
+localized path has the localization's own error (a few centimetres where the scans match the map), a floor under
+every drift.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.calibration.calibrate import localized_recordings
+from pipeline.calibration.errors import CalibrationError
+from pipeline.params import RandomizeConfig, WorldConfig, world_config
+from pipeline.sim.open_loop import Track, open_loop_errors
+from pipeline.sim.world import SimWorld
+
+TICK_S = 0.02
+HORIZONS_S = (5.0, 10.0, 30.0)
+REST_S = 1.0
+"""A window starts where every robot has been commanded to stand still this long: the simulator starts at rest, so
+a window started in motion would measure the start, not the drive."""
+MAX_GAP_S = 1.0
+"""A window whose localized path has a gap longer than this (localization lost, a pause in recording) is left out."""
+
+
+@dataclass(frozen=True)
+class Drift:
+    """One simulator's open-loop drift from the localized path: per horizon (s), mean and p90 (m) over windows."""
+
+    world: str
+    mean_m: dict[float, float]
+    p90_m: dict[float, float]
+    first_tick_m: float
+    """Mean distance after the first step (one tick): the offset between the localized path and the replay's
+    start that no simulator removes (localization's error and timing), the floor under every drift."""
+
+
+@dataclass(frozen=True)
+class MapReplay:
+    windows: int
+    """Windows replayed (every robot's together)."""
+    window_s: float
+    drifts: tuple[Drift, ...]
+    localization: str
+    """Where the recorded path comes from, in words."""
+
+    def lines(self) -> list[str]:
+        """A markdown table: horizon by simulator, mean (p90)."""
+        head = "| horizon | " + " | ".join(f"{d.world} simulator, mean (p90)" for d in self.drifts) + " |"
+        out = [head, "|---" * (len(self.drifts) + 1) + "|"]
+        first = " | ".join(f"{d.first_tick_m:.3f} m" for d in self.drifts)
+        out.append(f"| {TICK_S:g} s (the path's own offset) | {first} |")
+        for h in sorted(self.drifts[0].mean_m):
+            cells = " | ".join(f"{d.mean_m[h]:.3f} m ({d.p90_m[h]:.3f} m)" for d in self.drifts)
+            out.append(f"| {h:g} s | {cells} |")
+        return out
+
+
+def map_replay(
+    recordings: Sequence[str | Path],
+    map_file: str | Path,
+    worlds: Mapping[str, WorldConfig],
+    horizons_s: Sequence[float] = HORIZONS_S,
+    every_s: float | None = None,
+    max_windows: int = 60,
+    initial_pose: Sequence[float] = (),
+) -> MapReplay:
+    """Each simulator of `worlds` driven open loop with the recordings' commands, against their localized path.
+
+    Raises:
+        CalibrationError: nothing to replay (no window of the longest horizon with a localized path and commands).
+    """
+    sessions, scenario = localized_recordings(recordings, map_file, initial_pose=initial_pose)
+    window_s = max(horizons_s)
+    ticks = round(window_s / TICK_S)
+    step = every_s if every_s is not None else window_s
+    cases: list[tuple[np.ndarray, list[Track], list[Track], int, int]] = []
+    for data in sessions:
+        robots = [r for r in data.robots if r.truth is not None and r.commands is not None]
+        if len(robots) != len(data.robots):
+            continue
+        poses = [Track(r.truth.time.t_ns, r.truth.pose) for r in robots]  # type: ignore[union-attr]
+        commands = [
+            Track(r.commands.t_ns, np.stack([r.commands.v, r.commands.w], axis=1))  # type: ignore[union-attr]
+            for r in robots
+        ]
+        first = max(int(p.t_ns[0]) for p in poses)
+        last = min(int(p.t_ns[-1]) for p in poses)
+        t0 = _rest_start(commands, first)
+        while t0 is not None and t0 + window_s * 1e9 <= last and len(cases) < max_windows:
+            end = t0 + int(window_s * 1e9)
+            if all(_continuous(p, t0, end) for p in poses):
+                start = np.stack([p.next_at(t0) for p in poses])  # type: ignore[misc]
+                cases.append((start, commands, poses, t0, end))
+            t0 = _rest_start(commands, t0 + int(step * 1e9))
+    if not cases:
+        raise CalibrationError(
+            str(recordings[0]),
+            f"no {window_s:g} s stretch of localized path with commands to replay that starts with every robot "
+            f"commanded to stand still for {REST_S:g} s (the simulator starts at rest; gaps in the path over "
+            f"{MAX_GAP_S:g} s break a stretch)",
+        )
+    drifts = []
+    for name, world in worlds.items():
+        sim = SimWorld(scenario, _replay_world(world))
+        errors = np.stack(
+            [open_loop_errors(sim, start, c, p, t0, end, ticks, TICK_S) for start, c, p, t0, end in cases]
+        )  # (windows, ticks, robots)
+        mean, p90 = {}, {}
+        for h in horizons_s:
+            k = min(round(h / TICK_S) - 1, ticks - 1)
+            at = errors[:, k, :].ravel()
+            at = at[np.isfinite(at)]
+            mean[h] = float(at.mean()) if at.size else math.nan
+            p90[h] = float(np.percentile(at, 90)) if at.size else math.nan
+        offset = errors[:, 0, :].ravel()
+        drifts.append(Drift(name, mean, p90, float(np.nanmean(offset)) if np.isfinite(offset).any() else math.nan))
+    where = "localized in " + Path(map_file).name + " from scans and odometry"
+    if all(d.pose_source != "scans" for d in sessions):
+        where = "motion capture"
+    return MapReplay(len(cases), window_s, tuple(drifts), where)
+
+
+def _rest_start(commands: Sequence[Track], after_ns: int) -> int | None:
+    """The first time at or after `after_ns` at which every robot has been commanded (0, 0) for `REST_S` (and still
+    is): the end of each robot's standing still, where the window starts; None if there is none."""
+    rest_ns = int(REST_S * 1e9)
+    starts: list[np.ndarray] = []
+    for track in commands:
+        still = np.all(track.values == 0.0, axis=1)
+        # runs of standing still: [first zero command, first moving command after it)
+        edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+        ends = [int(track.t_ns[b]) if b < len(track.t_ns) else int(track.t_ns[-1]) for b in edges[1::2]]
+        runs = [(int(track.t_ns[a]), e) for a, e in zip(edges[0::2], ends, strict=True)]
+        starts.append(np.array([e for a, e in runs if e - a >= rest_ns and e >= after_ns], dtype=np.int64))
+    for t in starts[0]:
+        if all(np.any(np.abs(other - t) <= rest_ns // 2) for other in starts[1:]):
+            return int(t) - round(TICK_S * 1e9)  # one tick before the first moving command
+    return None
+
+
+def _continuous(track: Track, t0: int, end: int) -> bool:
+    inside = track.t_ns[(track.t_ns >= t0) & (track.t_ns <= end)]
+    if len(inside) < 2:
+        return False
+    gaps = np.diff(np.r_[t0, inside, end]) / 1e9
+    return bool(gaps.max() <= MAX_GAP_S)
+
+
+def _replay_world(world: WorldConfig) -> WorldConfig:
+    """The world's own values, not a randomized draw (replay asks how far the point estimates carry), stepped at
+    the replay's tick for as long as a window lasts."""
+    return world_config(
+        {"control_period_s": TICK_S, "max_steps": 100_000, "lidar": {"noise_sigma_m": 0.0}},
+        base=replace(world, randomize=RandomizeConfig()),
+    )

@@ -1,0 +1,75 @@
+"""``mrl replay BAG --map``: a bag without motion capture (a building's map_server map, a 720-beam lidar, a drive of
+its own) replayed open loop against its path localized in the map, in the nominal and in the calibrated simulator."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.calibration.map_replay import REST_S, TICK_S, _rest_start
+from pipeline.sim.open_loop import Track
+from tests.integration.test_mrl_command import mrl, refused
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from calibration_scale import building, drive, write_bag  # noqa: E402
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture(scope="module")
+def building_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str]:
+    """A 20 x 20 m building and a 3-minute bag of one robot driving its corridors (stops every 20 s)."""
+    folder = tmp_path_factory.mktemp("building")
+    floor, corners = building(20.0, 0.05, 0)
+    map_yaml = floor.write_map_server(folder / "building.yaml")
+    run = drive(corners, 180.0)
+    write_bag(folder / "building.mcap", floor, run, 0)
+    return folder / "building.mcap", map_yaml, ",".join(f"{v:.3f}" for v in run["pose"][0])
+
+
+def test_the_calibrated_simulator_stays_on_the_localized_path_where_the_nominal_one_drifts(building_bag, tmp_path):
+    bag, map_yaml, start = building_bag
+    calibrated = mrl(
+        "calibrate", bag, "--map", map_yaml, f"--initial-pose={start}", "--pose-source", "scans",
+        "--parts", "lidar,actuation", "--out", tmp_path / "cal", timeout=300,
+    )  # fmt: skip
+    assert calibrated.returncode == 0, calibrated.stderr
+    done = mrl(
+        "replay", bag, "--map", map_yaml, f"--initial-pose={start}", "--calibration",
+        tmp_path / "cal" / "calibration.yaml", "--out", tmp_path / "replay", timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    figures = json.loads((tmp_path / "replay" / "replay_map.json").read_text())
+    assert figures["windows"] >= 4
+    # the bag's drive has a delay, a lag and gains of its own: the nominal simulator drifts, more with time
+    assert figures["nominal/drift_30s_mean_m"] > figures["nominal/drift_5s_mean_m"] > 0.05
+    # the calibrated one carries those values and stays within a few centimetres of the localized path
+    assert figures["calibrated/drift_30s_mean_m"] < 0.1
+    assert figures["calibrated/drift_30s_mean_m"] < figures["nominal/drift_30s_mean_m"] / 4
+    report = (tmp_path / "replay" / "replay_map.md").read_text()
+    assert "| 30 s |" in report and "localized in building.yaml" in report
+
+
+def test_replay_needs_a_policy_or_a_map_not_both(building_bag, tmp_path):
+    bag, map_yaml, _ = building_bag
+    refused(mrl("replay", bag, "--out", tmp_path / "r"), "replay", "--policy", "--map")
+    refused(mrl("replay", bag, "--map", map_yaml, "--policy", tmp_path, "--out", tmp_path / "r"), "replay", "--map")
+
+
+def test_windows_start_where_every_robot_has_stood_still_for_a_second():
+    ns = 1_000_000_000
+    t = np.arange(0, 10 * ns, ns // 10)
+    moving = np.tile([0.2, 0.0], (len(t), 1))
+    moving[(t >= 2 * ns) & (t < 4 * ns)] = 0.0  # stands still 2 s from t = 2 s
+    other = moving.copy()
+    other[(t >= 3 * ns) & (t < 4 * ns)] = [0.0, 0.1]  # but the second robot turns from t = 3 s
+    one = Track(t, moving)
+    assert _rest_start([one], 0) == 4 * ns - round(TICK_S * 1e9)
+    assert _rest_start([one], 5 * ns) is None
+    assert _rest_start([one, Track(t, other)], 0) is None  # never both still for REST_S
+    assert REST_S == 1.0
