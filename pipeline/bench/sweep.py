@@ -28,7 +28,7 @@ from typing import Any
 
 import polars as pl
 
-from pipeline.bench.trials import Trial, read_row, run_trial, write_row
+from pipeline.bench.trials import ROW_FILE, Trial, read_row, run_trial, write_row
 from pipeline.errors import MrlError
 
 RESULTS = "results"
@@ -138,6 +138,12 @@ def run_sweep(
     start = time.perf_counter()
     pending = [t for t in trials if read_row(trial_folder(out, t), t.digest(base)) is None]
     skipped = len(trials) - len(pending)
+    stale = set_aside_stale_rows(out, pending)
+    if stale:
+        say(
+            f"sweep: {len(stale)} rows of other settings set aside (never mixed into this table), as "
+            + ", ".join(str(p.relative_to(out)) for p in stale)
+        )
     say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), {len(pending)} to run")
     failed: dict[str, str] = {}
     if pending:
@@ -210,6 +216,22 @@ def _run_on_ray(
     finally:
         ray.shutdown()
     return failed
+
+
+def set_aside_stale_rows(out: Path, pending: Sequence[Trial]) -> list[Path]:
+    """Rows of `pending` trials finished with other settings (their digest differs), moved to
+    ``row.stale-<digest>.json`` beside the trial's folder before the trial runs again: kept, named, never read as
+    this sweep's. Returns where they went."""
+    moved = []
+    for trial in pending:
+        folder = trial_folder(out, trial)
+        old = read_row(folder)
+        if old is None:
+            continue
+        target = folder / f"row.stale-{old.get('params_digest', 'unknown')}.json"
+        (folder / ROW_FILE).replace(target)
+        moved.append(target)
+    return moved
 
 
 def collect(out: Path, trials: Sequence[Trial], base: Mapping[str, Any]) -> pl.DataFrame:

@@ -214,8 +214,54 @@ def scoped_settings(trials: Sequence[Trial], scoped: Sequence[Sequence[str]]) ->
             raise ConfigError("--set-for", [ConfigProblem("algorithm", algorithm, " | ".join(ALGORITHMS))])
         key, value = parse_setting(text)
         parsed.append((algorithm, key, value))
+    return scoped_keys(trials, parsed)
+
+
+SETTINGS_SCOPES = ("all", *ALGORITHMS)
+"""The sections of a sweep's settings file: keys for every trial, and keys for one algorithm's trials."""
+
+
+def read_settings_file(path: str | Path) -> tuple[list[tuple[str, Any]], list[tuple[str, str, Any]]]:
+    """A sweep's settings file: ``all:`` (keys for every trial) and ``sac:``/``dqn:``/``ppo:`` (keys for that
+    algorithm's trials), each a mapping of dotted params.yaml keys to values. Returns (every trial's settings,
+    (algorithm, key, value) of the scoped ones); a section or a key that is not allowed raises ConfigError naming the
+    file and the key (the values are checked against params.yaml's rules with the trials)."""
+    where = str(path)
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(where, [ConfigProblem("file", where, f"a readable YAML file ({exc.strerror})")]) from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(where, [ConfigProblem("file", where, f"valid YAML ({exc})")]) from exc
+    if not isinstance(data, dict):
+        raise ConfigError(
+            where, [ConfigProblem("file", type(data).__name__, "a mapping of " + ", ".join(SETTINGS_SCOPES))]
+        )
+    problems = [ConfigProblem(str(k), "", " | ".join(SETTINGS_SCOPES)) for k in data if k not in SETTINGS_SCOPES]
+    every: list[tuple[str, Any]] = []
+    scoped: list[tuple[str, str, Any]] = []
+    for scope, keys in data.items():
+        if scope not in SETTINGS_SCOPES:
+            continue
+        if not isinstance(keys, dict):
+            problems.append(ConfigProblem(str(scope), keys, "a mapping of dotted params.yaml keys to values"))
+            continue
+        for key, value in keys.items():
+            if not isinstance(key, str) or key.count(".") < 1 or key.split(".")[0] not in ("train", "world"):
+                problems.append(ConfigProblem(f"{scope}.{key}", value, "a dotted params.yaml key under train or world"))
+            elif scope == "all":
+                every.append((key, value))
+            else:
+                scoped.append((scope, key, value))
+    if problems:
+        raise ConfigError(where, problems)
+    return every, scoped
+
+
+def scoped_keys(trials: Sequence[Trial], scoped: Sequence[tuple[str, str, Any]]) -> list[Trial]:
+    """`trials` with each (algorithm, key, value) of `scoped` added to the keys of that algorithm's trials."""
     return [
-        dataclasses.replace(t, keys=t.keys + tuple((k, v) for a, k, v in parsed if a == t.algorithm)) for t in trials
+        dataclasses.replace(t, keys=t.keys + tuple((k, v) for a, k, v in scoped if a == t.algorithm)) for t in trials
     ]
 
 

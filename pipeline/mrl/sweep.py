@@ -50,6 +50,13 @@ def add_parser(subparsers: Any) -> None:
         help="a params.yaml key set for every trial, e.g. train.total_steps=300000 (repeatable)",
     )
     sweep.add_argument(
+        "--settings",
+        default=None,
+        metavar="FILE",
+        help="a settings file: all: {KEY: VALUE} for every trial, sac:/dqn:/ppo: {KEY: VALUE} for one algorithm's "
+        "(see benchmarks/sweeps/)",
+    )
+    sweep.add_argument(
         "--set-for",
         nargs=2,
         action="append",
@@ -134,15 +141,28 @@ def _check_readme(readme: str, section: str) -> None:
 
 def _matrix(args: argparse.Namespace) -> tuple[list[Trial], dict[str, Any]]:
     """The trials of the options' matrix and the base settings every trial starts from."""
-    from pipeline.bench.trials import base_mapping, expand, parse_axis, parse_setting, scoped_settings, with_settings
+    from pipeline.bench.trials import (
+        base_mapping,
+        expand,
+        parse_axis,
+        parse_setting,
+        read_settings_file,
+        scoped_keys,
+        scoped_settings,
+        with_settings,
+    )
     from pipeline.params import load_params
 
     params = load_params(args.params)
     axes = [parse_axis(text) for text in args.axis]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     trials = expand(args.algorithms, args.modes, args.scenarios, seeds, axes)
+    settings: list[tuple[str, Any]] = []
+    if args.settings:
+        settings, scoped = read_settings_file(args.settings)
+        trials = scoped_keys(trials, scoped)
     trials = scoped_settings(trials, args.set_for)
-    settings = [parse_setting(text) for text in args.set]
+    settings += [parse_setting(text) for text in args.set]
     if not any(key == "train.world_workers" for key, _ in settings):  # a trial's worlds use the CPUs it holds
         settings.append(("train.world_workers", max(1, int(args.cpus_per_trial))))
     return trials, with_settings(base_mapping(params), settings)
