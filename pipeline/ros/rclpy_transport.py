@@ -164,12 +164,7 @@ class RclpySubscription(Subscription):
             self.malformed += 1
             log.warning("topic %s: cannot decode a message: %s", self.spec.name, exc)
             return
-        self.received += 1
-        try:
-            self.callback(self.spec, msg, receive_time_ns)
-        except Exception:
-            self.callback_errors += 1
-            log.exception("topic %s: subscription callback raised", self.spec.name)
+        self._hand_on(msg, receive_time_ns)
 
     def close(self) -> None:
         handle, self.handle = self.handle, None

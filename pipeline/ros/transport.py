@@ -14,6 +14,7 @@ delivery. Times are integer nanoseconds since the Unix epoch (``time.time_ns()``
 from __future__ import annotations
 
 import ipaddress
+import logging
 import re
 import time
 from abc import ABC, abstractmethod
@@ -25,6 +26,8 @@ from typing import Any, Literal
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import TopicSpec
 from pipeline.ros.errors import NetworkSettingsError, TransportError
+
+log = logging.getLogger(__name__)
 
 BackendKind = Literal["dds", "rclpy", "ros1"]
 BACKENDS: tuple[BackendKind, ...] = ("dds", "rclpy", "ros1")
@@ -229,6 +232,16 @@ class Subscription(ABC):
         if not self._accepted:  # nothing locked, or nothing to tell writers apart by
             return frozenset()
         return self.writers() - self._accepted
+
+    def _hand_on(self, msg: Any, receive_time_ns: int) -> None:
+        """Count a valid, decoded sample and call back; a callback that raises is counted and logged, and delivery
+        goes on."""
+        self.received += 1
+        try:
+            self.callback(self.spec, msg, receive_time_ns)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("topic %s: subscription callback raised", self.spec.name)
 
     def _admits(self, writer: int) -> bool:
         """Whether a sample of `writer` is handed on; counts a dropped one."""

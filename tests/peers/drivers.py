@@ -210,3 +210,42 @@ def deploy_on_drivers(
     if profile != "robots":
         raise RuntimeError(f"deployed on {profile!r}, not on the drivers")
     return folder / "session.mcap", logs, results
+
+
+def check_whole_episodes(recording: Path, logs: dict[str, Path], results: list[Any], episodes: int) -> None:
+    """What a deployment on three drivers must show: every episode run through, the reliable commands from the
+    driver's first on received bit for bit and in order within their validity, every recorded scan what the driver
+    published (float32, bit for bit), and the robots moved (their ground truth)."""
+    import numpy as np
+
+    from pipeline.record import McapLog
+
+    assert len(results) == episodes and not any(r.aborted for r in results)
+    assert all(r.steps >= 1 for r in results)
+    log = McapLog(recording)
+    episode_times = [m.log_time_ns for m in log.messages(["/mrl/episode"])]
+    first, last = min(episode_times), max(episode_times)
+    for ns in NAMESPACES:
+        driver = read_log(logs[ns])
+        sent = [(m.log_time_ns, m.msg.linear.x, m.msg.angular.z) for m in log.messages([f"/{ns}/cmd_vel"])]
+        got = delivery(sent, driver)
+        # commands sent before the driver's reader matched the runner's writer never reach it; from the first one
+        # received on, the reliable topic delivers every command, values bit for bit
+        assert got.matched, ns
+        in_episodes = [s for s in sent if first <= s[0] <= last]
+        assert sent.index(in_episodes[0]) >= got.first_matched, f"{ns}: a command sent during an episode was lost"
+        assert any(v != 0.0 for _, v, _ in in_episodes), f"{ns}: the policy never moved the robot"
+        # arrival follows the recorded send time (stamped after the write returns: allow the write's length) and
+        # comes within the command's validity
+        delays = np.array(got.delays_s())
+        assert delays.min() > -0.002, ns
+        assert np.quantile(delays, 0.99) < 0.12, ns
+        recorded = list(log.messages([f"/{ns}/scan"]))
+        assert len(recorded) >= 0.8 * len([k for k in driver.scans if first <= k[0] * 10**9 + k[1] <= last])
+        for m in recorded:
+            key = (m.msg.header.stamp.sec, m.msg.header.stamp.nanosec)
+            assert key in driver.scans, f"{ns}: a scan the driver never published"
+            np.testing.assert_array_equal(m.msg.ranges, np.array(driver.scans[key], dtype=np.float32))
+            assert m.msg.header.frame_id == f"{ns}/laser" and len(m.msg.ranges) == BEAMS
+    truth = [m.msg.pose.position for m in log.messages(["/robot_1/ground_truth"])]
+    assert len({(round(p.x, 3), round(p.y, 3)) for p in truth}) > 10
