@@ -79,6 +79,12 @@ ROBOT_CLEARANCE_M = 0.12
 """Candidate positions keep at least this from occupied cells (the robot's body)."""
 
 
+MAX_MAP_CELLS = 40_000_000
+"""Largest map image taken, checked from the image's header before it is decoded: 28 times the building benchmark's
+60 x 60 m floor at 5 cm (1.4 M cells), which calibrated with its 10-minute bag at a peak of 340 MiB
+(benchmarks/results/calibration_scale/)."""
+
+
 @dataclass(frozen=True)
 class OccupancyMap:
     """A 2-D occupancy grid: `occupied` (rows along +y from the origin, columns along +x), `resolution_m`
@@ -148,6 +154,14 @@ class OccupancyMap:
             from PIL import Image
 
             with Image.open(image_path) as img:
+                cells = img.size[0] * img.size[1]  # from the header: checked before the image is decoded
+                if cells > MAX_MAP_CELLS:
+                    raise CalibrationError(
+                        where,
+                        f"its image {image_path.name} is {img.size[0]} x {img.size[1]} cells ({cells / 1e6:.0f} M), "
+                        f"more than the {MAX_MAP_CELLS / 1e6:.0f} M cells calibration takes (its memory grows with the "
+                        "cells); crop it to the floor the robots drove, or coarsen the resolution",
+                    )
                 pixels = np.asarray(img.convert("L"), dtype=np.float64)
         except (OSError, ValueError, Image.DecompressionBombError) as exc:
             raise CalibrationError(where, f"cannot read the map image {image_path}: {exc}") from exc

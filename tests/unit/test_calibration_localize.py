@@ -263,3 +263,19 @@ def test_a_map_without_a_scenario_gives_the_lidar_its_faces_and_a_stand_in_room(
     assert room.room.x_min_m < 0 < 6 < room.room.x_max_m and room.robot == scenario.robot
     with pytest.raises(CalibrationError, match="no obstacle next to free space"):
         OccupancyMap(np.zeros((10, 10), dtype=bool), 0.05, (0.0, 0.0, 0.0), "blank").geometry(0.165)
+
+
+def test_a_map_too_large_is_refused_from_its_header_before_it_is_read(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from pipeline.calibration import localize
+
+    Image.new("L", (40, 30), 254).save(tmp_path / "floor.pgm")
+    (tmp_path / "floor.yaml").write_text("image: floor.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    monkeypatch.setattr(localize, "MAX_MAP_CELLS", 1000)
+    with pytest.raises(CalibrationError) as err:
+        localize.OccupancyMap.from_map_server(tmp_path / "floor.yaml")
+    text = str(err.value)
+    assert str(tmp_path / "floor.yaml") in text and "40 x 30 cells" in text and "crop it" in text
+    monkeypatch.setattr(localize, "MAX_MAP_CELLS", 1200)
+    assert localize.OccupancyMap.from_map_server(tmp_path / "floor.yaml").occupied.shape == (30, 40)
