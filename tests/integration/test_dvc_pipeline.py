@@ -1,4 +1,7 @@
-"""The whole loop as `dvc repro` on a tiny budget, in a fresh copy of the repository, then `dvc exp run -S`."""
+"""The whole loop as `dvc repro` on a tiny budget, in a fresh copy of the repository, then `dvc exp run -S`.
+
+The twin's fleet is a ROS 1 fleet where Debian's ROS 1 is installed (each deploy stage brings its own rosmaster),
+else a DDS one: the loop runs over a middleware no one here wrote wherever it can."""
 
 from __future__ import annotations
 
@@ -12,6 +15,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from pipeline.record import McapLog
+from pipeline.ros.ros1 import ros1_missing
 from tests.integration.conftest import write_fleet
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,10 +64,12 @@ def repo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]
                 params[section][key].update(value)
             else:
                 params[section][key] = value
-    fleet = write_fleet(dest / "fleet.yaml", twin={"profile": "harsh", "time_scale": 4.0})
+    transport = "ros1" if ros1_missing() is None else "dds"
+    fleet = write_fleet(dest / "fleet.yaml", transport=transport, twin={"profile": "harsh", "time_scale": 4.0})
     params["deploy"]["fleet"] = fleet.name
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    env.pop("ROS_MASTER_URI", None)  # the stages' ROS 1 fleet brings its own master
     env.update(
         GIT_AUTHOR_NAME="ci",
         GIT_AUTHOR_EMAIL="ci@localhost",
@@ -82,6 +89,9 @@ def test_repro_runs_the_closed_loop_and_reports_the_gap(repo):
     for label in ("nominal", "calibrated"):
         assert f"sim/{label}/robot_success" in metrics and f"real/{label}/robot_success" in metrics
         assert f"gap/{label}/robot_success" in metrics
+    for label in ("nominal", "calibrated"):  # the twin's sessions went over the fleet's middleware
+        session = McapLog(dest / "logs" / "real" / label / "session.mcap").metadata()["session"]
+        assert session["transport"] == ("ros1" if ros1_missing() is None else "dds")
     calibration = yaml.safe_load((dest / "logs" / "calibration" / "calibration.yaml").read_text())
     assert calibration["profile"]["lidar"]["beams"] == 360
     # the default reality is the lab's; the fit report ends with what the calibrated simulator leaves
