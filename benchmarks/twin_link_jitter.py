@@ -1,7 +1,8 @@
 """How much delivery jitter the twin's link realizes, read the way calibration reads it.
 
 Nine topics publish at --rate-hz through one `pipeline.twin.twin.LossyLink` (no loss, jitter --jitter-s) on a
-clock --scale times faster than wall time, for --ticks ticks; each message's delay is its publish time at the link
+clock --scale times faster than wall time, for --ticks ticks, in a process with the twin's switch interval and
+--busy-threads threads of pure Python work beside it (the twin's physics and sensors want the interpreter too); each message's delay is its publish time at the link
 (the clock's reading when the link hands it on) less its send time. The pair rule of
 `pipeline.calibration.network` (the interquartile range of two topics' delay differences for the same tick, over
 2 - sqrt 2) then reads the jitter. Printed: the delays' range and median, and the pair rule's reading beside the
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -42,13 +44,28 @@ class _Recorder:
         self.out.append((self.name, msg, self.clock.now_ns()))
 
 
+def _busy(stop: threading.Event) -> None:
+    """Pure Python work that wants the interpreter all the time (the twin's physics loop does, at 3x)."""
+    x = 0
+    while not stop.is_set():
+        for i in range(10_000):
+            x = (x + i * i) % 1_000_003
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", type=float, default=3.0)
     parser.add_argument("--jitter-s", type=float, default=0.015)
     parser.add_argument("--rate-hz", type=float, default=50.0)
     parser.add_argument("--ticks", type=int, default=1500)
+    parser.add_argument(
+        "--busy-threads", type=int, default=0, help="threads of pure Python work beside the link, as the twin's physics"
+    )
     args = parser.parse_args()
+    sys.setswitchinterval(0.0002)  # as the twin's process sets it
+    stop = threading.Event()
+    for _ in range(args.busy_threads):
+        threading.Thread(target=_busy, args=(stop,), daemon=True).start()
     clock = ScaledClock(args.scale, time.time_ns())
     out: list[tuple[str, Any, int]] = []
     link = LossyLink(clock, 0.0, args.jitter_s, np.random.default_rng(0))
@@ -64,13 +81,15 @@ def main() -> int:
         t += period
     time.sleep(3 * args.jitter_s / args.scale + 0.1)
     link.close()
+    stop.set()
     delay = {(name, k): (t_ns - sent[(name, k)]) / 1e9 for name, k, t_ns in out}
     pairs = [delay[("topic_0", k)] - delay[("topic_1", k)] for k in range(args.ticks) if ("topic_1", k) in delay]
     q25, q75 = np.percentile(pairs, [25, 75])
     read = float(q75 - q25) / TRIANGULAR_IQR
     values = np.array(list(delay.values()))
     print(
-        f"{len(values)} messages of {TOPICS} topics at {args.rate_hz:g} Hz, clock x{args.scale:g}: delay min "
+        f"{len(values)} messages of {TOPICS} topics at {args.rate_hz:g} Hz, clock x{args.scale:g}, "
+        f"{args.busy_threads} busy thread(s): delay min "
         f"{values.min() * 1e3:.2f} ms, median {np.median(values) * 1e3:.2f} ms, max {values.max() * 1e3:.2f} ms"
     )
     print(f"pair rule reads {read * 1e3:.2f} ms for a profile of {args.jitter_s * 1e3:.2f} ms")
