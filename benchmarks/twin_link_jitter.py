@@ -2,11 +2,11 @@
 
 Nine topics publish at --rate-hz through one `pipeline.twin.twin.LossyLink` (no loss, jitter --jitter-s) on a
 clock --scale times faster than wall time, for --ticks ticks, in a process with the twin's switch interval and
---busy-threads threads of pure Python work beside it (the twin's physics and sensors want the interpreter too); each message's delay is its publish time at the link
-(the clock's reading when the link hands it on) less its send time. The pair rule of
-`pipeline.calibration.network` (the interquartile range of two topics' delay differences for the same tick, over
-2 - sqrt 2) then reads the jitter. Printed: the delays' range and median, and the pair rule's reading beside the
-profile's. Last line: ``jitter_read_s=<..> jitter_profile_s=<..> ratio=<read / profile>``.
+--busy-threads threads of pure Python work beside it (the twin's physics and sensors want the interpreter too);
+each message's delay is its publish time at the link (the clock's reading when the link hands it on) less its send
+time. The pair rule of `pipeline.calibration.network` (the interquartile range of two topics' delay differences for
+the same tick, over 2 - sqrt 2) then reads the jitter. Printed: the delays' range and median, and the pair rule's
+reading beside the profile's. Last line: ``jitter_read_s=<..> jitter_profile_s=<..> ratio=<read / profile>``.
 """
 
 from __future__ import annotations
