@@ -72,7 +72,7 @@ def test_a_sweep_on_a_two_node_cluster(cluster, tiny_params, tmp_path):
 
     # the worker node dies while both trials train: its trial runs again on the head, no row lost or doubled
     out = tmp_path / "killed"
-    proc = sweep(tiny_params, out, room, (2, 2), cluster.address, steps=8000)
+    proc = sweep(tiny_params, out, room, (2, 2), cluster.address, steps=5000)
     deadline = time.monotonic() + 300
     while len(list((out / "trials").glob("*/run"))) < 2:  # both trials are training
         if proc.poll() is not None or time.monotonic() > deadline:
