@@ -501,7 +501,8 @@ class _Reach:
     (delay, lag, linear gain, angular gain, delay + lag) the range of the grid cells whose cost is within
     chi2(1, 95 %) / n_eff of the least, n_eff the residual's effective sample count (its lag-one autocorrelation
     rho: n (1 - rho) / (1 + rho)). A model that misses the robot leaves residuals that run together, so few
-    effective samples and a wide reach: the interval admits the misfit."""
+    effective samples and a wide reach: the interval admits the misfit. The delay's reach also holds both grid
+    values around its refined minimum (the cost between them is not evaluated)."""
 
     ranges: tuple[tuple[float, float], ...]
     correlation: float
@@ -521,6 +522,11 @@ class _Reach:
         if not (math.isfinite(low) and math.isfinite(high)):
             return se, interval
         low, high = min(low, value), max(high, value)
+        if k == 0:  # a delay refined between two grid values fits as well as either: both their half cells
+            half = FINE_STEP_S / 2
+            low = min(low, math.floor(value / FINE_STEP_S + 1e-9) * FINE_STEP_S - half)
+            high = max(high, math.ceil(value / FINE_STEP_S - 1e-9) * FINE_STEP_S + half)
+            low = max(low, 0.0)
         if interval is not None:
             low, high = min(low, interval[0]), max(high, interval[1])
         width_se = (high - low) / (2 * 1.96)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from pipeline.calibration.map_replay import REST_S, TICK_S, _rest_start
 from pipeline.sim.open_loop import Track
@@ -16,7 +17,7 @@ from tests.integration.test_mrl_command import mrl, refused
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_scale import building, drive, write_bag  # noqa: E402
+from calibration_scale import DRIVE, building, drive, write_bag  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -39,6 +40,11 @@ def test_the_calibrated_simulator_stays_on_the_localized_path_where_the_nominal_
         "--parts", "lidar,actuation", "--out", tmp_path / "cal", timeout=300,
     )  # fmt: skip
     assert calibrated.returncode == 0, calibrated.stderr
+    # the bag's drive is of the simulator's model class: the effective values' intervals hold what it was made with
+    effective = yaml.safe_load((tmp_path / "cal" / "calibration.yaml").read_text())["effective"]
+    for name, made_with in (("drive_delay_s", DRIVE["delay_s"]), ("drive_lag_s", DRIVE["time_constant_s"])):
+        low, high = effective[name]["interval_95"]
+        assert low <= made_with <= high, (name, effective[name])
     done = mrl(
         "replay", bag, "--map", map_yaml, f"--initial-pose={start}", "--calibration",
         tmp_path / "cal" / "calibration.yaml", "--out", tmp_path / "replay", timeout=300,
