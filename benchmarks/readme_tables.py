@@ -481,6 +481,20 @@ def peers() -> str:
     return "\n".join(lines)
 
 
+def speedup() -> str:
+    folder = RESULTS / "sweep_speedup"
+    run = run_of(folder)
+    last = (folder / "summary.txt").read_text(encoding="utf-8").strip().splitlines()[-1]
+    f = dict(pair.split("=", 1) for pair in last.split())
+    return prose(
+        f"Measured with `{run['command']}` at {run['commit']} "
+        "([run.json](../benchmarks/results/sweep_speedup/run.json)): "
+        f"{f['trials']} trials of {f['steps_per_trial']} steps took {f['wall_1']} s on one local worker, "
+        f"{f['wall_2']} s on two (speed-up {f['speedup']}) and {f['wall_cluster']} s on a head and a worker node "
+        f"with a CPU each (speed-up {f['cluster_speedup']}; both nodes on this machine's two cores)."
+    )
+
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "loop-lab": loop_lab,
     "sim2real": sim2real,
@@ -492,12 +506,14 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
+    "speedup": speedup,
 }
 FILES = (
     ROOT / "README.md",
     ROOT / "docs" / "world.md",
     ROOT / "docs" / "calibration.md",
     ROOT / "docs" / "deployment.md",
+    ROOT / "docs" / "benchmarks.md",
 )
 
 
