@@ -151,7 +151,7 @@ def open_loop_divergence(
             Track(np.array([t for t, _ in truth[ns]], dtype=np.int64), np.stack([p for _, p in truth[ns]]))
             for ns in names
         ]
-        errors.append(open_loop_errors(sim, first, commands, poses, t0, end_ns, n_ticks, REPLAY_TICK_S))
+        errors.append(open_loop_errors(sim, first, commands, poses, t0, end_ns, n_ticks, REPLAY_TICK_S)[0])
     if not errors:
         raise ReplayError(f"{path}: no finished episode with ground truth for every robot")
     stack = np.stack(errors)  # (episodes, ticks, robots)

@@ -5,12 +5,13 @@ localized in the building's map.
 and odometry in the map_server map), cuts every robot's localized path into windows of the longest horizon (one
 every `every_s` seconds at most), and drives each simulator of `worlds` (the nominal one, a calibrated one) open
 loop from the window's first localized pose with the commands as sent
-(:func:`pipeline.sim.open_loop.open_loop_errors`, on the map's stand-in room: the drive, not the walls, is what is
-compared). A window starts where every robot has stood still (commanded zero) for a second, just before it moves
-again: the simulator starts at rest. The drift at each horizon (5, 10, 30 s by default) is the distance from the
-simulated robot to the localized path then: its mean and 90th percentile over the windows, per simulator. The
-localized path has the localization's own error (a few centimetres where the scans match the map), a floor under
-every drift.
+(:func:`pipeline.sim.open_loop.open_loop_errors`) in the map's stand-in room, with the map's walls: a simulated
+robot whose body reaches one stays where it was last free, as it would against the wall (the windows where that
+happened are counted). A window starts where every robot has stood still (commanded zero) for a second, just
+before it moves again: the simulator starts at rest. The drift at each horizon (5, 10, 30 s by default) is the
+distance from the simulated robot to the localized path then: its mean and 90th percentile over the windows, per
+simulator. The localized path has the localization's own error (a few centimetres where the scans match the map),
+a floor under every drift.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 
 from pipeline.calibration.calibrate import localized_recordings
 from pipeline.calibration.errors import CalibrationError
+from pipeline.calibration.localize import OccupancyMap
 from pipeline.params import RandomizeConfig, WorldConfig, world_config
 from pipeline.sim.open_loop import Track, open_loop_errors
 from pipeline.sim.world import SimWorld
@@ -44,6 +46,8 @@ class Drift:
     world: str
     mean_m: dict[float, float]
     p90_m: dict[float, float]
+    walls: int
+    """Windows in which a simulated robot reached a wall of the map (and stayed there, as against the wall)."""
     first_tick_m: float
     """Mean distance after the first step (one tick): the offset between the localized path and the replay's
     start that no simulator removes (localization's error and timing), the floor under every drift."""
@@ -64,6 +68,8 @@ class MapReplay:
         out = [head, "|---" * (len(self.drifts) + 1) + "|"]
         first = " | ".join(f"{d.first_tick_m:.3f} m" for d in self.drifts)
         out.append(f"| {TICK_S:g} s (the path's own offset) | {first} |")
+        walls = " | ".join(f"{d.walls} of {self.windows} windows" for d in self.drifts)
+        out.append(f"| a simulated robot met a wall of the map | {walls} |")
         for h in sorted(self.drifts[0].mean_m):
             cells = " | ".join(f"{d.mean_m[h]:.3f} m ({d.p90_m[h]:.3f} m)" for d in self.drifts)
             out.append(f"| {h:g} s | {cells} |")
@@ -114,12 +120,19 @@ def map_replay(
             f"commanded to stand still for {REST_S:g} s (the simulator starts at rest; gaps in the path over "
             f"{MAX_GAP_S:g} s break a stretch)",
         )
+    floor = OccupancyMap.from_map_server(map_file)
+    radii = np.asarray(scenario.radii, dtype=np.float64)
+
+    def blocked(xy: np.ndarray) -> np.ndarray:
+        """Robots whose body overlaps a wall of the map (the simulator's stand-in room has none inside)."""
+        return np.asarray(floor.distance_only(xy) < radii[: len(xy)])
+
     drifts = []
     for name, world in worlds.items():
         sim = SimWorld(scenario, _replay_world(world))
-        errors = np.stack(
-            [open_loop_errors(sim, start, c, p, t0, end, ticks, TICK_S) for start, c, p, t0, end in cases]
-        )  # (windows, ticks, robots)
+        runs = [open_loop_errors(sim, start, c, p, t0, end, ticks, TICK_S, blocked) for start, c, p, t0, end in cases]
+        errors = np.stack([e for e, _ in runs])  # (windows, ticks, robots)
+        walls = sum(int(hit.any()) for _, hit in runs)
         mean, p90 = {}, {}
         for h in horizons_s:
             k = min(round(h / TICK_S) - 1, ticks - 1)
@@ -128,7 +141,9 @@ def map_replay(
             mean[h] = float(at.mean()) if at.size else math.nan
             p90[h] = float(np.percentile(at, 90)) if at.size else math.nan
         offset = errors[:, 0, :].ravel()
-        drifts.append(Drift(name, mean, p90, float(np.nanmean(offset)) if np.isfinite(offset).any() else math.nan))
+        drifts.append(
+            Drift(name, mean, p90, walls, float(np.nanmean(offset)) if np.isfinite(offset).any() else math.nan)
+        )
     where = "localized in " + Path(map_file).name + " from scans and odometry"
     if all(d.pose_source != "scans" for d in sessions):
         where = "motion capture"

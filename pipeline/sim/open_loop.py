@@ -9,7 +9,7 @@ capture (:mod:`pipeline.analysis.replay`) and against poses localized in a map
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,9 +44,14 @@ def open_loop_errors(
     end_ns: int,
     ticks: int,
     tick_s: float,
-) -> np.ndarray:
-    """(ticks, robots) distance (m) from each simulated robot to its recorded pose after each step; NaN after
-    `end_ns` or past the last recorded pose.
+    blocked: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(ticks, robots) distance (m) from each simulated robot to its recorded pose after each step (NaN after
+    `end_ns` or past the last recorded pose), and (robots,) whether each met a wall.
+
+    `blocked(xy)` ((robots, 2) positions -> (robots,) bool) marks positions inside walls the simulated world does
+    not hold (a building's map): a robot that reaches one stays where it last was free, as it would against the
+    wall.
 
     Args:
         sim: the world to drive (reset here to `start`, (robots, 3) x, y, yaw).
@@ -57,6 +62,8 @@ def open_loop_errors(
     sim.reset(0, start)
     tick_ns = round(tick_s * 1e9)
     err = np.full((ticks, len(poses)), np.nan)
+    held = np.full((len(poses), 2), np.nan)
+    free = np.asarray(start, dtype=np.float64)[:, :2].copy()
     for k in range(ticks):
         t = t0_ns + k * tick_ns
         if t > end_ns:
@@ -67,8 +74,15 @@ def open_loop_errors(
             if last is not None:
                 command[i] = last
         sim.step(command)
+        where = np.asarray(sim.truth[:, :2], dtype=np.float64).copy()
+        if blocked is not None:
+            hit = np.isnan(held[:, 0]) & np.asarray(blocked(where), dtype=bool)
+            held[hit] = free[hit]
+            stopped = ~np.isnan(held[:, 0])
+            where[stopped] = held[stopped]
+            free[~stopped] = where[~stopped]
         for i, track in enumerate(poses):
             recorded = track.next_at(t + tick_ns)
             if recorded is not None:
-                err[k, i] = float(np.hypot(*(sim.truth[i, :2] - recorded[:2])))
-    return err
+                err[k, i] = float(np.hypot(*(where[i] - recorded[:2])))
+    return err, ~np.isnan(held[:, 0])

@@ -79,3 +79,26 @@ def test_windows_start_where_every_robot_has_stood_still_for_a_second():
     assert _rest_start([one], 5 * ns) is None
     assert _rest_start([one, Track(t, other)], 0) is None  # never both still for REST_S
     assert REST_S == 1.0
+
+
+def test_a_simulated_robot_that_reaches_a_wall_of_the_map_stays_where_it_was_free():
+    from pipeline.core.scenario import load_scenario
+    from pipeline.params import world_config
+    from pipeline.sim.open_loop import open_loop_errors
+    from pipeline.sim.world import SimWorld
+
+    scenario = load_scenario("empty", 1)
+    sim = SimWorld(scenario, world_config({"control_period_s": TICK_S}))
+    start = np.array([[1.0, 3.0, 0.0]])
+    ns = 1_000_000_000
+    commands = [Track(np.array([0], dtype=np.int64), np.array([[0.3, 0.0]]))]  # forward, held
+    recorded = [Track(np.arange(0, 3 * ns, ns // 50), np.tile([1.0, 3.0, 0.0], (150, 1)))]  # the robot stayed put
+    ticks = 100
+    free_err, free_hit = open_loop_errors(sim, start, commands, recorded, 0, 3 * ns, ticks, TICK_S)
+    wall_err, wall_hit = open_loop_errors(
+        sim, start, commands, recorded, 0, 3 * ns, ticks, TICK_S, blocked=lambda xy: xy[:, 0] > 1.2
+    )
+    assert not free_hit.any() and wall_hit.all()
+    assert free_err[-1, 0] > 0.4  # it drove on, 2 s at up to 0.3 m/s
+    assert 0.15 < wall_err[-1, 0] <= 0.2 + 1e-9  # it stopped at its last free place, short of x = 1.2
+    assert np.all(np.diff(wall_err[-40:, 0]) == 0)  # and stayed there
