@@ -255,14 +255,16 @@ def scale() -> str:
         m.group(1): (m.group(2), m.group(3))
         for m in re.finditer(r"\| (\d+) s \| ([0-9.]+) m \([0-9.]+ m\) \| ([0-9.]+) m", text)
     }
-    if windows is None or "30" not in drift:
+    walls = re.search(r"met a wall of the map \| (\d+) of \d+ windows \| (\d+) of \d+ windows", text)
+    if windows is None or "30" not in drift or walls is None:
         raise SystemExit(
             f"{folder / 'summary.txt'}: no open-loop replay in it (benchmarks/calibration_scale.py prints one)"
         )
     replay = (
         f" The bag's commands open loop against its localized path (`mrl replay BAG --map`, {windows.group(1)} windows "
         f"starting at rest): the nominal simulator drifts {drift['5'][0]} / {drift['10'][0]} / {drift['30'][0]} m "
-        f"(mean) at 5 / 10 / 30 s, the calibrated one {drift['5'][1]} / {drift['10'][1]} / {drift['30'][1]} m "
+        f"(mean) at 5 / 10 / 30 s, the calibrated one {drift['5'][1]} / {drift['10'][1]} / {drift['30'][1]} m; a "
+        f"simulated robot met a wall of the map in {walls.group(1)} and {walls.group(2)} windows "
         "(the bag's drive, a delay, a lag and gains, is of the simulator's own model class: this checks the "
         "machinery; a real robot's bag is the figure to trust)."
     )
