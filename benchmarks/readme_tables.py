@@ -73,6 +73,11 @@ def stale_text(metrics: SessionMetrics) -> str:
     return ", ".join(f"{s:.1f}" for s in metrics.stale_s_each)
 
 
+def last_figures(text: str) -> dict[str, str]:
+    """The ``key=value`` figures of a benchmark's last printed line."""
+    return dict(pair.split("=", 1) for pair in text.strip().splitlines()[-1].split())
+
+
 def run_of(folder: Path) -> dict[str, Any]:
     return dict(json.loads((folder / "run.json").read_text(encoding="utf-8")))
 
@@ -246,7 +251,7 @@ def scale() -> str:
     text = (folder / "summary.txt").read_text(encoding="utf-8")
     cells = re.search(r"map: (\d+) x (\d+) cells at ([0-9.]+) m, (\d+) faces", text)
     bag = re.search(r"bag: (\d+) s, .* (\d+) scans of (\d+) beams", text)
-    last = dict(pair.split("=") for pair in text.strip().splitlines()[-1].split())
+    last = last_figures(text)
     if cells is None or bag is None:
         raise SystemExit(f"{folder / 'summary.txt'}: not the output of benchmarks/calibration_scale.py")
     side = int(cells.group(1)) * float(cells.group(3))
@@ -474,8 +479,7 @@ def peers() -> str:
         ("roscpp", "roscpp 1.15 (rospy runner, rosmaster)"),
         ("fastdds", "Fast DDS 2.9 (Cyclone runner)"),
     ):
-        last = (folder / f"{name}.txt").read_text(encoding="utf-8").strip().splitlines()[-1]
-        f = dict(pair.split("=", 1) for pair in last.split())
+        f = last_figures((folder / f"{name}.txt").read_text(encoding="utf-8"))
         lines.append(
             f"| {label} | {f['episodes']} | {f['lost']} | {f['jitter_p99_ms']} ms | {f['skew_p99_ms']} ms | "
             f"{f['delay_p50_ms']} / {f['delay_p99_ms']} ms | {f['rtt_p50_ms']} / {f['rtt_p99_ms']} ms |"
@@ -486,8 +490,7 @@ def peers() -> str:
 def speedup() -> str:
     folder = RESULTS / "sweep_speedup"
     run = run_of(folder)
-    last = (folder / "summary.txt").read_text(encoding="utf-8").strip().splitlines()[-1]
-    f = dict(pair.split("=", 1) for pair in last.split())
+    f = last_figures((folder / "summary.txt").read_text(encoding="utf-8"))
     return prose(
         f"Measured with `{run['command']}` at {run['commit']} "
         "([run.json](../benchmarks/results/sweep_speedup/run.json)): "

@@ -106,13 +106,18 @@ def map_replay(
         ]
         first = max(int(p.t_ns[0]) for p in poses)
         last = min(int(p.t_ns[-1]) for p in poses)
-        t0 = _rest_start(commands, first)
-        while t0 is not None and t0 + window_s * 1e9 <= last and len(cases) < max_windows:
+        tick_ns = round(TICK_S * 1e9)
+        next_ns = first  # a window starts where the robots stop standing still at or after this
+        for t0 in rest_starts(commands).tolist():
+            if t0 + tick_ns < next_ns:
+                continue
             end = t0 + int(window_s * 1e9)
+            if end > last or len(cases) >= max_windows:
+                break
             if all(_continuous(p, t0, end) for p in poses):
                 start = np.stack([p.next_at(t0) for p in poses])  # type: ignore[misc]
                 cases.append((start, commands, poses, t0, end))
-            t0 = _rest_start(commands, t0 + int(step * 1e9))
+            next_ns = t0 + int(step * 1e9)
     if not cases:
         raise CalibrationError(
             str(recordings[0]),
@@ -150,22 +155,20 @@ def map_replay(
     return MapReplay(len(cases), window_s, tuple(drifts), where)
 
 
-def _rest_start(commands: Sequence[Track], after_ns: int) -> int | None:
-    """The first time at or after `after_ns` at which every robot has been commanded (0, 0) for `REST_S` (and still
-    is): the end of each robot's standing still, where the window starts; None if there is none."""
+def rest_starts(commands: Sequence[Track]) -> np.ndarray:
+    """The times, in order, at which every robot has been commanded (0, 0) for `REST_S` and moves again: one tick
+    before the end of each robot's standing still, where a window starts (int ns)."""
     rest_ns = int(REST_S * 1e9)
-    starts: list[np.ndarray] = []
+    ends: list[np.ndarray] = []
     for track in commands:
         still = np.all(track.values == 0.0, axis=1)
         # runs of standing still: [first zero command, first moving command after it)
         edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
-        ends = [int(track.t_ns[b]) if b < len(track.t_ns) else int(track.t_ns[-1]) for b in edges[1::2]]
-        runs = [(int(track.t_ns[a]), e) for a, e in zip(edges[0::2], ends, strict=True)]
-        starts.append(np.array([e for a, e in runs if e - a >= rest_ns and e >= after_ns], dtype=np.int64))
-    for t in starts[0]:
-        if all(np.any(np.abs(other - t) <= rest_ns // 2) for other in starts[1:]):
-            return int(t) - round(TICK_S * 1e9)  # one tick before the first moving command
-    return None
+        stop = np.minimum(edges[1::2], len(track.t_ns) - 1)
+        begin, end = track.t_ns[edges[0::2]], track.t_ns[stop]
+        ends.append(end[end - begin >= rest_ns])
+    common = [t for t in ends[0] if all(np.any(np.abs(other - t) <= rest_ns // 2) for other in ends[1:])]
+    return np.asarray(common, dtype=np.int64) - round(TICK_S * 1e9)
 
 
 def _continuous(track: Track, t0: int, end: int) -> bool:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.calibration.map_replay import REST_S, TICK_S, _rest_start
+from pipeline.calibration.map_replay import REST_S, TICK_S, rest_starts
 from pipeline.sim.open_loop import Track
 from tests.integration.test_mrl_command import mrl, refused
 
@@ -75,9 +75,8 @@ def test_windows_start_where_every_robot_has_stood_still_for_a_second():
     other = moving.copy()
     other[(t >= 3 * ns) & (t < 4 * ns)] = [0.0, 0.1]  # but the second robot turns from t = 3 s
     one = Track(t, moving)
-    assert _rest_start([one], 0) == 4 * ns - round(TICK_S * 1e9)
-    assert _rest_start([one], 5 * ns) is None
-    assert _rest_start([one, Track(t, other)], 0) is None  # never both still for REST_S
+    assert rest_starts([one]).tolist() == [4 * ns - round(TICK_S * 1e9)]  # and none after 5 s
+    assert rest_starts([one, Track(t, other)]).tolist() == []  # never both still for REST_S
     assert REST_S == 1.0
 
 
@@ -102,3 +101,17 @@ def test_a_simulated_robot_that_reaches_a_wall_of_the_map_stays_where_it_was_fre
     assert free_err[-1, 0] > 0.4  # it drove on, 2 s at up to 0.3 m/s
     assert 0.15 < wall_err[-1, 0] <= 0.2 + 1e-9  # it stopped at its last free place, short of x = 1.2
     assert np.all(np.diff(wall_err[-40:, 0]) == 0)  # and stayed there
+
+
+def test_a_bag_without_a_window_to_replay_is_one_line_naming_it(tmp_path):
+    """15 s of driving never holds a 30 s window that starts at rest: refused with the bag and the reason."""
+    floor, corners = building(20.0, 0.05, 0)
+    map_yaml = floor.write_map_server(tmp_path / "building.yaml")
+    run = drive(corners, 15.0)
+    bag = tmp_path / "short.mcap"
+    write_bag(bag, floor, run, 0)
+    start = ",".join(f"{v:.3f}" for v in run["pose"][0])
+    done = mrl("replay", bag, "--map", map_yaml, f"--initial-pose={start}", "--out", tmp_path / "r", timeout=300)
+    line = refused(done, "replay", str(bag))
+    assert "no 30 s stretch of localized path" in line and "stand still" in line
+    assert not (tmp_path / "r" / "replay_map.md").exists()

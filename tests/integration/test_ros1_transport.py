@@ -9,7 +9,6 @@ from __future__ import annotations
 import importlib
 import io
 import os
-import socket
 import time
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
 from pipeline.ros import NetworkSettings, open_transport
 from pipeline.ros.errors import TransportError
-from pipeline.ros.ros1 import decode, encode, wire_type
+from pipeline.ros.ros1 import decode, encode, free_port, wire_type
 from tests.integration.test_transport_loopback import (
     Inbox,
     assert_stream_is_exact,
@@ -115,9 +114,7 @@ def test_a_topic_of_another_type_on_the_master_is_refused(ros1_master: str, ns: 
 
 
 def test_a_master_that_does_not_answer_is_named(ros1_master: str) -> None:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     uri = f"http://127.0.0.1:{port}"
     with pytest.raises(TransportError) as err:
         open_transport("ros1", NetworkSettings(master_uri=uri))

@@ -15,6 +15,7 @@ import pytest
 
 from pipeline.bench.sweep import SweepError, _scenario_here, check_address
 from pipeline.bench.trials import Trial
+from pipeline.ros.ros1 import free_port
 from tests.integration.test_sweep import MRL
 
 pytestmark = pytest.mark.integration
@@ -88,11 +89,7 @@ def test_a_sweep_on_a_two_node_cluster(cluster, tiny_params, tmp_path):
 
 
 def test_a_cluster_address_that_does_not_answer_is_refused_before_anything_runs(tiny_params, tmp_path):
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     with pytest.raises(SweepError, match=f"--address 127.0.0.1:{port}: no Ray head answers there"):
         check_address(f"127.0.0.1:{port}", timeout_s=1.0)
     with pytest.raises(SweepError, match="must be HOST:PORT of a Ray head"):
