@@ -2,7 +2,9 @@
 
 The driver starts a local Ray instance (``workers`` x ``cpus_per_trial`` CPUs) or joins a cluster at
 ``address`` (``HOST:PORT`` of its head, or ``ray://HOST:PORT`` of its client server; checked to answer
-before anything starts; its nodes need only this package installed), submits one task per unfinished
+before anything starts; its every node is asked, by a probe task pinned to it, to import this package and
+say which source it has, and a node that cannot or has other source is refused by name before any trial
+runs), submits one task per unfinished
 trial with ``num_cpus=cpus_per_trial`` and collects them as they finish, printing each trial's progress
 lines (forwarded by Ray from the workers) and the sweep's (trials done, elapsed, estimated time left).
 What a trial reads from the driver's disk travels with its task: the base settings as a mapping, a
@@ -11,18 +13,25 @@ Each row names the node that ran it (``node_id``). A node that dies takes its ru
 Ray runs them again on the nodes left (system failures are retried, a trial's own error is not), and
 the row the driver writes is that run's, so no row is lost or doubled. A trial that fails is reported
 and left without a row; the sweep goes on. The rows of every finished trial, this run's and earlier
-runs', make the sweep's table: ``results.parquet`` and ``results.csv``.
+runs', make the sweep's table: ``results.parquet`` and ``results.csv``. Each row names the commit of the
+driver's checkout and the host that ran it; ``sweep.json`` records every run of the sweep (command, commit,
+machine, dates, the trials it ran), so a sweep folder committed to git says how its rows were made and a
+sweep run again with the same ``--out`` on another machine continues from them.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import platform
 import socket
+import subprocess
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +44,14 @@ RESULTS = "results"
 """The table's file stem in the sweep folder (``results.parquet``, ``results.csv``)."""
 NODE_RETRIES = 3
 """Times a trial is run again after the node running it died (Ray's system-failure retries)."""
+RUNS_FILE = "sweep.json"
+"""The sweep folder's record of every run of it: command, commit, machine, dates, trials run."""
 ADDRESS_TIMEOUT_S = 5.0
 """How long a cluster's head may take to accept a connection before it counts as not answering."""
+RAY_TOKEN_FILE = Path.home() / ".ray" / "auth_token"
+"""Where Ray keeps this machine's token (``ray get-auth-token`` prints it)."""
+NODE_CHECK_TIMEOUT_S = 120.0
+"""How long a cluster's node may take to import this package and say which source it has."""
 
 
 class SweepError(MrlError):
@@ -66,7 +81,44 @@ def _task(
     row = run_trial(
         trial, base, Path(folder), eval_episodes, say=lambda line: print(line, flush=True), scenario_file=scenario_file
     )
-    return {**row, "node_id": ray.get_runtime_context().get_node_id()}
+    node = ray.get_runtime_context().get_node_id()
+    return {**row, "node_id": node, "host": socket.gethostname(), "finished_utc": _now()}
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def source_commit() -> str:
+    """The git commit of the checkout this package is imported from ("+local changes" where its files differ from
+    it; "unknown" outside a checkout)."""
+    root = Path(__file__).resolve().parents[2]
+
+    def git(*args: str) -> str:
+        try:
+            done = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10, check=False)
+        except (OSError, subprocess.TimeoutExpired):
+            return ""
+        return done.stdout.strip() if done.returncode == 0 else ""
+
+    commit = git("rev-parse", "HEAD")
+    if not commit:
+        return "unknown"
+    return commit + ("+local changes" if git("status", "--porcelain", "--untracked-files=no", "--", "pipeline") else "")
+
+
+def machine() -> str:
+    """This machine in a line: host, architecture, CPUs, Python."""
+    return f"{platform.node()} ({platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()})"
+
+
+def record_run(out: Path, entry: Mapping[str, Any]) -> None:
+    """Append `entry` to the sweep folder's record of its runs (``sweep.json``), atomically."""
+    path = out / RUNS_FILE
+    runs = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else []
+    tmp = out / f".{RUNS_FILE}.{os.getpid()}"
+    tmp.write_text(json.dumps([*runs, dict(entry)], indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
 
 
 def _scenario_here(scenario: str, text: str | None) -> Path | None:
@@ -109,6 +161,58 @@ def check_address(address: str, timeout_s: float = ADDRESS_TIMEOUT_S) -> None:
         ) from None
 
 
+def package_source() -> str:
+    """A digest of this package's source as imported here (its Python files and bundled scenarios)."""
+    import pipeline
+
+    root = Path(pipeline.__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and "__pycache__" not in p.parts):
+        digest.update(path.relative_to(root).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def check_nodes(address: str, timeout_s: float = NODE_CHECK_TIMEOUT_S) -> int:
+    """SweepError unless every live node of the connected cluster imports this package with the driver's source
+    (a probe task pinned to each node, taking no CPU, so a busy node answers too). Returns the number of nodes."""
+    import ray
+    from ray.exceptions import GetTimeoutError
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    def probe() -> str:  # pickled by value: it reaches a node that lacks the package, and says so
+        import pipeline.bench.sweep as here
+
+        return here.package_source()
+
+    task = ray.remote(num_cpus=0, max_retries=0)(probe)
+    ours = package_source()
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    refs = [
+        (node, task.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote())
+        for node in nodes
+    ]
+    problems = []
+    for node, ref in refs:
+        where = f"node {node.get('NodeManagerAddress', '?')} ({node['NodeID'][:8]})"
+        try:
+            theirs = ray.get(ref, timeout=timeout_s)
+        except GetTimeoutError:
+            problems.append(f"{where} did not answer in {timeout_s:.0f} s")
+        except Exception as exc:  # the node's own import error, as Ray hands it back
+            cause = getattr(exc, "cause", None) or exc
+            problems.append(f"{where} cannot import this package ({type(cause).__name__}: {cause})")
+        else:
+            if theirs != ours:
+                problems.append(f"{where} has other source of this package (digest {theirs}, the driver's {ours})")
+    if problems:
+        raise SweepError(
+            f"sweep: --address {address}: " + "; ".join(problems) + ": install this package, the driver's version, "
+            "on every node (pip install -e . in the same checkout) before any trial runs"
+        )
+    return len(nodes)
+
+
 def _scenario_texts(trials: Sequence[Trial]) -> dict[str, str]:
     """The text of every scenario given as a file, read on the driver (it travels with the trials)."""
     texts = {}
@@ -128,8 +232,11 @@ def run_sweep(
     workers: int = 1,
     cpus_per_trial: float = 1.0,
     say: Callable[[str], None] = print,
+    command: str = "mrl sweep",
 ) -> SweepOutcome:
-    """Run the unfinished `trials` as Ray tasks; the table of all finished ones (see the module's description)."""
+    """Run the unfinished `trials` as Ray tasks; the table of all finished ones (see the module's description).
+    Each run that trains anything is recorded in ``sweep.json`` (`command`, commit, machine, dates, trials), and
+    each row it writes names the commit and the host that made it."""
     for trial in trials:  # every trial's settings are valid before anything starts
         trial.params(base)
     if address:
@@ -138,16 +245,34 @@ def run_sweep(
     start = time.perf_counter()
     pending = [t for t in trials if read_row(trial_folder(out, t), t.digest(base)) is None]
     skipped = len(trials) - len(pending)
-    stale = set_aside_stale_rows(out, pending)
-    if stale:
-        say(
-            f"sweep: {len(stale)} rows of other settings set aside (never mixed into this table), as "
-            + ", ".join(str(p.relative_to(out)) for p in stale)
-        )
-    say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), {len(pending)} to run")
     failed: dict[str, str] = {}
     if pending:
-        failed = _run_on_ray(pending, base, out, eval_episodes, address, workers, cpus_per_trial, say, start)
+        _connect(address, workers, cpus_per_trial, say)  # a cluster's every node checked before anything moves
+        started, commit = _now(), source_commit()
+        try:
+            _set_aside(out, pending, say)
+            say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), {len(pending)} to run")
+            failed = _run_trials(pending, base, out, eval_episodes, cpus_per_trial, say, start, commit)
+        finally:
+            import ray
+
+            ray.shutdown()
+        record_run(
+            out,
+            {
+                "command": command,
+                "commit": commit,
+                "machine": machine(),
+                "address": address or f"local Ray, {workers} workers",
+                "started_utc": started,
+                "finished_utc": _now(),
+                "ran": [t.name for t in pending if t.name not in failed],
+                "failed": failed,
+                "skipped": skipped,
+            },
+        )
+    else:
+        say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), 0 to run")
     rows = collect(out, trials, base)
     write_table(out, rows)
     wall = time.perf_counter() - start
@@ -155,19 +280,21 @@ def run_sweep(
     return SweepOutcome(rows, len(pending) - len(failed), skipped, failed, wall)
 
 
-def _run_on_ray(
-    pending: Sequence[Trial],
-    base: Mapping[str, Any],
-    out: Path,
-    eval_episodes: int,
-    address: str | None,
-    workers: int,
-    cpus_per_trial: float,
-    say: Callable[[str], None],
-    start: float,
-) -> dict[str, str]:
+def _set_aside(out: Path, pending: Sequence[Trial], say: Callable[[str], None]) -> None:
+    stale = set_aside_stale_rows(out, pending)
+    if stale:
+        say(
+            f"sweep: {len(stale)} rows of other settings set aside (never mixed into this table), as "
+            + ", ".join(str(p.relative_to(out)) for p in stale)
+        )
+
+
+def _connect(address: str | None, workers: int, cpus_per_trial: float, say: Callable[[str], None]) -> None:
+    """Join the cluster at `address` and check its nodes, or start a local Ray of `workers` x `cpus_per_trial`."""
     # each trial's progress lines differ only in numbers, which Ray's log deduplication would fold into one
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
+    if address:
+        _use_token_if_any()  # before Ray reads its settings
     import ray
 
     try:
@@ -182,39 +309,78 @@ def _run_on_ray(
                 configure_logging=False,
             )
     except Exception as exc:  # Ray's own connection and start-up errors
+        hint = ""
+        if address and os.environ.get("RAY_AUTH_MODE") != "token":
+            hint = (
+                "; a head started by `ray start` of Ray 2.59 or later asks for its token: set RAY_AUTH_TOKEN to what "
+                "`ray get-auth-token` prints on the head"
+            )
         raise SweepError(
-            f"sweep: cannot {'reach Ray at ' + address if address else 'start a local Ray'}: {exc}"
+            f"sweep: cannot {'reach Ray at ' + address if address else 'start a local Ray'}: "
+            + (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+            + hint
         ) from exc
+    if address:
+        try:
+            nodes = check_nodes(address)
+        except BaseException:
+            ray.shutdown()
+            raise
+        cpus = ray.cluster_resources().get("CPU", 0.0)
+        say(f"sweep: cluster at {address}: {nodes} nodes with this package's source, {cpus:g} CPUs")
+
+
+def _use_token_if_any() -> None:
+    """Token authentication for a driver that has a Ray token (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or
+    ``~/.ray/auth_token``) and no ``RAY_AUTH_MODE`` of its own: `ray start --head` turns token authentication on
+    from Ray 2.59, a driver in token mode reaches a head with or without it, and one not in token mode is refused
+    by a head with it."""
+    if "RAY_AUTH_MODE" in os.environ:
+        return
+    if os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or RAY_TOKEN_FILE.is_file():
+        os.environ["RAY_AUTH_MODE"] = "token"
+
+
+def _run_trials(
+    pending: Sequence[Trial],
+    base: Mapping[str, Any],
+    out: Path,
+    eval_episodes: int,
+    cpus_per_trial: float,
+    say: Callable[[str], None],
+    start: float,
+    commit: str,
+) -> dict[str, str]:
+    """Submit the `pending` trials to the connected Ray and write their rows (with the driver's `commit`) as they
+    come back."""
+    import ray
+
     failed: dict[str, str] = {}
-    try:
-        # a dead node's trials run again elsewhere; a trial's own exception is not retried
-        task = ray.remote(num_cpus=cpus_per_trial, max_retries=NODE_RETRIES, retry_exceptions=False)(_task)
-        texts = _scenario_texts(pending)
-        refs = {
-            task.remote(t, dict(base), str(trial_folder(out, t)), eval_episodes, texts.get(t.scenario)): t
-            for t in pending
-        }
-        done = 0
-        while refs:
-            ready, _ = ray.wait(list(refs), num_returns=1)
-            trial = refs.pop(ready[0])
-            done += 1
-            try:
-                row = ray.get(ready[0])
-                # the row comes back to the driver: on a cluster the trial's node may not share its disk
-                folder = trial_folder(out, trial)
-                if read_row(folder) != row:
-                    folder.mkdir(parents=True, exist_ok=True)
-                    write_row(folder, row)
-                what = f"robot success {row['robot_success']:.3f}"
-            except Exception as exc:  # a failed trial is reported, the sweep goes on
-                failed[trial.name] = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-                what = f"FAILED: {failed[trial.name]}"
-            elapsed = time.perf_counter() - start
-            left = elapsed / done * (len(pending) - done)
-            say(f"sweep: [{done}/{len(pending)}] {trial.name}: {what} ({elapsed:.0f} s elapsed, ~{left:.0f} s left)")
-    finally:
-        ray.shutdown()
+    # a dead node's trials run again elsewhere; a trial's own exception is not retried
+    task = ray.remote(num_cpus=cpus_per_trial, max_retries=NODE_RETRIES, retry_exceptions=False)(_task)
+    texts = _scenario_texts(pending)
+    refs = {
+        task.remote(t, dict(base), str(trial_folder(out, t)), eval_episodes, texts.get(t.scenario)): t for t in pending
+    }
+    done = 0
+    while refs:
+        ready, _ = ray.wait(list(refs), num_returns=1)
+        trial = refs.pop(ready[0])
+        done += 1
+        try:
+            row = {**ray.get(ready[0]), "commit": commit}
+            # the row comes back to the driver: on a cluster the trial's node may not share its disk
+            folder = trial_folder(out, trial)
+            if read_row(folder) != row:
+                folder.mkdir(parents=True, exist_ok=True)
+                write_row(folder, row)
+            what = f"robot success {row['robot_success']:.3f}"
+        except Exception as exc:  # a failed trial is reported, the sweep goes on
+            failed[trial.name] = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+            what = f"FAILED: {failed[trial.name]}"
+        elapsed = time.perf_counter() - start
+        left = elapsed / done * (len(pending) - done)
+        say(f"sweep: [{done}/{len(pending)}] {trial.name}: {what} ({elapsed:.0f} s elapsed, ~{left:.0f} s left)")
     return failed
 
 

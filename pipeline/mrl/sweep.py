@@ -106,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
         rows = collect(out, trials, base)
         print(f"sweep: report of {rows.height} finished trials of {len(trials)} in {out}")
     else:
-        outcome = run_sweep(trials, base, out, args.episodes, args.address or None, args.workers, args.cpus_per_trial)
+        outcome = run_sweep(
+            trials, base, out, args.episodes, args.address or None, args.workers, args.cpus_per_trial, command=command
+        )
         rows = outcome.rows
     if rows.is_empty():
         print("sweep: no finished trial yet: nothing to report")

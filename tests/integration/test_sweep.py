@@ -3,7 +3,9 @@ finished trials; its table, statistics and report through the installed command.
 
 from __future__ import annotations
 
+import json
 import re
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +13,7 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from pipeline.bench.sweep import run_sweep, trial_folder
+from pipeline.bench.sweep import run_sweep, source_commit, trial_folder
 from pipeline.bench.trials import ROW_FILE, base_mapping, expand
 from pipeline.params import load_params
 
@@ -66,6 +68,13 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
         assert (folder / "policy" / "policy.json").is_file() and (folder / "run" / "curve.csv").is_file()
     assert pl.read_parquet(out / "results.parquet").equals(rows)
     assert pl.read_csv(out / "results.csv").height == 3
+    # how the rows were made: every run that trained something, and each row's commit and host
+    runs = json.loads((out / "sweep.json").read_text())
+    assert [len(run["ran"]) for run in runs] == [1, 2], runs  # the third run trained nothing
+    assert runs[1]["command"].startswith("mrl sweep --algorithms sac") and runs[1]["skipped"] == 1
+    assert runs[1]["address"] == "local Ray, 2 workers" and "CPUs" in runs[1]["machine"]
+    assert set(rows["commit"]) == {runs[0]["commit"]} and runs[0]["commit"] == source_commit() != "unknown"
+    assert set(rows["host"]) == {socket.gethostname()}
 
     # the report from the finished trials, through the installed command, into a README's section of its own
     readme = tmp_path / "README.md"

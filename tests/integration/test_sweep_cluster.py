@@ -1,11 +1,18 @@
-"""A sweep on a real two-node Ray cluster on this machine (a head and a worker node with a CPU each, started with
-``ray.cluster_utils.Cluster``): trials land on both nodes, the table equals a local run's, a scenario given as a
-file travels with the trials, and a worker node killed mid-sweep loses no row and doubles none."""
+"""A sweep on a real Ray cluster on this machine, started with Ray's own commands as docs/benchmarks.md's recipe
+does (``ray start --head``, ``ray start --address``; here with ``--block`` so that the test owns the nodes'
+processes): trials land on both nodes, the table equals a local run's, a scenario given as a file travels with the
+trials, a worker node killed mid-sweep loses no row and doubles none, and a node that has not this package's
+source is refused by name before any trial runs."""
 
 from __future__ import annotations
 
+import contextlib
+import json
+import os
 import shutil
+import signal
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,21 +28,87 @@ from tests.integration.test_sweep import MRL
 pytestmark = pytest.mark.integration
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "pipeline" / "core" / "scenarios"
-TIMING = ["train_wall_s", "env_steps_per_s", "wall_to_convergence_s", "node_id"]
+RAY = Path(sys.executable).parent / "ray"
+TIMING = ["train_wall_s", "env_steps_per_s", "wall_to_convergence_s", "node_id", "finished_utc"]
 """Columns that differ between runs of the same trial by nature (times) or by design (the node)."""
+NODES = """
+import json, sys, ray
+ray.init(address=sys.argv[1], log_to_driver=False, logging_level="ERROR")
+print(json.dumps({n["NodeID"]: "node:__internal_head__" in n["Resources"] for n in ray.nodes() if n["Alive"]}))
+"""
+
+
+class RecipeCluster:
+    """Nodes started with ``ray start ... --block`` in sessions of their own, on a free port of loopback."""
+
+    def __init__(self, cwd: Path) -> None:
+        self.port = free_port()
+        self.address = f"127.0.0.1:{self.port}"
+        self.cwd = cwd
+        self.nodes: list[subprocess.Popen[bytes]] = []
+
+    def token(self) -> str:
+        """The head's token, made where none exists (``ray get-auth-token --generate``, as the recipe says)."""
+        done = subprocess.run([str(RAY), "get-auth-token", "--generate"], capture_output=True, text=True, timeout=120,
+                              check=True)  # fmt: skip
+        return done.stdout.strip().splitlines()[-1]
+
+    def start(self, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+        """A node as the recipe starts it: token authentication on, the head's token handed to the others."""
+        token = {} if "--head" in args else {"RAY_AUTH_TOKEN": self.token()}
+        env = {"RAY_AUTH_MODE": "token", **token, **(env or {})}
+        log = (self.cwd / f"node{len(self.nodes)}.log").open("wb")
+        command = [str(RAY), "start", *args, "--num-cpus", "1", "--disable-usage-stats", "--block"]
+        proc = subprocess.Popen(
+            command, cwd=self.cwd, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})},
+            start_new_session=True,
+        )  # fmt: skip
+        self.nodes.append(proc)
+        return proc
+
+    def alive(self) -> dict[str, bool]:
+        """{node id: is the head} of the cluster's live nodes."""
+        done = subprocess.run(
+            [sys.executable, "-c", NODES, self.address], capture_output=True, text=True, timeout=120, check=False,
+            env={**os.environ, "RAY_AUTH_MODE": "token"},  # as the sweep's driver does where it finds a token
+        )  # fmt: skip
+        return dict(json.loads(done.stdout.strip().splitlines()[-1])) if done.returncode == 0 else {}
+
+    def wait_for(self, count: int, timeout_s: float = 180) -> dict[str, bool]:
+        deadline = time.monotonic() + timeout_s
+        while len(nodes := self.alive()) != count:
+            if time.monotonic() > deadline or any(proc.poll() is not None for proc in self.nodes[-1:]):
+                logs = {p.name: p.read_text(errors="replace")[-2000:] for p in self.cwd.glob("node*.log")}
+                pytest.fail(f"the cluster has {len(nodes)} live nodes, not {count}: {logs}")
+            time.sleep(1.0)
+        return nodes
+
+    def kill(self, proc: subprocess.Popen[bytes], sig: int = signal.SIGKILL) -> None:
+        """End a node: SIGKILL to its whole process group is a machine that dies; SIGTERM is `ray stop`'s."""
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=60)
 
 
 @pytest.fixture
-def cluster() -> Iterator[object]:
-    from ray.cluster_utils import Cluster
-
-    made = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+def recipe_cluster(tmp_path: Path) -> Iterator[RecipeCluster]:
+    """A head and a worker node with a CPU each, as the recipe starts them."""
+    cluster = RecipeCluster(tmp_path)
+    cluster.token()
     try:
-        made.add_node(num_cpus=1)
-        made.wait_for_nodes()
-        yield made
+        cluster.start("--head", "--port", str(cluster.port), "--node-ip-address", "127.0.0.1",
+                      "--include-dashboard", "false")  # fmt: skip
+        cluster.wait_for(1)
+        cluster.start("--address", cluster.address, "--node-ip-address", "127.0.0.1")
+        cluster.wait_for(2)
+        yield cluster
     finally:
-        made.shutdown()
+        for proc in reversed(cluster.nodes):
+            cluster.kill(proc)  # the whole process group at once: a stopped node leaves nothing behind
 
 
 def sweep(
@@ -47,25 +120,33 @@ def sweep(
         "--episodes", "2", "--set", f"train.total_steps={steps}", "--bootstrap", "100",
     ]  # fmt: skip
     command += ["--address", address] if address else ["--workers", "1"]
-    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # run from the sweep's folder: Ray puts the driver's working folder on its workers' path, and a checkout there
+    # would hand every node this package whatever the node has installed
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=out.parent)
 
 
-def finished(proc: subprocess.Popen[str], timeout_s: float = 600) -> str:
+def finished(proc: subprocess.Popen[str], timeout_s: float = 600, returncode: int = 0) -> str:
     out, _ = proc.communicate(timeout=timeout_s)
-    assert proc.returncode == 0, out
+    assert proc.returncode == returncode, out
     return out
 
 
-def test_a_sweep_on_a_two_node_cluster(cluster, tiny_params, tmp_path):
+def test_a_sweep_on_a_cluster_started_as_the_recipe_says(recipe_cluster, tiny_params, tmp_path):
+    cluster = recipe_cluster
     room = tmp_path / "room.yaml"  # a scenario given as a file, read on the driver
     shutil.copyfile(SCENARIOS_DIR / "empty.yaml", room)
-    head = cluster.head_node.node_id
-    worker = next(n for n in cluster.list_all_nodes() if n.node_id != head)
+    nodes = cluster.alive()
+    head = next(node for node, is_head in nodes.items() if is_head)
 
-    # two trials at once, one CPU each: one on each node
-    finished(sweep(tiny_params, tmp_path / "on_cluster", room, (0, 2), cluster.address))
+    # two trials at once, one CPU each: one on each node, every node checked first
+    text = finished(sweep(tiny_params, tmp_path / "on_cluster", room, (0, 2), cluster.address))
+    assert f"cluster at {cluster.address}: 2 nodes with this package's source, 2 CPUs" in text
     rows = pl.read_parquet(tmp_path / "on_cluster" / "results.parquet")
-    assert rows.height == 2 and set(rows["node_id"]) == {head, worker.node_id}
+    assert rows.height == 2 and set(rows["node_id"]) == set(nodes), text
+    runs = json.loads((tmp_path / "on_cluster" / "sweep.json").read_text())
+    assert len(runs) == 1 and runs[0]["address"] == cluster.address and sorted(runs[0]["ran"]) == rows["name"].to_list()
+    assert set(rows["commit"]) == {runs[0]["commit"]} and runs[0]["commit"] != "unknown"
     # the same trials on a local Ray: the same table but for the times and the node
     finished(sweep(tiny_params, tmp_path / "local", room, (0, 2)))
     local = pl.read_parquet(tmp_path / "local" / "results.parquet")
@@ -79,13 +160,27 @@ def test_a_sweep_on_a_two_node_cluster(cluster, tiny_params, tmp_path):
         if proc.poll() is not None or time.monotonic() > deadline:
             pytest.fail(f"the trials did not start on both nodes: {proc.communicate()[0]}")
         time.sleep(0.2)
-    cluster.remove_node(worker, allow_graceful=False)
+    cluster.kill(cluster.nodes[1])
     text = finished(proc)
     after = pl.read_parquet(out / "results.parquet")
     names = [Trial("sac", "independent", str(room), s).name for s in (2, 3)]
     assert after["name"].to_list() == names and names[0].startswith("sac-independent-room."), text
     assert set(after["node_id"]) == {head}, text
     assert "0 failed" in text
+
+    # a node whose `pipeline` is not this package (another package of that name first on its path) joins: the
+    # sweep names it and runs nothing
+    shadow = tmp_path / "shadow" / "pipeline"
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text("")
+    cluster.start("--address", cluster.address, "--node-ip-address", "127.0.0.1",
+                  env={"PYTHONPATH": str(shadow.parent)})  # fmt: skip
+    cluster.wait_for(2)
+    refused = tmp_path / "refused"
+    text = finished(sweep(tiny_params, refused, room, (0, 1), cluster.address), returncode=2)
+    assert "has other source of this package" in text and "install this package" in text, text
+    assert len([line for line in text.splitlines() if line.startswith("mrl sweep:")]) == 1, text
+    assert "Traceback" not in text and not (refused / "trials").exists()
 
 
 def test_a_cluster_address_that_does_not_answer_is_refused_before_anything_runs(tiny_params, tmp_path):
