@@ -60,6 +60,19 @@ def test_the_iqm_is_the_trimmed_mean_of_seeds_by_robots_with_an_interval_around_
     assert "| sac | independent | empty | 5 |" in table and table.count("\n") == 4
     assert "| 102k, 3 min |" in table  # medians over the seeds: 102 000 steps, 160 s
     assert ("met" in table) == stats["sac/independent/empty"].meets_target
+    # the target: IQM >= 95 % over >= 5 seeds, >= 4 of 5 converged within 300 episodes
+    good_cell = stats["sac/independent/empty"]
+    assert good_cell.converged_in_time == 5 and good_cell.meets_target == (good_cell.robot_iqm >= 0.95)
+    assert "| 5/5 (5 within 300) |" in table
+    late = rows.with_columns(  # two seeds converge after 300 episodes: 3 of 5 in time is not enough
+        pl.when(pl.col("seed") >= 3)
+        .then(pl.col("converged_at_episode") + 200)
+        .otherwise(pl.col("converged_at_episode"))
+    )
+    slow = {s.cell: s for s in cell_stats(late, reps=200)}["sac/independent/empty"]
+    assert slow.converged_seeds == 5 and slow.converged_in_time == 3 and not slow.meets_target
+    few = {s.cell: s for s in cell_stats(rows.filter(pl.col("seed") < 4), reps=200)}["sac/independent/empty"]
+    assert few.seeds == 4 and not few.meets_target  # four seeds are too few whatever they score
 
 
 def test_a_cells_interval_does_not_depend_on_the_other_cells_or_the_rows_order():
