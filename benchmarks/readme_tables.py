@@ -500,6 +500,86 @@ def speedup() -> str:
     )
 
 
+SWEEPS = ("paper", "shared", "ppo")
+"""The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
+
+
+def _sweep_rows(folder: Path) -> Any:
+    import polars as pl
+
+    rows = [json.loads(p.read_text(encoding="utf-8")) for p in sorted(folder.glob("trials/*/row.json"))]
+    return pl.DataFrame(rows, infer_schema_length=None) if rows else None
+
+
+def sweeps() -> str:
+    """The committed sweeps' cells: robot success IQM with its interval, convergence in time, the target."""
+    from pipeline.bench.stats import TARGET_EPISODES, cell_stats
+
+    lines = [
+        f"| sweep | algorithm | mode | room | seeds | robot success IQM, % [95 % CI] | converged (within "
+        f"{TARGET_EPISODES} episodes) | target |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    made = []
+    for name in SWEEPS:
+        folder = RESULTS / "sweeps" / name
+        rows = _sweep_rows(folder)
+        if rows is None:
+            continue
+        for s in cell_stats(rows):
+            lines.append(
+                f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | {s.algorithm} | {s.mode} | {s.scenario} | "
+                f"{s.seeds} | {100 * s.robot_iqm:.1f} [{100 * s.robot_ci[0]:.1f}, {100 * s.robot_ci[1]:.1f}] | "
+                f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
+            )
+        runs = json.loads((folder / "sweep.json").read_text(encoding="utf-8"))
+        commits = sorted({run["commit"][:7] for run in runs})
+        made.append(f"{name}: `{runs[0]['command']}` at {', '.join(commits)} on {runs[0]['machine']}")
+    return (
+        "\n".join(lines)
+        + "\n\n"
+        + prose(
+            "The target: a robot success IQM of at least 95 % over at least 5 seeds, at least 4 in 5 of them converged "
+            f"within {TARGET_EPISODES} training episodes (every robot over 80 % in 20 consecutive episodes); 200 "
+            "evaluation episodes per seed from the exact starts, every episode counted. Made with ",
+            "; ".join(made),
+            " (each folder's sweep.json has every run, its dates and its trials).",
+        )
+    )
+
+
+def centralized() -> str:
+    """What each mode's learner gets from the sweeps' budget (benchmarks/centralized_budget.py's committed table)."""
+    folder = RESULTS / "centralized_budget"
+    run = run_of(folder)
+    text = (folder / "summary.txt").read_text(encoding="utf-8")
+    f = last_figures(text)
+    lines = [
+        "| algorithm | mode | learners | input | outputs | parameters | transitions per learner | gradient steps per "
+        "learner | gradient steps per robot decision |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in text.splitlines()[1:]:
+        cells = row.split()
+        if len(cells) != 9 or cells[0] not in ("sac", "dqn", "ppo"):
+            continue
+        lines.append("| " + " | ".join(cells) + " |")
+    budget = int(f["budget"])
+    return (
+        "\n".join(lines)
+        + "\n\n"
+        + prose(
+            f"Counted by `{run['command']}` at {run['commit']} "
+            "([summary](../../benchmarks/results/centralized_budget/summary.txt)) per "
+            f"{budget // 1000}k world steps of the paper settings: the centralized learner sees a third of the "
+            f"transitions and takes a third of the gradient steps per robot decision, over a three times wider input; "
+            f"centralized DQN chooses among {f['dqn_joint_actions']} joint actions. It gets shared mode's gradient steps "
+            f"per robot decision at {int(f['sac_centralized_needs_at_least']) // 1000}k world steps (SAC, DQN and PPO "
+            "alike): a lower bound on the budget it needs, not a measured one.",
+        )
+    )
+
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "loop-lab": loop_lab,
     "sim2real": sim2real,
@@ -512,6 +592,8 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "scenarios": scenarios,
     "peers": peers,
     "speedup": speedup,
+    "sweeps": sweeps,
+    "centralized": centralized,
 }
 FILES = (
     ROOT / "README.md",
@@ -519,6 +601,7 @@ FILES = (
     ROOT / "docs" / "calibration.md",
     ROOT / "docs" / "deployment.md",
     ROOT / "docs" / "benchmarks.md",
+    ROOT / "docs" / "experiments" / "sweeps.md",
 )
 
 
