@@ -10,7 +10,10 @@ ratio to the limit, and where the time goes (the worlds' step, the learners' act
 transitions, gradient updates; measured by timing those calls; with world workers "worlds" is the
 trainer's wait for them). The worlds are stepped by `--world-workers` processes (params.yaml's
 `train.world_workers` by default); the env-only rate is also measured in the trainer's own process,
-and their ratio is the workers' speed-up. Last line:
+and their ratio is the workers' speed-up. Each row also gives the updates-only bound: the rate if nothing but
+the gradient updates took time (rate / their share), the most a faster simulator or inference could give.
+`--settings benchmarks/sweeps/paper.yaml` trains with a sweep's keys (the paper cells' update ratio and SAC's
+changes). Last line:
 ``env_only=<steps/s> env_only_1=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
 """
 
@@ -20,13 +23,13 @@ import argparse
 import tempfile
 import time
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pipeline.bench.trials import action_kind
+from pipeline.bench.trials import action_kind, read_settings_file
 from pipeline.learn import learners
 from pipeline.learn.trainer import train
 from pipeline.learn.worlds import VecWorlds
@@ -132,10 +135,24 @@ def train_rate(
     workers: int,
     out: Path,
     sac_update: str = "batched",
+    settings: Sequence[tuple[str, Any]] = (),
 ) -> tuple[float, dict[str, float]]:
     params = load_params()
     kind = action_kind(algorithm)
     world_map = merge(to_mapping(params.world), {"scenario": scenario_name, "actions": {"kind": kind}})
+    train_map = to_mapping(params.train)
+    for key, value in settings:  # a sweep's settings (keys this script sets itself win below)
+        group, _, rest = key.partition(".")
+        nested: dict[str, Any] = {}
+        node = nested
+        *path, leaf = rest.split(".")
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+        if group == "world":
+            world_map = merge(world_map, nested)
+        elif group == "train":
+            train_map = merge(train_map, nested)
     scenario, world = make_world(world=world_config(world_map))
     changes = {
         "algorithm": algorithm,
@@ -149,7 +166,7 @@ def train_rate(
         "convergence": {"stop": False},
         "sac": {"update": sac_update},
     }
-    cfg = from_mapping(TrainConfig, merge(to_mapping(params.train), changes), "params.yaml (train_speed)")
+    cfg = from_mapping(TrainConfig, merge(train_map, changes), "params.yaml (train_speed)")
     SPENT.clear()
     result = train(scenario, world, cfg, out, progress=False)
     shares = {kind: SPENT[kind] / result.wall_s for kind in ("worlds", "inference", "store", "updates")}
@@ -171,7 +188,17 @@ def main() -> None:
         choices=["batched", "library"],
         help="SAC's train.sac.update settings to measure, each a row",
     )
+    parser.add_argument(
+        "--settings",
+        default=None,
+        help="a sweep's settings file (benchmarks/sweeps/paper.yaml): its world and train keys for every trial and "
+        "per algorithm, but the budget, evaluations and workers, which this script sets",
+    )
     args = parser.parse_args()
+    common: list[tuple[str, Any]] = []
+    scoped: list[tuple[str, str, Any]] = []
+    if args.settings:
+        common, scoped = read_settings_file(args.settings)
     n_envs = load_params().train.n_envs
     workers = args.world_workers or load_params().train.world_workers
     single = env_only_rate(args.scenario, "continuous", n_envs, args.steps, 0)
@@ -210,11 +237,18 @@ def main() -> None:
                         workers,
                         Path(tmp) / f"{algorithm}-{mode}-{update}",
                         sac_update=update if algorithm == "sac" else "batched",
+                        settings=[*common, *[(k, v) for a, k, v in scoped if a == algorithm]],
                     )
                     name = f"{algorithm}[{update}]/{mode}" if algorithm == "sac" else f"{algorithm}/{mode}"
                     parts = " ".join(f"{shares[k]:>6.0%}" for k in ("worlds", "inference", "store", "updates"))
-                    print(f"{name:<28} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f}   {parts}", flush=True)
-                    figures.append(f"{name}={rate:.0f} (ratio {rate / limit:.2f})")
+                    # the rate if nothing but the gradient updates took time: the bound the learner sets
+                    bound = rate / shares["updates"] if shares["updates"] > 0 else float("inf")
+                    print(
+                        f"{name:<28} {rate:>8.0f} {1e5 / rate:>8.0f} {rate / limit:>6.2f}   {parts}"
+                        f"   updates-only bound {bound:.0f} steps/s (rate {rate / bound:.2f} of it)",
+                        flush=True,
+                    )
+                    figures.append(f"{name}={rate:.0f} (ratio {rate / limit:.2f}, updates bound {bound:.0f})")
     print(" ".join(figures))
 
 
