@@ -11,7 +11,7 @@ which centralized mode's learner gets as many transitions and gradient steps per
 mode's does at `--budget`: data accounting, a lower bound on what it needs (its larger input and joint
 action space and its summed reward ask for more, not less), not a measured convergence.
 
-Last line: ``budget=<steps> centralized_needs_at_least=<steps> dqn_joint_actions=<n> ...``.
+Last line: ``budget=<steps> sac_centralized_needs_at_least=<steps> dqn_... ppo_... dqn_joint_actions=<n>``.
 """
 
 from __future__ import annotations

@@ -532,9 +532,13 @@ def sweeps() -> str:
                 f"{s.seeds} | {100 * s.robot_iqm:.1f} [{100 * s.robot_ci[0]:.1f}, {100 * s.robot_ci[1]:.1f}] | "
                 f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
             )
-        runs = json.loads((folder / "sweep.json").read_text(encoding="utf-8"))
-        commits = sorted({run["commit"][:7] for run in runs})
-        made.append(f"{name}: `{runs[0]['command']}` at {', '.join(commits)} on {runs[0]['machine']}")
+        record = folder / "sweep.json"
+        if not record.is_file():
+            raise SystemExit(f"{record}: missing: a committed sweep's rows need the record of the runs that made them")
+        runs = json.loads(record.read_text(encoding="utf-8"))
+        commits = sorted({run["commit"][:7] + run["commit"][40:] for run in runs})  # "+local changes" kept
+        machines = sorted({run["machine"] for run in runs})
+        made.append(f"{name}: `{runs[0]['command']}` at {', '.join(commits)} on {'; '.join(machines)}")
     return (
         "\n".join(lines)
         + "\n\n"
@@ -572,10 +576,10 @@ def centralized() -> str:
             f"Counted by `{run['command']}` at {run['commit']} "
             "([summary](../../benchmarks/results/centralized_budget/summary.txt)) per "
             f"{budget // 1000}k world steps of the paper settings: the centralized learner sees a third of the "
-            f"transitions and takes a third of the gradient steps per robot decision, over a three times wider input; "
-            f"centralized DQN chooses among {f['dqn_joint_actions']} joint actions. It gets shared mode's gradient steps "
-            f"per robot decision at {int(f['sac_centralized_needs_at_least']) // 1000}k world steps (SAC, DQN and PPO "
-            "alike): a lower bound on the budget it needs, not a measured one.",
+            "transitions and takes a third of the gradient steps per robot decision, over a three times wider input; "
+            f"centralized DQN chooses among {f['dqn_joint_actions']} joint actions. It gets shared mode's gradient "
+            f"steps per robot decision at {int(f['sac_centralized_needs_at_least']) // 1000}k world steps (SAC, DQN "
+            "and PPO alike): a lower bound on the budget it needs, not a measured one.",
         )
     )
 

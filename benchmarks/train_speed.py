@@ -153,6 +153,8 @@ def train_rate(
             world_map = merge(world_map, nested)
         elif group == "train":
             train_map = merge(train_map, nested)
+        else:
+            raise SystemExit(f"train_speed: --settings key {key!r}: only world.* and train.* keys are taken")
     scenario, world = make_world(world=world_config(world_map))
     changes = {
         "algorithm": algorithm,

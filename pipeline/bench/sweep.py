@@ -48,7 +48,7 @@ RUNS_FILE = "sweep.json"
 """The sweep folder's record of every run of it: command, commit, machine, dates, trials run."""
 ADDRESS_TIMEOUT_S = 5.0
 """How long a cluster's head may take to accept a connection before it counts as not answering."""
-RAY_TOKEN_FILE = Path.home() / ".ray" / "auth_token"
+RAY_TOKEN_FILE = Path(os.path.expanduser("~")) / ".ray" / "auth_token"
 """Where Ray keeps this machine's token (``ray get-auth-token`` prints it)."""
 NODE_CHECK_TIMEOUT_S = 120.0
 """How long a cluster's node may take to import this package and say which source it has."""
@@ -90,21 +90,25 @@ def _now() -> str:
 
 
 def source_commit() -> str:
-    """The git commit of the checkout this package is imported from ("+local changes" where its files differ from
-    it; "unknown" outside a checkout)."""
-    root = Path(__file__).resolve().parents[2]
+    """The git commit of the checkout this package is imported from ("+local changes" where its files, untracked
+    ones included, differ from it; "unknown" where the package is not a checkout's own ``pipeline/``, such as an
+    installed wheel)."""
+    package = Path(__file__).resolve().parents[1]
+    root = package.parent
 
-    def git(*args: str) -> str:
+    def git(*args: str) -> str | None:
         try:
             done = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10, check=False)
         except (OSError, subprocess.TimeoutExpired):
-            return ""
-        return done.stdout.strip() if done.returncode == 0 else ""
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
 
+    top = git("rev-parse", "--show-toplevel")
     commit = git("rev-parse", "HEAD")
-    if not commit:
+    if not top or not commit or Path(top).resolve() != root or package.name != "pipeline":
         return "unknown"
-    return commit + ("+local changes" if git("status", "--porcelain", "--untracked-files=no", "--", "pipeline") else "")
+    changed = git("status", "--porcelain", "--", "pipeline")
+    return commit + ("+local changes" if changed else "")
 
 
 def machine() -> str:
@@ -112,13 +116,26 @@ def machine() -> str:
     return f"{platform.node()} ({platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()})"
 
 
-def record_run(out: Path, entry: Mapping[str, Any]) -> None:
-    """Append `entry` to the sweep folder's record of its runs (``sweep.json``), atomically."""
+def read_runs(out: Path) -> list[dict[str, Any]]:
+    """The sweep folder's record of its runs (``sweep.json``; [] where none); SweepError naming the file where it
+    is not a list of runs (a merge conflict in a committed folder, an edit by hand)."""
     path = out / RUNS_FILE
-    runs = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else []
+    if not path.is_file():
+        return []
+    try:
+        runs = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SweepError(f"sweep: {path}: not readable as JSON ({exc}); mend it or move it aside") from None
+    if not isinstance(runs, list) or not all(isinstance(run, dict) for run in runs):
+        raise SweepError(f"sweep: {path}: must be a list of runs (mappings); mend it or move it aside")
+    return runs
+
+
+def record_run(out: Path, runs: Sequence[Mapping[str, Any]], entry: Mapping[str, Any]) -> None:
+    """Write `runs` and `entry` after them as the sweep folder's record (``sweep.json``), atomically."""
     tmp = out / f".{RUNS_FILE}.{os.getpid()}"
-    tmp.write_text(json.dumps([*runs, dict(entry)], indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    tmp.write_text(json.dumps([*map(dict, runs), dict(entry)], indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, out / RUNS_FILE)
 
 
 def _scenario_here(scenario: str, text: str | None) -> Path | None:
@@ -162,10 +179,9 @@ def check_address(address: str, timeout_s: float = ADDRESS_TIMEOUT_S) -> None:
 
 
 def package_source() -> str:
-    """A digest of this package's source as imported here (its Python files and bundled scenarios)."""
-    import pipeline
-
-    root = Path(pipeline.__file__).resolve().parent
+    """A digest of this package's source as it runs here: the Python files and bundled scenarios of the folder this
+    module was imported from."""
+    root = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256()
     for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and "__pycache__" not in p.parts):
         digest.update(path.relative_to(root).as_posix().encode())
@@ -177,7 +193,7 @@ def check_nodes(address: str, timeout_s: float = NODE_CHECK_TIMEOUT_S) -> int:
     """SweepError unless every live node of the connected cluster imports this package with the driver's source
     (a probe task pinned to each node, taking no CPU, so a busy node answers too). Returns the number of nodes."""
     import ray
-    from ray.exceptions import GetTimeoutError
+    from ray.exceptions import RayError, RayTaskError
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     def probe() -> str:  # pickled by value: it reaches a node that lacks the package, and says so
@@ -188,20 +204,25 @@ def check_nodes(address: str, timeout_s: float = NODE_CHECK_TIMEOUT_S) -> int:
     task = ray.remote(num_cpus=0, max_retries=0)(probe)
     ours = package_source()
     nodes = [n for n in ray.nodes() if n.get("Alive")]
-    refs = [
-        (node, task.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote())
+    refs = {
+        task.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote(): node
         for node in nodes
-    ]
+    }
+    answered, _ = ray.wait(list(refs), num_returns=len(refs), timeout=timeout_s)  # one deadline for every node
     problems = []
-    for node, ref in refs:
+    for ref, node in refs.items():
         where = f"node {node.get('NodeManagerAddress', '?')} ({node['NodeID'][:8]})"
-        try:
-            theirs = ray.get(ref, timeout=timeout_s)
-        except GetTimeoutError:
+        if ref not in answered:
             problems.append(f"{where} did not answer in {timeout_s:.0f} s")
-        except Exception as exc:  # the node's own import error, as Ray hands it back
-            cause = getattr(exc, "cause", None) or exc
-            problems.append(f"{where} cannot import this package ({type(cause).__name__}: {cause})")
+            continue
+        try:
+            theirs = ray.get(ref)
+        except RayTaskError as exc:  # the probe ran there and raised: the node's own import error
+            cause = exc.cause if isinstance(exc.cause, BaseException) else exc
+            text = (str(cause).strip().splitlines() or [""])[-1]
+            problems.append(f"{where} cannot import this package ({type(cause).__name__}: {text})")
+        except RayError as exc:  # the probe did not run there (the node died, cannot take tasks)
+            problems.append(f"{where} could not run the check ({type(exc).__name__})")
         else:
             if theirs != ours:
                 problems.append(f"{where} has other source of this package (digest {theirs}, the driver's {ours})")
@@ -241,38 +262,39 @@ def run_sweep(
         trial.params(base)
     if address:
         check_address(address)
+    runs = read_runs(out)  # checked before anything runs
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     pending = [t for t in trials if read_row(trial_folder(out, t), t.digest(base)) is None]
     skipped = len(trials) - len(pending)
     failed: dict[str, str] = {}
-    if pending:
+    if not pending:
+        say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), 0 to run")
+    else:
         _connect(address, workers, cpus_per_trial, say)  # a cluster's every node checked before anything moves
-        started, commit = _now(), source_commit()
+        started, commit, completed = _now(), source_commit(), False
         try:
             _set_aside(out, pending, say)
             say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), {len(pending)} to run")
             failed = _run_trials(pending, base, out, eval_episodes, cpus_per_trial, say, start, commit)
+            completed = True
         finally:
             import ray
 
             ray.shutdown()
-        record_run(
-            out,
-            {
+            write_table(out, collect(out, trials, base))
+            entry = {
                 "command": command,
                 "commit": commit,
                 "machine": machine(),
                 "address": address or f"local Ray, {workers} workers",
                 "started_utc": started,
                 "finished_utc": _now(),
-                "ran": [t.name for t in pending if t.name not in failed],
+                "ran": [t.name for t in pending if read_row(trial_folder(out, t), t.digest(base)) is not None],
                 "failed": failed,
                 "skipped": skipped,
-            },
-        )
-    else:
-        say(f"sweep: {len(trials)} trials, {skipped} finished before (skipped), 0 to run")
+            }
+            record_run(out, runs, entry if completed else {**entry, "interrupted": True})
     rows = collect(out, trials, base)
     write_table(out, rows)
     wall = time.perf_counter() - start
@@ -309,35 +331,36 @@ def _connect(address: str | None, workers: int, cpus_per_trial: float, say: Call
                 configure_logging=False,
             )
     except Exception as exc:  # Ray's own connection and start-up errors
-        hint = ""
-        if address and os.environ.get("RAY_AUTH_MODE") != "token":
-            hint = (
-                "; a head started by `ray start` of Ray 2.59 or later asks for its token: set RAY_AUTH_TOKEN to what "
-                "`ray get-auth-token` prints on the head"
-            )
+        text = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+        hint = (
+            "; where the head uses token authentication (`ray start --head` turns it on where its machine has a "
+            "token) the driver needs that token: set RAY_AUTH_TOKEN to what `ray get-auth-token` prints there"
+            if address
+            else ""
+        )
         raise SweepError(
-            f"sweep: cannot {'reach Ray at ' + address if address else 'start a local Ray'}: "
-            + (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
-            + hint
+            f"sweep: cannot {'reach Ray at ' + address if address else 'start a local Ray'}: {text}{hint}"
         ) from exc
     if address:
         try:
             nodes = check_nodes(address)
+            cpus = ray.cluster_resources().get("CPU", 0.0)
+            say(f"sweep: cluster at {address}: {nodes} nodes with this package's source, {cpus:g} CPUs")
         except BaseException:
             ray.shutdown()
             raise
-        cpus = ray.cluster_resources().get("CPU", 0.0)
-        say(f"sweep: cluster at {address}: {nodes} nodes with this package's source, {cpus:g} CPUs")
+
+
+def _token_found() -> bool:
+    return bool(os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or RAY_TOKEN_FILE.is_file())
 
 
 def _use_token_if_any() -> None:
     """Token authentication for a driver that has a Ray token (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or
-    ``~/.ray/auth_token``) and no ``RAY_AUTH_MODE`` of its own: `ray start --head` turns token authentication on
-    from Ray 2.59, a driver in token mode reaches a head with or without it, and one not in token mode is refused
-    by a head with it."""
-    if "RAY_AUTH_MODE" in os.environ:
-        return
-    if os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or RAY_TOKEN_FILE.is_file():
+    ``~/.ray/auth_token``) and no ``RAY_AUTH_MODE`` of its own: `ray start --head` (Ray 2.60) turns token
+    authentication on where its machine has a token, a head with it refuses a driver not in token mode, and a
+    driver in token mode reaches a head with or without it (both tested)."""
+    if "RAY_AUTH_MODE" not in os.environ and _token_found():
         os.environ["RAY_AUTH_MODE"] = "token"
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import polars as pl
 import pytest
 
+import pipeline
 from pipeline.bench.sweep import SweepError, _scenario_here, check_address
 from pipeline.bench.trials import Trial
 from pipeline.ros.ros1 import free_port
@@ -39,29 +40,33 @@ print(json.dumps({n["NodeID"]: "node:__internal_head__" in n["Resources"] for n 
 
 
 class RecipeCluster:
-    """Nodes started with ``ray start ... --block`` in sessions of their own, on a free port of loopback."""
+    """Nodes started with ``ray start ... --block`` in sessions of their own, on a free port of loopback, with a home
+    of their own (the token the recipe makes goes there, not into the user's ``~/.ray``)."""
 
     def __init__(self, cwd: Path) -> None:
         self.port = free_port()
         self.address = f"127.0.0.1:{self.port}"
         self.cwd = cwd
+        self.home = cwd / "home"
+        self.home.mkdir(exist_ok=True)
+        self.env = {**os.environ, "HOME": str(self.home)}
+        self.env.pop("RAY_AUTH_MODE", None)
         self.nodes: list[subprocess.Popen[bytes]] = []
 
     def token(self) -> str:
         """The head's token, made where none exists (``ray get-auth-token --generate``, as the recipe says)."""
         done = subprocess.run([str(RAY), "get-auth-token", "--generate"], capture_output=True, text=True, timeout=120,
-                              check=True)  # fmt: skip
+                              check=True, env=self.env)  # fmt: skip
         return done.stdout.strip().splitlines()[-1]
 
     def start(self, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
         """A node as the recipe starts it: token authentication on, the head's token handed to the others."""
         token = {} if "--head" in args else {"RAY_AUTH_TOKEN": self.token()}
-        env = {"RAY_AUTH_MODE": "token", **token, **(env or {})}
         log = (self.cwd / f"node{len(self.nodes)}.log").open("wb")
         command = [str(RAY), "start", *args, "--num-cpus", "1", "--disable-usage-stats", "--block"]
         proc = subprocess.Popen(
-            command, cwd=self.cwd, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})},
-            start_new_session=True,
+            command, cwd=self.cwd, stdout=log, stderr=subprocess.STDOUT,
+            env={**self.env, "RAY_AUTH_MODE": "token", **token, **(env or {})}, start_new_session=True,
         )  # fmt: skip
         self.nodes.append(proc)
         return proc
@@ -70,28 +75,25 @@ class RecipeCluster:
         """{node id: is the head} of the cluster's live nodes."""
         done = subprocess.run(
             [sys.executable, "-c", NODES, self.address], capture_output=True, text=True, timeout=120, check=False,
-            env={**os.environ, "RAY_AUTH_MODE": "token"},  # as the sweep's driver does where it finds a token
+            env={**self.env, "RAY_AUTH_MODE": "token"},  # as the sweep's driver does where it finds a token
         )  # fmt: skip
         return dict(json.loads(done.stdout.strip().splitlines()[-1])) if done.returncode == 0 else {}
 
     def wait_for(self, count: int, timeout_s: float = 180) -> dict[str, bool]:
         deadline = time.monotonic() + timeout_s
         while len(nodes := self.alive()) != count:
-            if time.monotonic() > deadline or any(proc.poll() is not None for proc in self.nodes[-1:]):
+            if time.monotonic() > deadline or any(proc.poll() is not None for proc in self.nodes):
                 logs = {p.name: p.read_text(errors="replace")[-2000:] for p in self.cwd.glob("node*.log")}
                 pytest.fail(f"the cluster has {len(nodes)} live nodes, not {count}: {logs}")
             time.sleep(1.0)
         return nodes
 
     def kill(self, proc: subprocess.Popen[bytes], sig: int = signal.SIGKILL) -> None:
-        """End a node: SIGKILL to its whole process group is a machine that dies; SIGTERM is `ray stop`'s."""
+        """End a node: SIGKILL to its whole process group, a machine that dies (nothing of it is left behind)."""
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, sig)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=60)
+        proc.wait(timeout=60)
+        self.nodes.remove(proc)
 
 
 @pytest.fixture
@@ -108,12 +110,13 @@ def recipe_cluster(tmp_path: Path) -> Iterator[RecipeCluster]:
         yield cluster
     finally:
         for proc in reversed(cluster.nodes):
-            cluster.kill(proc)  # the whole process group at once: a stopped node leaves nothing behind
+            cluster.kill(proc)
 
 
 def sweep(
-    params: Path, out: Path, scenario: Path, seeds: tuple[int, int], address: str = "", steps: int = 300
-) -> subprocess.Popen[str]:
+    params: Path, out: Path, scenario: Path, seeds: tuple[int, int], address: str = "", steps: int = 300,
+    env: dict[str, str] | None = None,
+) -> subprocess.Popen[str]:  # fmt: skip
     command = [
         str(MRL), "sweep", "--algorithms", "sac", "--modes", "independent", "--scenarios", str(scenario),
         "--seeds", str(seeds[1]), "--first-seed", str(seeds[0]), "--params", str(params), "--out", str(out),
@@ -123,7 +126,8 @@ def sweep(
     # run from the sweep's folder: Ray puts the driver's working folder on its workers' path, and a checkout there
     # would hand every node this package whatever the node has installed
     out.parent.mkdir(parents=True, exist_ok=True)
-    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=out.parent)
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=out.parent,
+                            env=env)  # fmt: skip
 
 
 def finished(proc: subprocess.Popen[str], timeout_s: float = 600, returncode: int = 0) -> str:
@@ -139,8 +143,13 @@ def test_a_sweep_on_a_cluster_started_as_the_recipe_says(recipe_cluster, tiny_pa
     nodes = cluster.alive()
     head = next(node for node, is_head in nodes.items() if is_head)
 
-    # two trials at once, one CPU each: one on each node, every node checked first
-    text = finished(sweep(tiny_params, tmp_path / "on_cluster", room, (0, 2), cluster.address))
+    # a driver without the head's token is refused in one line that says where the token comes from
+    elsewhere = {**cluster.env, "HOME": str(tmp_path / "elsewhere")}
+    text = finished(sweep(tiny_params, tmp_path / "no_token", room, (0, 1), cluster.address, env=elsewhere), 120, 2)
+    assert "ray get-auth-token" in text and "Traceback" not in text and not (tmp_path / "no_token" / "trials").exists()
+
+    # two trials at once, one CPU each: one on each node, every node checked first (the driver finds the token)
+    text = finished(sweep(tiny_params, tmp_path / "on_cluster", room, (0, 2), cluster.address, env=cluster.env))
     assert f"cluster at {cluster.address}: 2 nodes with this package's source, 2 CPUs" in text
     rows = pl.read_parquet(tmp_path / "on_cluster" / "results.parquet")
     assert rows.height == 2 and set(rows["node_id"]) == set(nodes), text
@@ -154,7 +163,7 @@ def test_a_sweep_on_a_cluster_started_as_the_recipe_says(recipe_cluster, tiny_pa
 
     # the worker node dies while both trials train: its trial runs again on the head, no row lost or doubled
     out = tmp_path / "killed"
-    proc = sweep(tiny_params, out, room, (2, 2), cluster.address, steps=5000)
+    proc = sweep(tiny_params, out, room, (2, 2), cluster.address, steps=5000, env=cluster.env)
     deadline = time.monotonic() + 300
     while len(list((out / "trials").glob("*/run"))) < 2:  # both trials are training
         if proc.poll() is not None or time.monotonic() > deadline:
@@ -168,19 +177,61 @@ def test_a_sweep_on_a_cluster_started_as_the_recipe_says(recipe_cluster, tiny_pa
     assert set(after["node_id"]) == {head}, text
     assert "0 failed" in text
 
-    # a node whose `pipeline` is not this package (another package of that name first on its path) joins: the
-    # sweep names it and runs nothing
-    shadow = tmp_path / "shadow" / "pipeline"
-    shadow.mkdir(parents=True)
-    (shadow / "__init__.py").write_text("")
-    cluster.start("--address", cluster.address, "--node-ip-address", "127.0.0.1",
-                  env={"PYTHONPATH": str(shadow.parent)})  # fmt: skip
-    cluster.wait_for(2)
-    refused = tmp_path / "refused"
-    text = finished(sweep(tiny_params, refused, room, (0, 1), cluster.address), returncode=2)
-    assert "has other source of this package" in text and "install this package" in text, text
+    # two nodes join whose `pipeline` is not the driver's: one with edited source, one where it cannot be imported
+    # (a package of that name first on their PYTHONPATH); the sweep names both and moves nothing, not even the rows
+    # of other settings it would set aside
+    edited = tmp_path / "edited"
+    shutil.copytree(Path(pipeline.__file__).parent, edited / "pipeline", ignore=shutil.ignore_patterns("__pycache__"))
+    with (edited / "pipeline" / "bench" / "sweep.py").open("a") as f:
+        f.write("\n# edited on this node\n")
+    broken = tmp_path / "broken" / "pipeline"
+    broken.mkdir(parents=True)
+    (broken / "__init__.py").write_text("raise ImportError('not installed here')\n")
+    for shadow in (edited, broken.parent):
+        cluster.start("--address", cluster.address, "--node-ip-address", "127.0.0.1",
+                      env={"PYTHONPATH": str(shadow)})  # fmt: skip
+    cluster.wait_for(3)
+    rows_before = {p: p.read_bytes() for p in (tmp_path / "on_cluster" / "trials").glob("*/row.json")}
+    proc = sweep(tiny_params, tmp_path / "on_cluster", room, (0, 2), cluster.address, steps=400, env=cluster.env)
+    text = finished(proc, returncode=2)
+    assert "has other source of this package" in text and "cannot import this package (ImportError" in text, text
+    assert "install this package" in text and "Traceback" not in text, text
     assert len([line for line in text.splitlines() if line.startswith("mrl sweep:")]) == 1, text
-    assert "Traceback" not in text and not (refused / "trials").exists()
+    assert {p: p.read_bytes() for p in (tmp_path / "on_cluster" / "trials").glob("*/row.json")} == rows_before
+    assert not list((tmp_path / "on_cluster" / "trials").glob("*/row.stale-*.json"))
+
+
+def test_a_driver_in_token_mode_reaches_a_head_without_authentication(tmp_path):
+    cluster = RecipeCluster(tmp_path)
+    cluster.token()  # the driver has a token; the head does not ask for one
+    try:
+        cluster.start("--head", "--port", str(cluster.port), "--node-ip-address", "127.0.0.1",
+                      "--include-dashboard", "false", env={"RAY_AUTH_MODE": "disabled"})  # fmt: skip
+        deadline = time.monotonic() + 120
+        while not check_answers(cluster.address):
+            assert time.monotonic() < deadline and cluster.nodes[0].poll() is None, "the head did not start"
+            time.sleep(0.5)
+        connect = (
+            "import ray\nfrom pipeline.bench.sweep import _connect\n"
+            f"_connect('{cluster.address}', 1, 1.0, print)\nimport os\nprint(os.environ['RAY_AUTH_MODE'])\n"
+            "ray.shutdown()\n"
+        )
+        done = subprocess.run([sys.executable, "-c", connect], capture_output=True, text=True, timeout=180,
+                              env=cluster.env, cwd=tmp_path, check=False)  # fmt: skip
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert f"cluster at {cluster.address}: 1 nodes with this package's source" in done.stdout
+        assert done.stdout.strip().splitlines()[-1] == "token"
+    finally:
+        for proc in list(cluster.nodes):
+            cluster.kill(proc)
+
+
+def check_answers(address: str) -> bool:
+    try:
+        check_address(address, timeout_s=0.5)
+    except SweepError:
+        return False
+    return True
 
 
 def test_a_cluster_address_that_does_not_answer_is_refused_before_anything_runs(tiny_params, tmp_path):
