@@ -516,6 +516,12 @@ def sweeps() -> str:
     from pipeline.bench.stats import TARGET_EPISODES, cell_stats
 
     lines = [
+        prose(
+            "**The paper's cells, swept on Ray** (100 000 world steps per trial, the settings of "
+            "[benchmarks/sweeps/paper.yaml](benchmarks/sweeps/paper.yaml); rows, curves and full tables in "
+            "[benchmarks/results/sweeps/](docs/benchmarks.md#sweep-results)):"
+        ),
+        "",
         f"| sweep | algorithm | mode | room | seeds | robot success IQM, % [95 % CI] | converged (within "
         f"{TARGET_EPISODES} episodes) | target |",
         "|---|---|---|---|---|---|---|---|",
