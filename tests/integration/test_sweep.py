@@ -99,6 +99,21 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
     copied = tmp_path / "benchmarks" / "figures" / "tiny_learning_curves.png"
     assert copied.read_bytes() == (out / "learning_curves.png").read_bytes()
 
+    # the folder as git keeps it under benchmarks/results/sweeps/ (rows, curves, record; no policies or
+    # checkpoints), elsewhere: the sweep there finds every trial finished and trains nothing
+    committed = ROOT / "benchmarks" / "results" / "sweeps" / "any"
+    kept = tmp_path / "kept"
+    for path in out.rglob("*"):
+        relative = path.relative_to(out)
+        ignored = subprocess.run(["git", "check-ignore", "-q", str(committed / relative)], cwd=ROOT, check=False)
+        if path.is_file() and ignored.returncode == 1:  # 1: not ignored
+            (kept / relative).parent.mkdir(parents=True, exist_ok=True)
+            (kept / relative).write_bytes(path.read_bytes())
+    assert not list(kept.rglob("policy.onnx")) and not list(kept.rglob("*.pt")), sorted(kept.rglob("*"))
+    assert len(list(kept.rglob("row.json"))) == 3 and len(list(kept.rglob("curve.csv"))) == 3
+    again = run_sweep(trials, base, kept, eval_episodes=2, say=lines.append)
+    assert again.skipped == 3 and again.ran == 0 and again.rows.equals(rows)
+
 
 def test_a_setting_for_every_trial_is_checked_before_anything_runs(tiny_params, tmp_path):
     proc = subprocess.run(
