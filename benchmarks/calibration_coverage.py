@@ -6,10 +6,15 @@ episodes at --time-scale, the recording is calibrated, and every estimated key i
 profile's true value. Printed per key: profiles where it was identified, coverage of the 95 %
 interval (target >= 0.90), median relative error and median interval half-width.
 
-Some calibrated keys are the simulator's own parameters of an effect the twin produces differently: the drive
-chain's ``effective.*`` values (scored against the sum of the profile keys each stands for: the driver's delay; its
-lag and the motors'; delay and both lags) and `EFFECTIVE` (gains through the true wheels, drift, jitter). A low
-coverage there says the simulator's model does not contain the twin's: it is reported, not hidden. --ranges wide
+Some calibrated keys are the simulator's own parameters of an effect the twin produces differently. The drive
+chain's (`REPLAYED`: ``effective.drive_delay_s``, ``drive_lag_s``, ``drive_response_s`` and the linear and angular
+gains) are scored against what they stand for on that recording: the simulator's drive model fitted, by the same
+fit, on the same contact-free stretches and commands, to the body velocities of the reality's own drive replayed
+noise-free (:mod:`pipeline.twin.drive_replay`: the profile's driver, motors, deadband, acceleration limit and floor
+in the twin's physics, the recording's commands at their recorded times). ``odometry.drift_per_m`` (the curvature
+of unequal wheels, scored against the profile's wheels) and ``network.jitter_s`` (the profile's, which a busy twin
+realizes only in part: benchmarks/twin_link_jitter.py) keep the profile's truth. A low coverage there says the
+simulator's model does not contain the twin's: it is reported, not hidden. --ranges wide
 (the default) draws from `pipeline.twin.draw.WIDE_RANGES`, the ranges of real robots; --ranges drawn from the
 sim2real benchmark's narrower ones.
 
@@ -38,13 +43,16 @@ import numpy as np
 import yaml
 
 from pipeline.calibration import calibrate
+from pipeline.calibration.actuation import VelocityTrack, estimate_actuation
+from pipeline.calibration.calibrate import drive_record
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.scenario import load_scenario
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 from pipeline.twin.draw import PROFILE_RANGES, WIDE_RANGES, draw_profile_mapping
-from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M
+from pipeline.twin.drive_replay import replay_drive
+from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, load_profile
 
 IDENTIFIABLE = (
     "lidar.noise_sigma_m",
@@ -75,6 +83,38 @@ EFFECTIVE = (
     "odometry.drift_per_m",
     "network.jitter_s",
 )
+REPLAYED = {
+    "effective.drive_delay_s": "delay_s",
+    "effective.drive_lag_s": "time_constant_s",
+    "effective.drive_response_s": "response_s",
+    "actuation.linear_gain": "linear_gain",
+    "actuation.angular_gain": "angular_gain",
+}
+"""The keys scored against the drive model's fit to the reality's own drive replayed (key: the drive fit's field)."""
+
+
+def drive_truths(recording: Path, profile_file: Path, settings: CalibrationSettings) -> dict[str, float | None]:
+    """What each of `REPLAYED` stands for on `recording`: the simulator's drive model fitted to the profile's own
+    drive replayed noise-free under the recording's commands, on calibration's contact-free stretches (cut where a
+    replayed robot touches something)."""
+    record = drive_record(recording, settings)
+    _, profile = load_profile(profile_file)
+    if len(record.sessions) != 1:
+        raise SystemExit(f"calibration_coverage: {recording} holds {len(record.sessions)} sessions; one is replayed")
+    replayed = replay_drive(record.sessions[0], profile)
+    tracks = []
+    for track in record.tracks:
+        velocity, contact = replayed[track.robot].at(track.t_ns)
+        edges = np.diff(np.r_[0, (~contact).astype(np.int8), 0])
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+            if b - a >= 3:
+                tracks.append(VelocityTrack(track.robot, track.cluster, track.t_ns[a:b], velocity[a:b], track.commands))
+    fit = estimate_actuation(tracks, settings, np.random.default_rng(settings.seed))
+    out: dict[str, float | None] = {}
+    for key, field_name in REPLAYED.items():
+        est = getattr(fit, field_name)
+        out[key] = float(est.value) if est.ok and est.value is not None else None
+    return out
 
 
 def truth_of(profile: dict[str, Any], key: str) -> float | None:
@@ -158,7 +198,7 @@ def main() -> int:
                 progress=False,
             )
             deploy_policy(runtime, fleet, args.fleet, request)
-            for row in _scored(recording, mapping, seed):
+            for row in _scored(recording, mapping, seed, path):
                 rows.append(row)
                 writer.writerow(row)
             f.flush()
@@ -171,21 +211,24 @@ def main() -> int:
     return 0
 
 
-COLUMNS = ["profile", "key", "truth", "value", "low", "high", "covered", "rel_error"]
+COLUMNS = ["profile", "key", "truth", "truth_of", "value", "low", "high", "covered", "rel_error"]
 
 
-def _scored(recording: Path, mapping: dict[str, Any], seed: int) -> list[dict[str, object]]:
-    """Calibrate one recording and score every estimated key against the profile's truth."""
-    cal = calibrate(recording, CalibrationSettings(bootstrap=200, seed=seed))
+def _scored(recording: Path, mapping: dict[str, Any], seed: int, profile_file: Path) -> list[dict[str, object]]:
+    """Calibrate one recording and score every estimated key against the truth: the profile's, or for `REPLAYED`
+    what the key stands for on this recording."""
+    settings = CalibrationSettings(bootstrap=200, seed=seed)
+    cal = calibrate(recording, settings)
+    replayed = drive_truths(recording, profile_file, settings)
     rows: list[dict[str, object]] = []
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]
-    for name, value in cal.effective.items():  # scored against the sum of what each stands for
-        parts = [truth_of(mapping, k) for k in value.stands_for if not k.endswith("max_wheel_accel_radps2")]
-        scored.append((f"effective.{name}", value.estimate, sum(t or 0.0 for t in parts)))
+    scored += [(f"effective.{name}", value.estimate, None) for name, value in cal.effective.items()]
     for key, est, truth in scored:
+        kind = "replay" if key in REPLAYED else "profile"
+        truth = replayed.get(key) if key in REPLAYED else truth
         if truth is None:
             continue
-        row: dict[str, object] = {"profile": seed, "key": key, "truth": truth}
+        row: dict[str, object] = {"profile": seed, "key": key, "truth": truth, "truth_of": kind}
         if est.ok and est.value is not None and est.interval is not None:
             lo, hi = est.interval
             row.update(
@@ -210,7 +253,8 @@ def _recalibrate(args: argparse.Namespace) -> int:
             seed = args.seed + p
             mapping = yaml.safe_load((args.recalibrate / f"drawn_{seed}.yaml").read_text(encoding="utf-8"))
             start = time.perf_counter()
-            for row in _scored(args.recalibrate / f"drawn_{seed}.mcap", mapping, seed):
+            profile_file = args.recalibrate / f"drawn_{seed}.yaml"
+            for row in _scored(args.recalibrate / f"drawn_{seed}.mcap", mapping, seed, profile_file):
                 rows.append(row)
                 writer.writerow(row)
             f.flush()
@@ -232,7 +276,7 @@ def summary(rows: list[dict[str, object]]) -> None:
     for key in keys:
         mine = [r for r in rows if r["key"] == key]
         ok = [r for r in mine if "covered" in r]
-        kind = "effective" if key in EFFECTIVE or key.startswith("effective.") else (
+        kind = "replayed" if key in REPLAYED else "effective" if key in EFFECTIVE else (
             "identif." if key in IDENTIFIABLE or "box" in key else "other"
         )  # fmt: skip
         if not ok:

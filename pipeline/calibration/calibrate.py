@@ -630,6 +630,32 @@ def _localized(
     return replace(data, robots=tuple(robots)), PoseSource("localized", grid.source, tuple(infos))
 
 
+@dataclass(frozen=True)
+class DriveRecord:
+    """What the drive fit reads from recordings: per recording its data (episodes, commands) and the robots'
+    smoothed poses, and the contact-free velocity tracks pooled over them (what :func:`estimate_actuation` takes)."""
+
+    sessions: tuple[SessionData, ...]
+    trajectories: tuple[dict[str, Trajectory], ...]
+    tracks: tuple[VelocityTrack, ...]
+
+
+def drive_record(
+    recordings: str | Path | Sequence[str | Path], settings: CalibrationSettings | None = None
+) -> DriveRecord:
+    """The drive fit's input from `recordings`, read as :func:`calibrate` reads them for its actuation part (for
+    a benchmark that fits the same tracks with other achieved velocities, such as a reality's own drive replayed)."""
+    settings = replace(settings or CalibrationSettings(), parts=("actuation",))
+    paths = [recordings] if isinstance(recordings, (str, Path)) else list(recordings)
+    read = _read_sessions(paths, settings.parts, settings)
+    tagged = [(f"recording {k}" if len(read.sessions) > 1 else "recording", d) for k, d in enumerate(read.sessions)]
+    data = _gather(tagged, read.pose_sources, settings.parts, settings, read.geometry)
+    trajectories = tuple(
+        _trajectories(d, settings, source) for (_, d), source in zip(tagged, read.pose_sources, strict=True)
+    )
+    return DriveRecord(tuple(read.sessions), trajectories, tuple(data.tracks))
+
+
 def calibrate(
     recordings: str | Path | Sequence[str | Path], settings: CalibrationSettings | None = None
 ) -> Calibration:
