@@ -43,7 +43,7 @@ import numpy as np
 import yaml
 
 from pipeline.calibration import calibrate
-from pipeline.calibration.actuation import VelocityTrack, estimate_actuation
+from pipeline.calibration.actuation import estimate_actuation
 from pipeline.calibration.calibrate import drive_record
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.scenario import load_scenario
@@ -51,7 +51,7 @@ from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 from pipeline.twin.draw import PROFILE_RANGES, WIDE_RANGES, draw_profile_mapping
-from pipeline.twin.drive_replay import replay_drive
+from pipeline.twin.drive_replay import replay_drive, replayed_tracks
 from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, load_profile
 
 IDENTIFIABLE = (
@@ -101,14 +101,7 @@ def drive_truths(recording: Path, profile_file: Path, settings: CalibrationSetti
     _, profile = load_profile(profile_file)
     if len(record.sessions) != 1:
         raise SystemExit(f"calibration_coverage: {recording} holds {len(record.sessions)} sessions; one is replayed")
-    replayed = replay_drive(record.sessions[0], profile)
-    tracks = []
-    for track in record.tracks:
-        velocity, contact = replayed[track.robot].at(track.t_ns)
-        edges = np.diff(np.r_[0, (~contact).astype(np.int8), 0])
-        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
-            if b - a >= 3:
-                tracks.append(VelocityTrack(track.robot, track.cluster, track.t_ns[a:b], velocity[a:b], track.commands))
+    tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile))
     fit = estimate_actuation(tracks, settings, np.random.default_rng(settings.seed))
     out: dict[str, float | None] = {}
     for key, field_name in REPLAYED.items():

@@ -13,11 +13,12 @@ reality's own drive under the same commands.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.calibration.actuation import CommandTimeline
+from pipeline.calibration.actuation import CommandTimeline, VelocityTrack
 from pipeline.calibration.recording import SessionData
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
@@ -125,3 +126,16 @@ def _start_poses(session: SessionData, start_ns: int, end_ns: int) -> np.ndarray
             return None
         poses.append(truth.pose[inside[0]])
     return np.asarray(poses, dtype=float)
+
+
+def replayed_tracks(tracks: Sequence[VelocityTrack], replayed: Mapping[str, ReplayedDrive]) -> list[VelocityTrack]:
+    """`tracks` (calibration's contact-free stretches) with the replayed body velocities at their times instead of
+    the recorded ones, cut where a replayed robot touches something (pieces of at least 3 samples)."""
+    out = []
+    for track in tracks:
+        velocity, contact = replayed[track.robot].at(track.t_ns)
+        edges = np.diff(np.r_[0, (~contact).astype(np.int8), 0])
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+            if b - a >= 3:
+                out.append(VelocityTrack(track.robot, track.cluster, track.t_ns[a:b], velocity[a:b], track.commands))
+    return out
