@@ -10,7 +10,7 @@ Some calibrated keys are the simulator's own parameters of an effect the twin pr
 chain's (`REPLAYED`: ``effective.drive_delay_s``, ``drive_lag_s``, ``drive_response_s`` and the linear and angular
 gains) are scored against what they stand for on that recording: the simulator's drive model fitted, by the same
 fit, on the same contact-free stretches and commands, to the body velocities of the reality's own drive replayed
-noise-free (:mod:`pipeline.twin.drive_replay`: the profile's driver, motors, deadband, acceleration limit and floor
+noise-free (benchmarks/drive_replay.py: the profile's driver, motors, deadband, acceleration limit and floor
 in the twin's physics, the recording's commands at their recorded times). ``odometry.drift_per_m`` (the curvature
 of unequal wheels, scored against the profile's wheels) and ``network.jitter_s`` (the profile's, which a busy twin
 realizes only in part: benchmarks/twin_link_jitter.py) keep the profile's truth. A low coverage there says the
@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from drive_replay import replay_drive, replayed_tracks
 
 from pipeline.calibration import calibrate
 from pipeline.calibration.actuation import estimate_actuation
@@ -51,7 +52,6 @@ from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 from pipeline.twin.draw import PROFILE_RANGES, WIDE_RANGES, draw_profile_mapping
-from pipeline.twin.drive_replay import replay_drive, replayed_tracks
 from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, load_profile
 
 IDENTIFIABLE = (

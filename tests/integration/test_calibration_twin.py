@@ -9,6 +9,7 @@ drift is measured against a clock that does not wander with the host's load.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import NamedTuple
 
@@ -22,9 +23,11 @@ from pipeline.calibration.calibrate import drive_record
 from pipeline.calibration.localize import OccupancyMap
 from pipeline.core.scenario import load_scenario
 from pipeline.params import WorldConfig, calibrated_world
-from pipeline.twin.drive_replay import replay_drive, replayed_tracks
 from pipeline.twin.profile import load_profile
 from tests.calibration_helpers import record_twin_session
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from drive_replay import replay_drive, replayed_tracks
 
 pytestmark = pytest.mark.integration
 

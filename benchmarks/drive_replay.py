@@ -8,7 +8,9 @@ profile's delay, lag and gains) taking that robot's commands at the times the re
 twin's driver timeout without one). Per robot it returns the body velocity at every step and whether the chassis
 touched anything. A benchmark fits the simulator's drive model to these velocities on the stretches calibration
 uses, which gives the value an effective drive parameter stands for on that recording: the model's best fit to the
-reality's own drive under the same commands.
+reality's own drive under the same commands (benchmarks/calibration_coverage.py). It lives beside the benchmarks,
+not in the package: the twin stands apart from calibration, and the package's benchmark part trains in the
+simulator only.
 """
 
 from __future__ import annotations
