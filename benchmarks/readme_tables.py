@@ -590,6 +590,37 @@ def centralized() -> str:
     )
 
 
+def train_speed() -> str:
+    """The learners' rate at the paper cells' settings against the worlds' own and the updates-only bound."""
+    folder = RESULTS / "train_speed"
+    run = run_of(folder)
+    text = (folder / "summary.txt").read_text(encoding="utf-8")
+    rows = []
+    for line in text.splitlines():
+        cells = line.split()
+        if len(cells) > 8 and "/" in cells[0] and cells[0][0] in "sdp" and cells[1].isdigit():
+            name = cells[0].replace("[batched]", "")
+            bound = line.split("updates-only bound ")[1].split()[0]
+            share = line.split("(rate ")[1].split()[0]
+            rows.append(f"| {name} | {cells[1]} | {cells[3]} | {cells[7]} | {bound} | {share} |")
+    limit = re.search(r"env_only=(\d+)", text.strip().splitlines()[-1])
+    f = {"env_only": limit.group(1) if limit else "?"}
+    return "\n".join(
+        [
+            prose(
+                f"Measured with `{run['command']}` at {run['commit']} "
+                "([summary](../benchmarks/results/train_speed/summary.txt); beside a sweep at low priority): the "
+                f"worlds alone step {f['env_only']} steps/s.",
+            ),
+            "",
+            "| algorithm/mode | steps/s | of the worlds' rate | time in gradient updates | updates-only bound, "
+            "steps/s | rate / bound |",
+            "|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
+
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "loop-lab": loop_lab,
     "sim2real": sim2real,
@@ -604,6 +635,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "speedup": speedup,
     "sweeps": sweeps,
     "centralized": centralized,
+    "train-speed": train_speed,
 }
 FILES = (
     ROOT / "README.md",
