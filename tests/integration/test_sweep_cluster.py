@@ -52,6 +52,7 @@ class RecipeCluster:
         self.env = {**os.environ, "HOME": str(self.home)}
         self.env.pop("RAY_AUTH_MODE", None)
         self.nodes: list[subprocess.Popen[bytes]] = []
+        self.started = 0
 
     def token(self) -> str:
         """The head's token, made where none exists (``ray get-auth-token --generate``, as the recipe says)."""
@@ -62,7 +63,8 @@ class RecipeCluster:
     def start(self, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
         """A node as the recipe starts it: token authentication on, the head's token handed to the others."""
         token = {} if "--head" in args else {"RAY_AUTH_TOKEN": self.token()}
-        log = (self.cwd / f"node{len(self.nodes)}.log").open("wb")
+        log = (self.cwd / f"node{self.started}.log").open("wb")
+        self.started += 1
         command = [str(RAY), "start", *args, "--num-cpus", "1", "--disable-usage-stats", "--block"]
         proc = subprocess.Popen(
             command, cwd=self.cwd, stdout=log, stderr=subprocess.STDOUT,
@@ -187,10 +189,10 @@ def test_a_sweep_on_a_cluster_started_as_the_recipe_says(recipe_cluster, tiny_pa
     broken = tmp_path / "broken" / "pipeline"
     broken.mkdir(parents=True)
     (broken / "__init__.py").write_text("raise ImportError('not installed here')\n")
-    for shadow in (edited, broken.parent):
+    for count, shadow in enumerate((edited, broken.parent), start=2):  # one at a time: a raylet starts in seconds
         cluster.start("--address", cluster.address, "--node-ip-address", "127.0.0.1",
                       env={"PYTHONPATH": str(shadow)})  # fmt: skip
-    cluster.wait_for(3)
+        cluster.wait_for(count)
     rows_before = {p: p.read_bytes() for p in (tmp_path / "on_cluster" / "trials").glob("*/row.json")}
     proc = sweep(tiny_params, tmp_path / "on_cluster", room, (0, 2), cluster.address, steps=400, env=cluster.env)
     text = finished(proc, returncode=2)
