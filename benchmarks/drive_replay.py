@@ -24,9 +24,8 @@ from pipeline.calibration.actuation import CommandTimeline, VelocityTrack
 from pipeline.calibration.recording import SessionData
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
-from pipeline.twin.physics import BaseParams, FleetPhysics
 from pipeline.twin.profile import RealityProfile
-from pipeline.twin.twin import DRIVER_TIMEOUT_NS, PHYSICS_STEP_S, BaseDriver
+from pipeline.twin.twin import DRIVER_TIMEOUT_NS, BaseDriver, fleet_physics
 
 
 class DriveReplayError(MrlError):
@@ -57,23 +56,7 @@ def replay_drive(session: SessionData, profile: RealityProfile) -> dict[str, Rep
         raise DriveReplayError(
             f"{session.path}: scenario {scenario.name!r} draws its layouts; the replay needs a fixed one"
         )
-    base = profile.base
-    physics = FleetPhysics(
-        scenario,
-        BaseParams(
-            wheel_radius_left_m=base.wheel_radius_left_m,
-            wheel_radius_right_m=base.wheel_radius_right_m,
-            wheel_separation_m=base.wheel_separation_m,
-            mass_kg=base.mass_kg,
-            motor_time_constant_s=base.motor_time_constant_s,
-            deadband_radps=base.deadband_radps,
-            max_wheel_accel_radps2=base.max_wheel_accel_radps2,
-            friction=base.friction,
-        ),
-        box_offsets_m=np.array(profile.map.box_offsets_m, dtype=float).reshape(-1, 2),
-        wall_offset_m=profile.map.wall_offset_m,
-        timestep_s=PHYSICS_STEP_S,
-    )
+    physics = fleet_physics(scenario, profile)
     step_ns = round(physics.timestep_s * NS_PER_S)
     robots = session.robots
     n = len(robots)

@@ -134,6 +134,28 @@ class LossyLink:
             self._thread.join(timeout=1.0)
 
 
+def fleet_physics(scenario: Scenario, profile: RealityProfile) -> FleetPhysics:
+    """The twin's physics of `scenario` with the reality of `profile`: its base, map offsets and floor, at the
+    twin's physics step."""
+    base = profile.base
+    return FleetPhysics(
+        scenario,
+        BaseParams(
+            wheel_radius_left_m=base.wheel_radius_left_m,
+            wheel_radius_right_m=base.wheel_radius_right_m,
+            wheel_separation_m=base.wheel_separation_m,
+            mass_kg=base.mass_kg,
+            motor_time_constant_s=base.motor_time_constant_s,
+            deadband_radps=base.deadband_radps,
+            max_wheel_accel_radps2=base.max_wheel_accel_radps2,
+            friction=base.friction,
+        ),
+        box_offsets_m=np.array(profile.map.box_offsets_m, dtype=float).reshape(-1, 2),
+        wall_offset_m=profile.map.wall_offset_m,
+        timestep_s=PHYSICS_STEP_S,
+    )
+
+
 class BaseDriver:
     """The robots' drivers: delay, first-order lag and gains on (v, w), then wheel speeds by the nominal geometry."""
 
@@ -197,23 +219,7 @@ class HardwareTwin:
         self.silence = silence
         self.log = log
         self.store = message_store()
-        base = profile.base
-        self.physics = FleetPhysics(
-            scenario,
-            BaseParams(
-                wheel_radius_left_m=base.wheel_radius_left_m,
-                wheel_radius_right_m=base.wheel_radius_right_m,
-                wheel_separation_m=base.wheel_separation_m,
-                mass_kg=base.mass_kg,
-                motor_time_constant_s=base.motor_time_constant_s,
-                deadband_radps=base.deadband_radps,
-                max_wheel_accel_radps2=base.max_wheel_accel_radps2,
-                friction=base.friction,
-            ),
-            box_offsets_m=np.array(profile.map.box_offsets_m, dtype=float).reshape(-1, 2),
-            wall_offset_m=profile.map.wall_offset_m,
-            timestep_s=PHYSICS_STEP_S,
-        )
+        self.physics = fleet_physics(scenario, profile)
         self.step_ns = round(self.physics.timestep_s * NS_PER_S)
         self.evader = Evader(scenario) if scenario.target is not None else None
         """A pursuit's target, stepped with the motion capture's rate and published on /target/ground_truth."""
