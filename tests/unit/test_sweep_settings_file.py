@@ -86,3 +86,16 @@ def test_rows_of_other_settings_are_set_aside_and_named_never_mixed_in(tmp_path)
     assert moved == [trial_folder(tmp_path, stale) / "row.stale-0123456789abcdef.json"] and moved[0].is_file()
     assert not (trial_folder(tmp_path, stale) / "row.json").exists()
     assert set_aside_stale_rows(tmp_path, [stale]) == []  # nothing left to set aside
+
+
+def test_a_damaged_record_of_runs_is_refused_by_name_before_anything_runs(tmp_path):
+    from pipeline.bench.sweep import SweepError, run_sweep
+    from pipeline.bench.trials import base_mapping, expand
+    from pipeline.params import load_params
+
+    base = base_mapping(load_params())
+    for text, says in (("<<<<<<< HEAD\n[]\n", "not readable as JSON"), ('{"command": "x"}', "must be a list of runs")):
+        (tmp_path / "sweep.json").write_text(text)
+        with pytest.raises(SweepError, match=f"sweep.json: {says}"):
+            run_sweep(expand(["sac"], ["independent"], ["empty"], [0]), base, tmp_path)
+        assert not (tmp_path / "trials").exists() and (tmp_path / "sweep.json").read_text() == text
