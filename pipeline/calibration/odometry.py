@@ -22,6 +22,12 @@ over the chunk divided by (1 + s).
 drift_per_m is the spread of those draws around zero: sigma_hat^2 = mean(draw^2) - mean(se^2)
 (the draws' own estimation variance removed), with a 95 % interval from the chi distribution
 (n sigma_hat^2 / sigma^2 ~ chi-square with n degrees of freedom).
+
+A robot whose draws centre away from zero (wheels or a separation unlike the ones its odometry integrates with, so
+that every episode's scale and yaw-scale errors share a part) is outside that model. drift_per_m then stays the
+root mean square about zero (what a simulator of zero-mean draws needs to err as much), and its interval is widened
+to also hold the random spread about the components' means (pooled, draws with outlying standard errors left out),
+with a note naming the means: the interval admits that the model class is wrong.
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.calibration.estimates import Estimate, chi_interval
+from pipeline.calibration.estimates import Z_95, Estimate, chi_interval
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import pose_jumps
 from pipeline.core.timebase import NS_PER_S
@@ -190,20 +196,24 @@ def estimate_odometry(
     draws: list[float] = []
     variances: list[float] = []
     components: dict[str, list[float]] = {"scale_error": [], "yaw_scale_error": [], "heading_drift_per_m": []}
+    component_se: dict[str, list[float]] = {k: [] for k in components}
     for d in drifts:
         if d.scale_error is not None:
             draws.append(d.scale_error)
             variances.append(0.0)
             components["scale_error"].append(d.scale_error)
+            component_se["scale_error"].append(0.0)
         if d.yaw_scale_error is not None:
             draws.append(d.yaw_scale_error)
             variances.append(d.yaw_scale_se**2)
             components["yaw_scale_error"].append(d.yaw_scale_error)
+            component_se["yaw_scale_error"].append(d.yaw_scale_se)
         if d.heading_drift_per_m is not None:
             h = d.heading_drift_per_m + unseen_yaw_per_m
             draws.append(h)
             variances.append(d.heading_drift_se**2)
             components["heading_drift_per_m"].append(h)
+            component_se["heading_drift_per_m"].append(d.heading_drift_se)
     rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in components.items() if v}
     n = len(draws)
     notes = (f"{len(drifts)} robot-episodes, {n} draws",)
@@ -217,5 +227,63 @@ def estimate_odometry(
     sigma = math.sqrt(max(float(np.mean(x * x) - np.mean(variances)), 0.0))
     low, high = chi_interval(sigma, n)
     se = sigma / math.sqrt(2 * n)
-    estimate = Estimate.of(sigma, se, (low, high), "per m", f"chi distribution of {n} zero-mean draws", n)
+    method = f"chi distribution of {n} zero-mean draws"
+    spread_fit = _spread_about_means(components, component_se)
+    if spread_fit is not None:
+        means, random_sigma, (r_low, r_high), kept = spread_fit
+        notes += (
+            "the per-episode errors do not centre on zero ("
+            + ", ".join(f"{k} mean {v:+.4f}" for k, v in means.items())
+            + "): a systematic odometry error the simulator's zero-mean draws do not have; drift_per_m stays "
+            f"their root mean square about zero ({sigma:.4g}), the random part alone is {random_sigma:.4g} "
+            f"[{r_low:.4g}, {r_high:.4g}] over {kept} draws, and the interval holds both",
+        )
+        low, high = min(low, r_low), max(high, r_high)
+        se = max(se, (high - low) / (2 * Z_95))
+        method += "; widened to the spread about the components' means (a systematic error the model lacks)"
+    estimate = Estimate.of(sigma, se, (low, high), "per m", method, n)
     return OdometryFit(estimate, drifts, rms, notes)
+
+
+SYSTEMATIC_Z = 3.0
+"""A component's mean counts as systematic where it lies this many standard errors from zero."""
+OUTLIER_SE = 5.0
+"""Draws whose own standard error exceeds this many times their component's median carry too little to count in
+the random spread (a short or colliding episode's regression)."""
+
+
+def _spread_about_means(
+    components: dict[str, list[float]], component_se: dict[str, list[float]]
+) -> tuple[dict[str, float], float, tuple[float, float], int] | None:
+    """Where a component's draws centre away from zero (a systematic error: wheels or separation unlike the odometry's
+    nominal ones), the components' means, the random spread about them (pooled over the components, the draws' own
+    estimation variance removed, draws with outlying standard errors left out), its 95 % chi interval and the draws
+    it counts. None where no component's mean is systematic."""
+    means: dict[str, float] = {}
+    residuals: list[np.ndarray] = []
+    variances: list[np.ndarray] = []
+    systematic = False
+    for name, values in components.items():
+        v = np.asarray(values, dtype=float)
+        se = np.asarray(component_se[name], dtype=float)
+        if len(v) < MIN_DRAWS:
+            continue
+        typical = float(np.median(se))
+        keep = se <= OUTLIER_SE * typical if typical > 0 else np.ones(len(v), dtype=bool)
+        v, se = v[keep], se[keep]
+        if len(v) < MIN_DRAWS:
+            continue
+        mean = float(np.mean(v))
+        sd = float(np.std(v, ddof=1))
+        means[name] = mean
+        systematic |= abs(mean) > SYSTEMATIC_Z * sd / math.sqrt(len(v)) and sd > 0
+        residuals.append(v - mean)
+        variances.append(se**2)
+    if not systematic or not residuals:
+        return None
+    r = np.concatenate(residuals)
+    dof = len(r) - len(residuals)
+    if dof < MIN_DRAWS:
+        return None
+    sigma = math.sqrt(max(float(np.sum(r * r)) / dof - float(np.mean(np.concatenate(variances))), 0.0))
+    return means, sigma, chi_interval(sigma, dof), len(r)

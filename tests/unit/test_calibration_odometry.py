@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -13,12 +15,17 @@ NS = 1_000_000_000
 SETTINGS = CalibrationSettings()
 
 
-def drive(seed: int, drift: float, seconds: float = 12.0, unseen: float = 0.0) -> tuple[OdometryEpisode, np.ndarray]:
-    """One robot-episode of random arcs at 50 Hz; the episode and its draws (scale, yaw scale, heading drift)."""
+def drive(
+    seed: int, drift: float, seconds: float = 12.0, unseen: float = 0.0, bias: tuple[float, float] = (0.0, 0.0)
+) -> tuple[OdometryEpisode, np.ndarray]:
+    """One robot-episode of random arcs at 50 Hz; the episode and its draws (scale, yaw scale, heading drift).
+    `bias`: a scale and a yaw-scale error added to every episode's draws (wheels unlike the odometry's nominal ones)."""
     rng = np.random.default_rng(seed + 1000)
     odometry = OdometryDrift(drift, unseen)
     start = np.array([[1.0, 1.0, 0.3]])
     odometry.reset(start, np.random.default_rng(seed))
+    odometry._scale = odometry._scale + bias[0]
+    odometry._yaw_scale = odometry._yaw_scale + bias[1]
     draws = np.random.default_rng(seed).normal(0.0, drift, size=(3, 1))[:, 0]
     truth = [start[0].copy()]
     odom = [odometry.pose[0].copy()]
@@ -66,6 +73,31 @@ def test_the_drift_is_taken_about_the_arc_of_unequal_wheels_that_the_simulator_r
     assert about_zero.value is not None and about_zero.value > 0.04
     assert about_arc.value == pytest.approx(0.02, rel=0.25)
     assert about_arc.interval is not None and about_arc.interval[0] < 0.02 < about_arc.interval[1]
+
+
+def test_a_systematic_error_widens_the_interval_to_hold_the_random_spread_and_is_named():
+    # every episode's odometry reads 4 % long and turns 5 % too far (wheels smaller than its nominal ones, a wider
+    # separation), on top of zero-mean draws of 0.01: outside the model of zero-mean draws
+    covered = 0
+    for batch in range(5):
+        episodes = [drive(seed, 0.01, bias=(0.04, 0.05))[0] for seed in range(30 * batch, 30 * batch + 30)]
+        fit = estimate_odometry(episodes, SETTINGS)
+        est = fit.drift_per_m
+        assert est.ok and est.value is not None and est.interval is not None
+        # the value stays the root mean square about zero, which a simulator of zero-mean draws needs
+        assert est.value == pytest.approx(np.sqrt((0.01**2 * 3 + 0.04**2 + 0.05**2) / 3), rel=0.15)
+        assert est.interval[0] < est.value < est.interval[1]
+        covered += est.interval[0] <= 0.01 <= est.interval[1]
+        assert "widened to the spread about the components' means" in est.method
+        means = dict(re.findall(r"(\w+) mean ([+-][0-9.]+)", fit.notes[-1]))
+        assert float(means["scale_error"]) == pytest.approx(0.04, abs=0.006)
+        assert float(means["yaw_scale_error"]) == pytest.approx(0.05, abs=0.006)
+        assert float(means["heading_drift_per_m"]) == pytest.approx(0.0, abs=0.006)
+    assert covered >= 4
+    # without the systematic part the interval is the chi interval alone
+    plain = estimate_odometry([drive(seed, 0.01)[0] for seed in range(30)], SETTINGS).drift_per_m
+    assert "widened" not in plain.method and plain.interval is not None
+    assert plain.interval[0] < 0.01 < plain.interval[1] < 0.015
 
 
 def test_exact_odometry_gives_zero_drift():
