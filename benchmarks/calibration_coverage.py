@@ -11,10 +11,13 @@ chain's (`REPLAYED`: ``effective.drive_delay_s``, ``drive_lag_s``, ``drive_respo
 gains) are scored against what they stand for on that recording: the simulator's drive model fitted, by the same
 fit, on the same contact-free stretches and commands, to the body velocities of the reality's own drive replayed
 noise-free (benchmarks/drive_replay.py: the profile's driver, motors, deadband, acceleration limit and floor
-in the twin's physics, the recording's commands at their recorded times). ``odometry.drift_per_m`` (the curvature
-of unequal wheels, scored against the profile's wheels) and ``network.jitter_s`` (the profile's, which a busy twin
-realizes only in part: benchmarks/twin_link_jitter.py) keep the profile's truth. A low coverage there says the
-simulator's model does not contain the twin's: it is reported, not hidden. --ranges wide
+in the twin's physics, the recording's commands at their recorded times). ``network.jitter_s`` is scored against
+the jitter the twin's link realized on that run (`REALIZED`): the twin records each stamped message's hand-over
+(``--link-record``) and calibration's pair rule reads those deliveries at the sender, free of the recorder's side; a
+busy twin realizes less than its profile's jitter (benchmarks/twin_link_jitter.py), and the profile's value is in the
+CSV beside it (``profile_truth``). ``odometry.drift_per_m`` keeps the profile's truth (the random part of the
+odometry's errors; the systematic part of wheels unlike the odometry's nominal ones widens its interval). A low
+coverage says the simulator's model does not contain the twin's: it is reported, not hidden. --ranges wide
 (the default) draws from `pipeline.twin.draw.WIDE_RANGES`, the ranges of real robots; --ranges drawn from the
 sim2real benchmark's narrower ones.
 
@@ -46,6 +49,7 @@ from drive_replay import replay_drive, replayed_tracks
 from pipeline.calibration import calibrate
 from pipeline.calibration.actuation import estimate_actuation
 from pipeline.calibration.calibrate import drive_record
+from pipeline.calibration.network import TRIANGULAR_IQR
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.scenario import load_scenario
 from pipeline.policy.runtime import PolicyRuntime
@@ -91,6 +95,36 @@ REPLAYED = {
     "actuation.angular_gain": "angular_gain",
 }
 """The keys scored against the drive model's fit to the reality's own drive replayed (key: the drive fit's field)."""
+REALIZED = ("network.jitter_s",)
+"""The keys scored against what the twin realized on the run (its link's recorded deliveries)."""
+SENSOR_KINDS = ("/ground_truth", "/odom", "/scan")
+"""The topics calibration reads the network from."""
+
+
+def realized_jitter(deliveries: Path) -> float | None:
+    """The jitter (s) that the twin's link realized, read by calibration's pair rule (the interquartile range of two
+    topics' delay differences for the same stamp, over 2 - sqrt 2; the median over topic pairs sharing stamps) from
+    the deliveries it recorded (``python -m pipeline.twin --link-record``). None without two such topics."""
+    with np.load(deliveries) as data:
+        topics, stamps, handed = data["topic"], data["stamp_ns"], data["handed_ns"]
+    by_topic: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for topic in np.unique(topics):
+        if not str(topic).endswith(SENSOR_KINDS):
+            continue
+        sel = topics == topic
+        stamp, first = np.unique(stamps[sel], return_index=True)
+        by_topic[str(topic)] = (stamp, (handed[sel][first] - stamp).astype(np.float64))
+    names = sorted(by_topic)
+    pairs: list[float] = []
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            common, ia, ib = np.intersect1d(by_topic[a][0], by_topic[b][0], return_indices=True)
+            if len(common) < 50:
+                continue
+            diff = (by_topic[a][1][ia] - by_topic[b][1][ib]) / 1e9
+            q25, q75 = np.percentile(diff, [25, 75])
+            pairs.append(float(q75 - q25) / TRIANGULAR_IQR)
+    return float(np.median(pairs)) if pairs else None
 
 
 def drive_truths(recording: Path, profile_file: Path, settings: CalibrationSettings) -> dict[str, float | None]:
@@ -190,7 +224,8 @@ def main() -> int:
                 profile=str(path),
                 progress=False,
             )
-            deploy_policy(runtime, fleet, args.fleet, request)
+            deliveries = Path(tmp) / f"drawn_{seed}.link.npz"
+            deploy_policy(runtime, fleet, args.fleet, request, twin_extra_args=["--link-record", str(deliveries)])
             for row in _scored(recording, mapping, seed, path):
                 rows.append(row)
                 writer.writerow(row)
@@ -204,7 +239,7 @@ def main() -> int:
     return 0
 
 
-COLUMNS = ["profile", "key", "truth", "truth_of", "value", "low", "high", "covered", "rel_error"]
+COLUMNS = ["profile", "key", "truth", "truth_of", "profile_truth", "value", "low", "high", "covered", "rel_error"]
 
 
 def _scored(recording: Path, mapping: dict[str, Any], seed: int, profile_file: Path) -> list[dict[str, object]]:
@@ -213,15 +248,26 @@ def _scored(recording: Path, mapping: dict[str, Any], seed: int, profile_file: P
     settings = CalibrationSettings(bootstrap=200, seed=seed)
     cal = calibrate(recording, settings)
     replayed = drive_truths(recording, profile_file, settings)
+    deliveries = recording.with_suffix(".link.npz")
+    realized = {"network.jitter_s": realized_jitter(deliveries)} if deliveries.is_file() else {}
     rows: list[dict[str, object]] = []
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]
     scored += [(f"effective.{name}", value.estimate, None) for name, value in cal.effective.items()]
-    for key, est, truth in scored:
-        kind = "replay" if key in REPLAYED else "profile"
-        truth = replayed.get(key) if key in REPLAYED else truth
+    for key, est, profile_truth in scored:
+        kind, truth = "profile", profile_truth
+        if key in REPLAYED:
+            kind, truth = "replay", replayed.get(key)
+        elif realized.get(key) is not None:
+            kind, truth = "realized", realized[key]
         if truth is None:
             continue
-        row: dict[str, object] = {"profile": seed, "key": key, "truth": truth, "truth_of": kind}
+        row: dict[str, object] = {
+            "profile": seed,
+            "key": key,
+            "truth": truth,
+            "truth_of": kind,
+            "profile_truth": "" if profile_truth is None else profile_truth,
+        }
         if est.ok and est.value is not None and est.interval is not None:
             lo, hi = est.interval
             row.update(
@@ -269,7 +315,8 @@ def summary(rows: list[dict[str, object]]) -> None:
     for key in keys:
         mine = [r for r in rows if r["key"] == key]
         ok = [r for r in mine if "covered" in r]
-        kind = "replayed" if key in REPLAYED else "effective" if key in EFFECTIVE else (
+        realized = any(r.get("truth_of") == "realized" for r in mine)
+        kind = "replayed" if key in REPLAYED else "realized" if realized else "effective" if key in EFFECTIVE else (
             "identif." if key in IDENTIFIABLE or "box" in key else "other"
         )  # fmt: skip
         if not ok:

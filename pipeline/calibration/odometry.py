@@ -216,7 +216,7 @@ def estimate_odometry(
             component_se["heading_drift_per_m"].append(d.heading_drift_se)
     rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in components.items() if v}
     n = len(draws)
-    notes = (f"{len(drifts)} robot-episodes, {n} draws",)
+    notes: tuple[str, ...] = (f"{len(drifts)} robot-episodes, {n} draws",)
     if n < MIN_DRAWS:
         reason = (
             f"only {n} per-episode odometry errors (need {MIN_DRAWS}): robots must drive >= "

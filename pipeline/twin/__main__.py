@@ -44,6 +44,12 @@ def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> 
         help="fault injection: robot NS stops publishing START seconds after the first reset (for DURATION seconds)",
     )
     parser.add_argument(
+        "--link-record",
+        default=None,
+        metavar="FILE.npz",
+        help="write each stamped message's delivery as the link realized it (topic, stamp, time handed on) on exit",
+    )
+    parser.add_argument(
         "--exit-with-parent",
         action="store_true",
         help="stop when standard input closes (the starting process holds the other end of the pipe)",
@@ -127,10 +133,14 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             f"twin: ready, profile {name}, {len(fleet.robots)} robots ({robots}), time scale {scale}"
             + (f", participant {identity}" if identity else "")
         )
+        if args.link_record:
+            twin.link.deliveries = []
         try:
             twin.run(stop)
         finally:
             twin.close()
+            if args.link_record:
+                twin.link.write_deliveries(args.link_record)
     finally:
         transport.close()
     say(f"twin: stopped after {twin.ticks} ticks ({twin.link.sent} messages sent, {twin.link.lost} lost)")

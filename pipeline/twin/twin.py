@@ -90,6 +90,9 @@ class LossyLink:
         self._stop = threading.Event()
         self.sent = 0
         self.lost = 0
+        self.deliveries: list[tuple[str, int, int]] | None = None
+        """Where a list (``--link-record``): per stamped message handed on, (topic, header stamp ns, the clock's
+        reading when it was handed on ns): the delivery the link realized, read at the sender."""
         self._thread = threading.Thread(target=self._run, name="twin-link", daemon=True)
         if self.jitter_ns > 0:
             self._thread.start()
@@ -101,6 +104,8 @@ class LossyLink:
         self.sent += 1
         if self.jitter_ns <= 0 or reliable:
             pub.publish(msg)
+            if not reliable:
+                self._note(pub, msg)
             return
         due = self.clock.now_ns() + int(self.rng.uniform(0, self.jitter_ns))
         with self._cv:
@@ -125,6 +130,28 @@ class LossyLink:
             for _, _, pub, msg in ready:
                 if not pub.closed:
                     pub.publish(msg)
+                    self._note(pub, msg)
+
+    def _note(self, pub: Publisher, msg: Any) -> None:
+        """Keep the delivery of a stamped message where deliveries are recorded."""
+        if self.deliveries is None:
+            return
+        header = getattr(msg, "header", None)
+        if header is None:
+            return
+        stamp = int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
+        self.deliveries.append((pub.spec.name if hasattr(pub, "spec") else str(id(pub)), stamp, self.clock.now_ns()))
+
+    def write_deliveries(self, path: str) -> None:
+        """The recorded deliveries as a NumPy archive: ``topic`` (str), ``stamp_ns`` and ``handed_ns`` (int64)."""
+        rows = list(self.deliveries or [])
+        np.savez_compressed(
+            path,
+            topic=np.array([r[0] for r in rows], dtype=str),
+            stamp_ns=np.array([r[1] for r in rows], dtype=np.int64),
+            handed_ns=np.array([r[2] for r in rows], dtype=np.int64),
+            jitter_s=np.float64(self.jitter_ns / NS_PER_S),
+        )
 
     def close(self) -> None:
         self._stop.set()
