@@ -31,6 +31,7 @@ from pipeline.calibration.actuation import ActuationFit, CommandTimeline, SpeedL
 from pipeline.calibration.clock import ClockFit, estimate_clock
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.floor import estimate_floor
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
 from pipeline.calibration.localize import OccupancyMap, PoseSource, localize_robot
 from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors, wheel_speeds
@@ -60,6 +61,7 @@ PROFILE_KEYS: dict[str, tuple[str, ...]] = {
         "deadband_radps",
         "max_wheel_accel_radps2",
         "motor_time_constant_s",
+        "friction",
     ),
     "clock": ("offset_s", "drift_ppm"),
     "map": ("wall_offset_m",),
@@ -950,6 +952,13 @@ def _odometry_fits(
     values["base.wheel_radius_right_m"] = wheels.radius_right_m
     values["base.wheel_separation_m"] = wheels.separation_m
     odometry = estimate_odometry(data.episodes, settings, arc_per_m(values) or 0.0)
+    radii = (wheels.radius_left_m, wheels.radius_right_m)
+    scale = (
+        sum(float(r.value) for r in radii if r.value is not None) / (2 * NOMINAL_WHEEL_RADIUS_M)
+        if all(r.ok and r.value is not None for r in radii)
+        else 1.0
+    )
+    values["base.friction"] = estimate_floor(data.episodes, scale).friction
     inferred = tuple(note for d in sessions for note in d.notes)
     odometry = replace(odometry, notes=inferred + odometry.notes)
     values["odometry.drift_per_m"] = odometry.drift_per_m

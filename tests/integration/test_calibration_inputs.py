@@ -76,9 +76,11 @@ def test_robots_standing_still_leave_actuation_and_odometry_unidentifiable(tmp_p
         "base.deadband_radps",
         "base.max_wheel_accel_radps2",
         "base.motor_time_constant_s",
+        "base.friction",
     }
     unidentified = set(data["unidentified"])
     assert "robots must drive" in data["unidentified"]["base.deadband_radps"]
+    assert "robots must drive" in data["unidentified"]["base.friction"]
     assert needs_driving <= unidentified
     # besides: what 5 s do not show (a clock's drift, bursts of losses) and boxes no still robot sees
     assert all(

@@ -158,9 +158,14 @@ def with_ideal_defaults(truth: dict) -> dict:
 
 MAY_BE_UNIDENTIFIED = {"base.motor_time_constant_s": "every share"}
 """Keys these profiles leave at zero, which the data may read near zero or leave open, with the word that says so."""
-UNIDENTIFIABLE_ON_THE_TWIN = {"clock.offset_s": "/clock", "base.max_wheel_accel_radps2": "no limit binds"}
+UNIDENTIFIABLE_ON_THE_TWIN = {
+    "clock.offset_s": "/clock",
+    "base.max_wheel_accel_radps2": "no limit binds",
+    "base.friction": "friction is",
+}
 """Keys the mild and harsh recordings cannot tell, and a word their reason must name: the clock offset on a
-time-scaled twin, and an acceleration limit these profiles do not have."""
+time-scaled twin, an acceleration limit these profiles do not have, and the floor's friction (never identified: the
+recording does not give the weight on the driven wheels; the reason bounds it)."""
 
 
 def test_the_tolerance_table_covers_every_profile_key():
