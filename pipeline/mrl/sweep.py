@@ -94,7 +94,7 @@ def _run_options(sweep: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run (or, with --report-only, collect) the trials, print their statistics and write the report."""
     from pipeline.bench.stats import cell_stats, markdown_table
-    from pipeline.bench.sweep import collect, run_sweep
+    from pipeline.bench.sweep import collect, run_sweep, write_table
     from pipeline.bench.sweep_report import splice_readme, write_report
 
     if args.readme:  # checked before a sweep of hours, not after it
@@ -104,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     command = "mrl sweep " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["sweep"] else "mrl sweep"
     if args.report_only:
         rows = collect(out, trials, base)
+        write_table(out, rows)
         print(f"sweep: report of {rows.height} finished trials of {len(trials)} in {out}")
     else:
         outcome = run_sweep(

@@ -76,7 +76,10 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
     assert set(rows["commit"]) == {runs[0]["commit"]} and runs[0]["commit"] == source_commit() != "unknown"
     assert set(rows["host"]) == {socket.gethostname()}
 
-    # the report from the finished trials, through the installed command, into a README's section of its own
+    # the report from the finished trials, through the installed command, into a README's section of its own; the
+    # table is written again from the rows
+    (out / "results.csv").unlink()
+    (out / "results.parquet").unlink()
     readme = tmp_path / "README.md"
     readme.write_text("# Results\n\n<!-- sweep results tiny: start -->\nold\n<!-- sweep results tiny: end -->\nrest\n")
     proc = subprocess.run(
@@ -92,6 +95,7 @@ def test_a_sweep_runs_trials_on_ray_resumes_and_reports(tiny_params, tmp_path):
     assert "| sac | independent | empty | 3 |" in proc.stdout
     report = (out / "results.md").read_text()
     assert "| sac | independent | empty | 3 |" in report and "![learning curves](learning_curves.png)" in report
+    assert pl.read_csv(out / "results.csv").height == 3 and pl.read_parquet(out / "results.parquet").height == 3
     assert (out / "learning_curves.png").stat().st_size > 0 and (out / "performance_profiles.png").stat().st_size > 0
     text = readme.read_text()
     assert "| sac | independent | empty | 3 |" in text and "old" not in text and text.endswith("end -->\nrest\n")
