@@ -20,9 +20,10 @@ difference of two topics' delays for the same stamp, which cancels them: the dif
 independent uniform delays on [0, J] has an interquartile range of (2 - sqrt 2) J. Topics without
 a partner fall back to twice the interquartile range of their own delays, which includes the
 receiver's stalls. A receiver that stalls also logs messages of one tick together that arrived apart, which
-shrinks their differences: where the jitter read from other quantiles of the differences' size (the 0.75 and 0.9
-ones) disagrees with the interquartile rule's beyond its bootstrap interval, the interval is widened to hold them
-all and a note says so.
+shrinks their small differences, and logs late ones later, which stretches the large ones: where the jitter read
+from the 0.5 (the interquartile rule), 0.75 and 0.9 quantiles of the differences' size disagree beyond the
+interquartile rule's bootstrap interval, the value is the median of the three readings, the interval is widened to
+hold them all, and a note says so.
 """
 
 from __future__ import annotations
@@ -382,12 +383,14 @@ def estimate_network(
                     + ", ".join(f"{q:.2f}" for q in SHAPE_QUANTILES)
                     + " quantiles of their size they give a jitter of "
                     + ", ".join(f"{r * 1e3:.1f}" for r in readings)
-                    + " ms (a receiver that stalls logs deliveries together; late ones stretch the tail); the "
-                    "interval holds them all",
+                    + f" ms (a receiver that stalls logs deliveries together, which shrinks the lower ones; late ones "
+                    f"stretch the tail): the value is their median, {float(np.median(readings)) * 1e3:.1f} ms, not "
+                    f"the interquartile rule's {jitter * 1e3:.1f} ms, and the interval holds them all",
                 )
+                jitter = float(np.median(readings))
                 interval = (min(interval[0], low), max(interval[1], high))
                 se = max(se or 0.0, (interval[1] - interval[0]) / (2 * Z_95))
-                method += ", widened to the jitter that other quantiles of the differences read"
+                method += "; the differences' quantiles disagree: their median reading, widened to hold them all"
         jitter_est = Estimate.of(jitter, se, interval, "s", method, len(values))
     else:
         jitter_est = Estimate.of(jitter, None, None, "s", method, len(values))
