@@ -11,7 +11,9 @@ chain's (`REPLAYED`: ``effective.drive_delay_s``, ``drive_lag_s``, ``drive_respo
 gains) are scored against what they stand for on that recording: the simulator's drive model fitted, by the same
 fit, on the same contact-free stretches and commands, to the body velocities of the reality's own drive replayed
 noise-free (benchmarks/drive_replay.py: the profile's driver, motors, deadband, acceleration limit and floor
-in the twin's physics, the recording's commands at their recorded times). ``network.jitter_s`` is scored against
+in the twin's physics, under the commands as the twin's driver took them: the twin records when each took effect,
+so the command path's latency on a busy host is the replay's too; the recording's command times where the twin
+kept no record). ``network.jitter_s`` is scored against
 the jitter the twin's link realized on that run (`REALIZED`): the twin records each stamped message's hand-over
 (``--link-record``) and calibration's pair rule reads those deliveries at the sender, free of the recorder's side; a
 busy twin realizes less than its profile's jitter (benchmarks/twin_link_jitter.py), and the profile's value is in the
@@ -47,7 +49,7 @@ import yaml
 from drive_replay import replay_drive, replayed_tracks
 
 from pipeline.calibration import calibrate
-from pipeline.calibration.actuation import estimate_actuation
+from pipeline.calibration.actuation import CommandTimeline, estimate_actuation
 from pipeline.calibration.calibrate import drive_record
 from pipeline.calibration.network import TRIANGULAR_IQR
 from pipeline.calibration.options import CalibrationSettings
@@ -127,15 +129,32 @@ def realized_jitter(deliveries: Path) -> float | None:
     return float(np.median(pairs)) if pairs else None
 
 
-def drive_truths(recording: Path, profile_file: Path, settings: CalibrationSettings) -> dict[str, float | None]:
+def applied_commands(deliveries: Path) -> dict[str, CommandTimeline] | None:
+    """Per robot, the commands as the twin's driver took them (``python -m pipeline.twin --link-record``); None where
+    the record holds none."""
+    with np.load(deliveries) as data:
+        if "cmd_robot" not in data or not len(data["cmd_robot"]):
+            return None
+        robot, t, v, w = data["cmd_robot"], data["cmd_ns"], data["cmd_v"], data["cmd_w"]
+    return {
+        str(name): CommandTimeline(t[robot == name], np.stack([v[robot == name], w[robot == name]], axis=1))
+        for name in np.unique(robot)
+    }
+
+
+def drive_truths(
+    recording: Path, profile_file: Path, settings: CalibrationSettings, deliveries: Path | None = None
+) -> dict[str, float | None]:
     """What each of `REPLAYED` stands for on `recording`: the simulator's drive model fitted to the profile's own
-    drive replayed noise-free under the recording's commands, on calibration's contact-free stretches (cut where a
-    replayed robot touches something)."""
+    drive replayed noise-free, on calibration's contact-free stretches (cut where a replayed robot touches
+    something), under the commands as the twin's driver took them where `deliveries` records them (when each took
+    effect on the twin's clock: the command path's latency as the twin realized it), else the recording's."""
     record = drive_record(recording, settings)
     _, profile = load_profile(profile_file)
     if len(record.sessions) != 1:
         raise SystemExit(f"calibration_coverage: {recording} holds {len(record.sessions)} sessions; one is replayed")
-    tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile))
+    applied = applied_commands(deliveries) if deliveries is not None and deliveries.is_file() else None
+    tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile, applied))
     fit = estimate_actuation(tracks, settings, np.random.default_rng(settings.seed))
     out: dict[str, float | None] = {}
     for key, field_name in REPLAYED.items():
@@ -247,8 +266,8 @@ def _scored(recording: Path, mapping: dict[str, Any], seed: int, profile_file: P
     what the key stands for on this recording."""
     settings = CalibrationSettings(bootstrap=200, seed=seed)
     cal = calibrate(recording, settings)
-    replayed = drive_truths(recording, profile_file, settings)
     deliveries = recording.with_suffix(".link.npz")
+    replayed = drive_truths(recording, profile_file, settings, deliveries)
     realized = {"network.jitter_s": realized_jitter(deliveries)} if deliveries.is_file() else {}
     rows: list[dict[str, object]] = []
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]

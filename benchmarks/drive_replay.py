@@ -49,8 +49,11 @@ class ReplayedDrive:
         return v, self.contact[k]
 
 
-def replay_drive(session: SessionData, profile: RealityProfile) -> dict[str, ReplayedDrive]:
-    """Every robot's body under the profile's drive, replaying `session`'s commands episode by episode."""
+def replay_drive(
+    session: SessionData, profile: RealityProfile, commands: dict[str, CommandTimeline] | None = None
+) -> dict[str, ReplayedDrive]:
+    """Every robot's body under the profile's drive, replaying `session`'s commands episode by episode: the recorded
+    ones, or per robot name in `commands` those the robot's driver really took (the twin's record)."""
     scenario = session.scenario
     if scenario.layouts is not None:
         raise DriveReplayError(
@@ -62,9 +65,12 @@ def replay_drive(session: SessionData, profile: RealityProfile) -> dict[str, Rep
     n = len(robots)
     driver = BaseDriver(n, profile.actuation)
     timelines = [
-        CommandTimeline(r.commands.t_ns, np.stack([r.commands.v, r.commands.w], axis=1))
-        if r.commands is not None and len(r.commands.t_ns)
-        else None
+        (commands or {}).get(r.name)
+        or (
+            CommandTimeline(r.commands.t_ns, np.stack([r.commands.v, r.commands.w], axis=1))
+            if r.commands is not None and len(r.commands.t_ns)
+            else None
+        )
         for r in robots
     ]
     times: list[np.ndarray] = []

@@ -47,7 +47,8 @@ def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> 
         "--link-record",
         default=None,
         metavar="FILE.npz",
-        help="write each stamped message's delivery as the link realized it (topic, stamp, time handed on) on exit",
+        help="on exit, write what the twin realized: each stamped message's delivery (topic, stamp, time handed on) "
+        "and each command as its driver took it (robot, time, v, w)",
     )
     parser.add_argument(
         "--exit-with-parent",
@@ -135,12 +136,13 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         )
         if args.link_record:
             twin.link.deliveries = []
+            twin.applied = []
         try:
             twin.run(stop)
         finally:
             twin.close()
             if args.link_record:
-                twin.link.write_deliveries(args.link_record)
+                twin.write_record(args.link_record)
     finally:
         transport.close()
     say(f"twin: stopped after {twin.ticks} ticks ({twin.link.sent} messages sent, {twin.link.lost} lost)")

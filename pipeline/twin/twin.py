@@ -142,16 +142,19 @@ class LossyLink:
         stamp = int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
         self.deliveries.append((pub.spec.name if hasattr(pub, "spec") else str(id(pub)), stamp, self.clock.now_ns()))
 
-    def write_deliveries(self, path: str) -> None:
-        """The recorded deliveries as a NumPy archive: ``topic`` (str), ``stamp_ns`` and ``handed_ns`` (int64)."""
+    def deliveries_arrays(self) -> dict[str, np.ndarray]:
+        """The recorded deliveries: ``topic`` (str), ``stamp_ns`` and ``handed_ns`` (int64), ``jitter_s``."""
         rows = list(self.deliveries or [])
-        np.savez_compressed(
-            path,
-            topic=np.array([r[0] for r in rows], dtype=str),
-            stamp_ns=np.array([r[1] for r in rows], dtype=np.int64),
-            handed_ns=np.array([r[2] for r in rows], dtype=np.int64),
-            jitter_s=np.float64(self.jitter_ns / NS_PER_S),
-        )
+        return {
+            "topic": np.array([r[0] for r in rows], dtype=str),
+            "stamp_ns": np.array([r[1] for r in rows], dtype=np.int64),
+            "handed_ns": np.array([r[2] for r in rows], dtype=np.int64),
+            "jitter_s": np.asarray(self.jitter_ns / NS_PER_S, dtype=np.float64),
+        }
+
+    def write_deliveries(self, path: str) -> None:
+        """The recorded deliveries as a NumPy archive (`deliveries_arrays`)."""
+        np.savez_compressed(path, allow_pickle=False, **self.deliveries_arrays())
 
     def close(self) -> None:
         self._stop.set()
@@ -264,6 +267,9 @@ class HardwareTwin:
         self._cmd = np.zeros((n, 2))
         self._cmd_ns = np.full(n, -(2**62), dtype=np.int64)
         self._inbox: deque[tuple[int, int, float, float]] = deque()
+        self.applied: list[tuple[int, int, float, float]] | None = None
+        """Where a list (``--link-record``): each command as the driver took it, (robot index, the time it took effect
+        on the twin's clock ns, v, w): the commands the drive really had, for a replay of it."""
         """Commands received and not yet in effect: (receive time, robot, v, w); physics takes each one at
         its receive time, never earlier."""
         self._lock = threading.Lock()
@@ -312,6 +318,21 @@ class HardwareTwin:
         self.truth_period_ns = round(NS_PER_S / TRUTH_RATE_HZ)
         self.last_odom_ns = now_ns
 
+    def write_record(self, path: str) -> None:
+        """What the twin realized, as a NumPy archive: the link's deliveries (`LossyLink.deliveries_arrays`) and the
+        commands as the driver took them: ``cmd_robot`` (namespace), ``cmd_ns`` (when each took effect, the twin's
+        clock), ``cmd_v`` and ``cmd_w``."""
+        applied = list(self.applied or [])
+        np.savez_compressed(
+            path,
+            allow_pickle=False,
+            **self.link.deliveries_arrays(),
+            cmd_robot=np.array([self.namespaces[r[0]] for r in applied], dtype=str),
+            cmd_ns=np.array([r[1] for r in applied], dtype=np.int64),
+            cmd_v=np.array([r[2] for r in applied], dtype=float),
+            cmd_w=np.array([r[3] for r in applied], dtype=float),
+        )
+
     def _on_cmd(self, index: int) -> Callable[[Any, Any, int], None]:
         def callback(spec: Any, msg: Any, receive_ns: int) -> None:
             v, w = C.twist_command(msg)
@@ -335,6 +356,8 @@ class HardwareTwin:
                 t, index, v, w = self._inbox.popleft()
                 self._cmd[index] = (v, w)
                 self._cmd_ns[index] = t
+                if self.applied is not None:
+                    self.applied.append((index, t, v, w))
             fresh = (now_ns - self._cmd_ns) < DRIVER_TIMEOUT_NS
             return np.where(fresh[:, None], self._cmd, 0.0)
 
