@@ -157,3 +157,39 @@ def test_a_setting_for_every_trial_is_checked_before_anything_runs(tiny_params, 
     )  # fmt: skip
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "--readme-section: 1 invalid setting(s): name = 'a b': letters, digits, _ and -" in proc.stderr
+
+
+def test_ctrl_c_stops_a_sweep_mid_trial_and_records_the_run_as_interrupted(tiny_params, tmp_path):
+    """SIGINT while a trial trains: the driver stops Ray, keeps the rows it has (none here) and appends the run to
+    sweep.json marked interrupted; the same command later runs the trial from the start."""
+    import signal
+    import time
+
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen(
+        [
+            str(MRL), "sweep", "--algorithms", "sac", "--modes", "independent", "--scenarios", "empty",
+            "--seeds", "1", "--params", str(tiny_params), "--out", str(out), "--episodes", "2",
+            "--set", "train.total_steps=200000",
+        ],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    seen = []
+    for line in proc.stdout:
+        seen.append(line)
+        if "training 200000 steps" in line:
+            break
+    else:
+        pytest.fail("the trial never started:\n" + "".join(seen))
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("the sweep did not stop on SIGINT")
+    runs = json.loads((out / "sweep.json").read_text())
+    assert len(runs) == 1 and runs[0]["interrupted"] is True and runs[0]["ran"] == [], runs
+    assert runs[0]["command"].startswith("mrl sweep --algorithms sac")
+    assert not list(out.glob(f"trials/*/{ROW_FILE}"))
