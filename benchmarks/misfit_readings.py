@@ -8,6 +8,9 @@ For each kept coverage recording (``python benchmarks/calibration_coverage.py --
   0.1 ms of each other, and the jitter the 0.5, 0.75 and 0.9 quantiles of the recorded differences' size read;
 - the odometry's per-episode errors (scale, yaw scale, heading drift about the unequal wheels' arc): their mean and
   spread over the robot-episodes, beside the profile's drift and the systematic errors its wheels predict;
+- the drive: the recorded forward speed against the profile's drive replayed under the commands as the twin's
+  driver took them, on calibration's contact-free stretches above 0.1 m/s (the slope through the origin), and the
+  linear gain each reads;
 - what the recording says about the floor.
 
 Usage: ``python benchmarks/misfit_readings.py --keep DIR --seeds 100 106``.
@@ -21,14 +24,16 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from calibration_coverage import realized_jitter
+from calibration_coverage import applied_commands, drive_truths, realized_jitter
+from drive_replay import replay_drive
 
 from pipeline.calibration import calibrate
-from pipeline.calibration.calibrate import _network_streams, arc_per_m
+from pipeline.calibration.calibrate import _network_streams, arc_per_m, drive_record
 from pipeline.calibration.network import SHAPE_QUANTILES, TRIANGULAR_IQR
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import read_session
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
+from pipeline.twin.profile import load_profile
 
 CLOSE_NS = 100_000
 
@@ -110,6 +115,26 @@ def main() -> int:
                 if name == "heading_drift_per_m":
                     v = v + arc
                 print(f"    {name:20s} mean {np.mean(v):+.4f} sd {np.std(v, ddof=1):.4f} over {len(v)} robot-episodes")
+        record = drive_record(recording, CalibrationSettings(bootstrap=200, seed=seed))
+        _, reality = load_profile(args.keep / f"drawn_{seed}.yaml")
+        replay = replay_drive(record.sessions[0], reality, applied_commands(deliveries))
+        recorded, replayed = [], []
+        for track in record.tracks:
+            velocity, contact = replay[track.robot].at(track.t_ns)
+            recorded.append(track.achieved[~contact, 0])
+            replayed.append(velocity[~contact, 0])
+        a, r = np.concatenate(recorded), np.concatenate(replayed)
+        fast = np.abs(r) > 0.1
+        slope = float(np.sum(a[fast] * r[fast]) / np.sum(r[fast] ** 2))
+        truths = drive_truths(
+            recording, args.keep / f"drawn_{seed}.yaml", CalibrationSettings(bootstrap=200, seed=seed), deliveries
+        )
+        gain = cal.values["actuation.linear_gain"]
+        print(
+            f"  drive: recorded / replayed forward speed {slope:.4f} over {int(fast.sum())} samples; linear gain "
+            f"{gain.value:.4f} [{gain.interval[0]:.4f}, {gain.interval[1]:.4f}] from the recording, "
+            f"{truths['actuation.linear_gain']:.4f} from the replay"
+        )
         print(f"  floor (friction {base['friction']:.2f}): {cal.values['base.friction'].reason}")
         sys.stdout.flush()
     return 0
