@@ -51,7 +51,7 @@ from drive_replay import replay_drive, replayed_tracks
 from pipeline.calibration import calibrate
 from pipeline.calibration.actuation import CommandTimeline, estimate_actuation
 from pipeline.calibration.calibrate import drive_record
-from pipeline.calibration.network import TRIANGULAR_IQR
+from pipeline.calibration.network import pair_rule
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.scenario import load_scenario
 from pipeline.policy.runtime import PolicyRuntime
@@ -123,9 +123,7 @@ def realized_jitter(deliveries: Path) -> float | None:
             common, ia, ib = np.intersect1d(by_topic[a][0], by_topic[b][0], return_indices=True)
             if len(common) < 50:
                 continue
-            diff = (by_topic[a][1][ia] - by_topic[b][1][ib]) / 1e9
-            q25, q75 = np.percentile(diff, [25, 75])
-            pairs.append(float(q75 - q25) / TRIANGULAR_IQR)
+            pairs.append(pair_rule((by_topic[a][1][ia] - by_topic[b][1][ib]) / 1e9))
     return float(np.median(pairs)) if pairs else None
 
 

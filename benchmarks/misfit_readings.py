@@ -29,18 +29,13 @@ from drive_replay import replay_drive
 
 from pipeline.calibration import calibrate
 from pipeline.calibration.calibrate import _network_streams, arc_per_m, drive_record
-from pipeline.calibration.network import SHAPE_QUANTILES, TRIANGULAR_IQR
+from pipeline.calibration.network import SHAPE_QUANTILES, pair_rule
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import read_session
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 from pipeline.twin.profile import load_profile
 
 CLOSE_NS = 100_000
-
-
-def _pair_rule(diff_s: np.ndarray) -> float:
-    q25, q75 = np.percentile(diff_s, [25, 75])
-    return float(q75 - q25) / TRIANGULAR_IQR
 
 
 def jitter_lines(recording: Path) -> list[str]:
@@ -66,8 +61,8 @@ def jitter_lines(recording: Path) -> list[str]:
         q = np.asarray(SHAPE_QUANTILES)
         readings = np.quantile(np.abs(logged) / 1e9, q) / (1 - np.sqrt(1 - q))
         lines.append(
-            f"  {kind:12s} pair rule at the link {_pair_rule(at_link / 1e9) * 1e3:5.1f} ms, in the recording "
-            f"{_pair_rule(logged / 1e9) * 1e3:5.1f} ms; within 0.1 ms: link {np.mean(np.abs(at_link) < CLOSE_NS):.3f},"
+            f"  {kind:12s} pair rule at the link {pair_rule(at_link / 1e9) * 1e3:5.1f} ms, in the recording "
+            f"{pair_rule(logged / 1e9) * 1e3:5.1f} ms; within 0.1 ms: link {np.mean(np.abs(at_link) < CLOSE_NS):.3f},"
             f" recording {np.mean(np.abs(logged) < CLOSE_NS):.3f} ({len(common)} pairs); quantiles "
             + ", ".join(f"{x:.2f}" for x in q)
             + " read "

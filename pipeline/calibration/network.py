@@ -333,8 +333,7 @@ def estimate_network(
                     if len(common) < MIN_MESSAGES:
                         continue
                     diff = ((sa.log_ns[ia] - sa.stamp_ns[ia]) - (sb.log_ns[ib] - sb.stamp_ns[ib])) / NS_PER_S
-                    q25, q75 = np.percentile(diff, [25, 75])
-                    pair_jitter.append(float(q75 - q25) / TRIANGULAR_IQR)
+                    pair_jitter.append(pair_rule(diff))
                     pair_shape.append(_quantile_readings(diff))
             continue
         stream = kept[group[0]]
@@ -406,6 +405,13 @@ def estimate_network(
 SHAPE_QUANTILES = (0.5, 0.75, 0.9)
 """Quantiles of the size of two topics' delay differences that each read the jitter under the model (the
 interquartile rule is the first); where they disagree, the model does not hold and the interval holds them all."""
+
+
+def pair_rule(diff_s: np.ndarray) -> float:
+    """The jitter (s) that two topics' delay differences for the same stamps read: their interquartile range over
+    2 - sqrt 2 (the difference of two uniform delays on [0, J] is a triangle on [-J, J])."""
+    q25, q75 = np.percentile(diff_s, [25, 75])
+    return float(q75 - q25) / TRIANGULAR_IQR
 
 
 def _quantile_readings(diff: np.ndarray) -> np.ndarray:
