@@ -106,6 +106,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         if not 0 < scale <= 20:
             raise MrlError(f"--time-scale {scale}: must be in (0, 20]")
         seed = fleet.twin.seed if args.seed is None else args.seed
+        if args.link_record and not os.path.isdir(os.path.dirname(os.path.abspath(args.link_record))):
+            raise MrlError(f"--link-record {args.link_record}: its folder does not exist")
         silence = None
         if args.silence:
             robot, _, when = args.silence.partition("@")

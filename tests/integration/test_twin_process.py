@@ -49,6 +49,9 @@ def test_twin_refuses_bad_input_with_a_clear_message(tmp_path):
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 2 and "Traceback" not in err
         assert f"--silence {bad!r}" in err and "NAMESPACE@START[+DURATION]" in err
+    proc = start_twin("--fleet", str(fleet), "--link-record", str(tmp_path / "nowhere" / "record.npz"))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "--link-record" in err and "folder does not exist" in err and "Traceback" not in err
     proc = start_twin("--fleet", str(fleet), "--silence", "robot_9@1.0")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and "no robot 'robot_9' in the fleet" in err and "Traceback" not in err
