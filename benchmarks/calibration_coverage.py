@@ -161,6 +161,17 @@ def drive_truths(
     return out
 
 
+def _jumped(record: Path) -> str:
+    """Words for the host stalls the twin jumped over (its world frozen through them; the drive's replay is not)."""
+    if not record.is_file():
+        return ""
+    with np.load(record) as data:
+        skipped = data["jump_skipped_ns"] if "jump_skipped_ns" in data else np.zeros(0)
+    if not len(skipped):
+        return ""
+    return f"; the twin jumped {len(skipped)} host stall(s), {float(skipped.sum()) / 1e9:.2f} s frozen"
+
+
 def truth_of(profile: dict[str, Any], key: str) -> float | None:
     """The profile's true value behind a calibrated key (None where the profile has none)."""
     group, _, rest = key.partition(".")
@@ -248,7 +259,8 @@ def main() -> int:
                 writer.writerow(row)
             f.flush()
             print(
-                f"profile {p + 1}/{args.profiles} (seed {seed}) done in {time.perf_counter() - start:.0f} s",
+                f"profile {p + 1}/{args.profiles} (seed {seed}) done in {time.perf_counter() - start:.0f} s"
+                + _jumped(deliveries),
                 file=sys.stderr,
                 flush=True,
             )

@@ -26,7 +26,7 @@ from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.fleet import load_fleet
 from pipeline.ros.transport import open_transport
 from pipeline.twin.profile import load_profile_for
-from pipeline.twin.twin import HardwareTwin, Silence
+from pipeline.twin.twin import STALL_JUMP_NS, HardwareTwin, Silence
 
 
 def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> argparse.Namespace:
@@ -147,7 +147,14 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
                 twin.write_record(args.link_record)
     finally:
         transport.close()
-    say(f"twin: stopped after {twin.ticks} ticks ({twin.link.sent} messages sent, {twin.link.lost} lost)")
+    jumped = ""
+    if twin.jumps:
+        total = sum(j[1] for j in twin.jumps) / 1e9
+        jumped = (
+            f"; the host stalled {len(twin.jumps)} time(s) beyond {STALL_JUMP_NS / 1e9:g} s of twin time and the "
+            f"robots stood still through {total:.2f} s of it"
+        )
+    say(f"twin: stopped after {twin.ticks} ticks ({twin.link.sent} messages sent, {twin.link.lost} lost){jumped}")
     return 0
 
 

@@ -57,6 +57,11 @@ CLOCK_PERIOD_S = 0.02
 DRIVER_TIMEOUT_NS = 500_000_000
 MAX_WAKE_NS = 20_000_000
 """The loop wakes at least this often (twin time) to take resets and commands."""
+STALL_JUMP_NS = 1_000_000_000
+"""A host stall longer than this (twin time) is jumped over: the robots stand still through it and the jump is
+recorded (`HardwareTwin.jumps`). Shorter stalls are caught up step by step (sensors taken at their own times,
+published late, as a slow link would deliver them), so the world's physics keeps the clock's time: a world that
+froze for every busy moment of the host would read its drive's gains short by the frozen share."""
 BEAM_BATCH_NS = 10_000_000
 """Lidar beams due are cast in batches this far apart (twin time), each from the pose at its batch: at 0.4 m/s
 and up to 1 rad/s that is within 4 mm and 10 mrad of each beam's own pose, small against a 125 ms sweep's
@@ -275,6 +280,8 @@ class HardwareTwin:
         self._lock = threading.Lock()
         self._reset_request: tuple[int, int] | None = None
         self.ticks = 0
+        self.jumps: list[tuple[int, int]] = []
+        """Host stalls longer than `STALL_JUMP_NS` jumped over: (twin time the jump started, ns skipped)."""
         self._silenced_at_ns: int | None = None
         self._first_reset_ns: int | None = None
         now = clock.now_ns()
@@ -321,7 +328,7 @@ class HardwareTwin:
     def write_record(self, path: str) -> None:
         """What the twin realized, as a NumPy archive: the link's deliveries (`LossyLink.deliveries_arrays`) and the
         commands as the driver took them: ``cmd_robot`` (namespace), ``cmd_ns`` (when each took effect, the twin's
-        clock), ``cmd_v`` and ``cmd_w``."""
+        clock), ``cmd_v`` and ``cmd_w``; the host stalls jumped over (`jumps`): ``jump_ns`` and ``jump_skipped_ns``."""
         applied = list(self.applied or [])
         np.savez_compressed(
             path,
@@ -331,6 +338,8 @@ class HardwareTwin:
             cmd_ns=np.array([r[1] for r in applied], dtype=np.int64),
             cmd_v=np.array([r[2] for r in applied], dtype=float),
             cmd_w=np.array([r[3] for r in applied], dtype=float),
+            jump_ns=np.array([j[0] for j in self.jumps], dtype=np.int64),
+            jump_skipped_ns=np.array([j[1] for j in self.jumps], dtype=np.int64),
         )
 
     def _on_cmd(self, index: int) -> Callable[[Any, Any, int], None]:
@@ -472,8 +481,10 @@ class HardwareTwin:
             if not self.clock.sleep_until(wake, stop):
                 break
             behind = self.clock.now_ns() - wake
-            if behind > 5 * MAX_WAKE_NS:  # the host stalled: jump instead of replaying the missed time in a burst
-                self.physics_ns += (behind // self.step_ns) * self.step_ns
+            if behind > STALL_JUMP_NS:  # the host stalled for long: jump, or catching up would run away
+                skipped = (behind // self.step_ns) * self.step_ns
+                self.jumps.append((self.physics_ns, skipped))
+                self.physics_ns += skipped
             self.step(wake)
 
     def close(self) -> None:

@@ -165,3 +165,69 @@ def test_the_twin_records_what_it_realized_when_asked(tmp_path):
         assert {f"/{ns}/odom", f"/{ns}/scan", f"/{ns}/ground_truth"} <= topics
         assert np.all(data["handed_ns"] >= 0) and len(data["stamp_ns"]) == len(data["topic"])
         assert float(data["jitter_s"]) > 0  # the harsh profile's link jitters
+
+
+class StallingClock:
+    """Twin time that passes only as the twin sleeps, except where the host stalls: the wake after `stall_at_ns`
+    comes `stall_ns` late. Stops the twin at `end_ns`."""
+
+    def __init__(self, stall_at_ns: int, stall_ns: int, end_ns: int, stop) -> None:
+        self.now = 10**12
+        self.start = self.now
+        self.stall_at, self.stall_ns, self.end, self.stop = stall_at_ns, stall_ns, end_ns, stop
+        self.stalled = False
+
+    def now_ns(self) -> int:
+        return self.now
+
+    def sleep_until(self, t_ns: int, stop=None) -> bool:
+        self.now = max(self.now, t_ns)
+        if not self.stalled and self.now - self.start >= self.stall_at:
+            self.stalled = True
+            self.now += self.stall_ns
+        if self.now - self.start >= self.end:
+            self.stop.set()
+            return False
+        return True
+
+
+@pytest.mark.parametrize(("stall_s", "jumped"), [(0.3, False), (1.5, True)])
+def test_the_twin_catches_up_a_host_stall_and_jumps_only_a_long_one(tmp_path, stall_s, jumped):
+    """A busy host wakes the twin late: its physics steps through the missed time (the world does not freeze, or
+    the recorded motion would run slow by the frozen share); a stall beyond STALL_JUMP_NS is jumped, recorded and
+    reported."""
+    import threading
+
+    import numpy as np
+
+    from pipeline.core.scenario import load_scenario
+    from pipeline.ros.fleet import load_fleet
+    from pipeline.ros.transport import open_transport
+    from pipeline.twin.profile import load_profile_for
+    from pipeline.twin.twin import HardwareTwin
+
+    fleet = load_fleet(write_fleet(tmp_path / "fleet.yaml"))
+    scenario = load_scenario(fleet.scenario)
+    _, lab = load_profile_for("lab", scenario)
+    stop = threading.Event()
+    stall_ns = round(stall_s * 1e9)
+    clock = StallingClock(500_000_000, stall_ns, 3_000_000_000, stop)
+    with open_transport(fleet.transport, fleet.network_settings()) as transport:
+        twin = HardwareTwin(fleet, scenario, lab, transport, clock, seed=0)
+        twin.run(stop)
+        twin.write_record(str(tmp_path / "record.npz"))
+        twin.close()
+    simulated_ns = round(twin.physics.data.time * 1e9)
+    elapsed_ns = twin.physics_ns - clock.start
+    assert elapsed_ns >= 2_900_000_000
+    if not jumped:
+        assert twin.jumps == []
+        assert abs(simulated_ns - elapsed_ns) <= twin.step_ns  # every step of the stall simulated
+    else:
+        assert len(twin.jumps) == 1
+        at, skipped = twin.jumps[0]
+        assert stall_ns - twin.step_ns - 50_000_000 <= skipped <= stall_ns
+        assert 400_000_000 <= at - clock.start <= 600_000_000  # where the stall was
+        assert abs(simulated_ns - (elapsed_ns - skipped)) <= twin.step_ns
+    with np.load(tmp_path / "record.npz") as data:
+        assert list(data["jump_skipped_ns"]) == [j[1] for j in twin.jumps]
