@@ -54,12 +54,20 @@ ACCELS_RADPS2 = np.r_[np.geomspace(5.0, 300.0, 41), np.inf]
 DELAYS_S = np.round(np.arange(0.0, 0.241, 0.02), 3)
 LAGS_S = np.geomspace(0.03, 0.4, 24)
 """Total lags tried (driver + motor, s)."""
-TRANSIENT_DEADBANDS_RADPS = (0.0, 0.5, 1.0)
-"""Deadbands the transients try where the held commands leave the deadband open."""
-MOTOR_SHARES = np.array([0.0, 1 / 6, 1 / 3, 1 / 2, 2 / 3])
-COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
-"""Limits of the first pass, which picks the delay; the second tries every limit at the delays next to it."""
+TRANSIENT_DEADBANDS_RADPS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5)
+"""Deadbands the transients try where the held commands leave the deadband open (those within the range they leave
+open). A deadband sits between the driver's lag and the motors' and bends the share of the lag the transients give
+the motors: with steps of 0.5 rad/s a deadband of 0.75 read the motors' lag 2-3 times too long."""
+MOTOR_SHARES = np.linspace(0.0, 2 / 3, 9)
 """Fractions of the total lag taken by the motor (after the limit) rather than the driver (before it)."""
+COARSE_MOTOR_SHARES = MOTOR_SHARES[::2]
+COARSE_LAGS_S = LAGS_S[::2]
+COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
+"""The first pass, which picks the delay (and the deadband where the held commands leave it open), on every other
+lag and share and these limits; the second tries every lag, share and limit at the delays next to it."""
+MOTOR_LAG_MAX_SPREAD = 4.0
+"""The motors' lag is identified only where its interval spans less than this factor: wider, the transients leave
+it to the drive's lag as a whole (the drawn robots' motors lie within a factor of 5 of each other)."""
 MIN_BELOW_SAMPLES = 20
 """Steady samples with a commanded wheel speed inside the deadband grid needed to tell the deadband."""
 MIN_EPISODES = 2
@@ -197,6 +205,8 @@ def _transient_costs(
     timeout_s: float,
     delays: np.ndarray,
     accels: np.ndarray,
+    lags: np.ndarray = LAGS_S,
+    shares: np.ndarray = MOTOR_SHARES,
 ) -> np.ndarray:
     """(delays, lags, shares, accels) sums of squared residuals over the episode's free samples."""
     n = int((int(episode.t_ns[-1]) - episode.start_ns) / (STEP_S * NS_PER_S)) + 2
@@ -205,19 +215,19 @@ def _transient_costs(
     achieved = episode.wheels[episode.free]
     k_end = np.clip(np.searchsorted(grid_ns, free_t, side="right") - 1, 0, n - 1)
     span = max(round(period_s / STEP_S), 1)
-    n_d, n_l, n_s, n_a = len(delays), len(LAGS_S), len(MOTOR_SHARES), len(accels)
+    n_d, n_l, n_s, n_a = len(delays), len(lags), len(shares), len(accels)
     # the driver's output for every (delay, lag, share), deadbanded: (n, d, l, s, 2)
     targets = np.empty((n, n_d, n_l, n_s, 2))
     for i, delay in enumerate(delays):
         u = episode.commands.at(grid_ns - round(float(delay) * NS_PER_S), timeout_s)
         a, b = _parts(u)
         wheels = a * gains[0] + b * gains[1]
-        for j, lag in enumerate(LAGS_S):
-            for m, share in enumerate(MOTOR_SHARES):
+        for j, lag in enumerate(lags):
+            for m, share in enumerate(shares):
                 targets[:, i, j, m] = _lag(wheels, float(lag) * (1.0 - float(share)))
     targets[np.abs(targets) < deadband] = 0.0
     step = np.broadcast_to((accels * STEP_S)[None, None, None, :, None], (n_d, n_l, n_s, n_a, 2))
-    motor_tau = LAGS_S[:, None] * MOTOR_SHARES[None, :]
+    motor_tau = lags[:, None] * shares[None, :]
     follow = np.where(motor_tau > 0, 1.0 - np.exp(-STEP_S / np.maximum(motor_tau, 1e-12)), 1.0)[None, :, :, None, None]
     setpoint = np.zeros((n_d, n_l, n_s, n_a, 2))
     wheel = np.zeros_like(setpoint)
@@ -297,7 +307,13 @@ def estimate_motors(
     for candidate in candidates:
         args = (candidate, (g_lin, g_ang), odometry_period_s, timeout)
         coarse_by.append(
-            np.sum([_transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2) for e in transient], axis=0)
+            np.sum(
+                [
+                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, COARSE_LAGS_S, COARSE_MOTOR_SHARES)
+                    for e in transient
+                ],
+                axis=0,
+            )
         )
     chosen = int(np.argmin([float(c.min()) for c in coarse_by]))
     coarse, transient_deadband = coarse_by[chosen], candidates[chosen]
@@ -402,6 +418,13 @@ def _motor_lag(best: np.ndarray, draws: np.ndarray, n: int, episodes: int) -> Es
     half_step = float(MOTOR_SHARES[1] - MOTOR_SHARES[0]) / 2 * lags
     lo = max(float(np.percentile(motor - half_step, 2.5)), 0.0)
     hi = float(np.percentile(motor + half_step, 97.5))
+    if hi > MOTOR_LAG_MAX_SPREAD * lo:
+        return Estimate.unidentifiable(
+            f"the transients leave the motors' own lag between {lo:.3g} and {hi:.3g} s (a spread beyond a factor "
+            f"of {MOTOR_LAG_MAX_SPREAD:g}): it is part of effective.drive_lag_s; steps of several sizes against a "
+            "binding acceleration limit would separate it",
+            "s",
+        )
     method = (
         "transients of the wheel speeds: the motor's share of the total lag; bootstrap over "
         f"{episodes} robot-episodes, widened by half a share step"

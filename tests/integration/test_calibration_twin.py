@@ -78,8 +78,8 @@ TOLERANCES: dict[str, Tolerance] = {
     "actuation.linear_gain": Tolerance(
         0,
         0.05,
-        "SE 0.5-1 %; the time-scaled twin drops ticks when the host stalls, which slows the stamped motion by "
-        "the dropped fraction (1-3 % on a busy 2-core host)",
+        "SE 0.5-1 %; the replay's smoothing and the time-scaled twin's irregular ticks (its physics catches up a "
+        "host stall step by step, and its sensors are published late) leave a few tenths of a percent",
     ),
     "actuation.angular_gain": Tolerance(0, 0.05, "as the linear gain"),
     "odometry.rate_hz": Tolerance(0, 0.03, "as the lidar's rate"),
@@ -113,8 +113,8 @@ TOLERANCES: dict[str, Tolerance] = {
     "base.motor_time_constant_s": Tolerance(
         0.03,
         0,
-        "no motor lag in these profiles: the transients' grid puts a sixth of the total lag per share step, so the "
-        "motors' share reads within about one step of 0 (or every share fits alike: unidentifiable)",
+        "no motor lag in these profiles: the transients' grid puts a twelfth of the total lag per share step, so the "
+        "motors' share reads within a step or two of 0 (or the transients leave it open: unidentifiable)",
     ),
     "network.jitter_s": Tolerance(
         0.003,
@@ -156,7 +156,7 @@ def with_ideal_defaults(truth: dict) -> dict:
     return {g: {**ideal.get(g, {}), **truth.get(g, {})} for g in {*ideal, *truth}}
 
 
-MAY_BE_UNIDENTIFIED = {"base.motor_time_constant_s": "every share"}
+MAY_BE_UNIDENTIFIED = {"base.motor_time_constant_s": "part of effective.drive_lag_s"}
 """Keys these profiles leave at zero, which the data may read near zero or leave open, with the word that says so."""
 UNIDENTIFIABLE_ON_THE_TWIN = {
     "clock.offset_s": "/clock",
