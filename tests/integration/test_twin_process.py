@@ -196,6 +196,7 @@ def test_the_twin_catches_up_a_host_stall_and_jumps_only_a_long_one(tmp_path, st
     """A busy host wakes the twin late: its physics steps through the missed time (the world does not freeze, or
     the recorded motion would run slow by the frozen share); a stall beyond STALL_JUMP_NS is jumped, recorded and
     reported."""
+    import dataclasses
     import threading
 
     import numpy as np
@@ -209,25 +210,36 @@ def test_the_twin_catches_up_a_host_stall_and_jumps_only_a_long_one(tmp_path, st
     fleet = load_fleet(write_fleet(tmp_path / "fleet.yaml"))
     scenario = load_scenario(fleet.scenario)
     _, lab = load_profile_for("lab", scenario)
+    lab = dataclasses.replace(lab, network=dataclasses.replace(lab.network, loss_prob=0.0, jitter_s=0.0))
     stop = threading.Event()
     stall_ns = round(stall_s * 1e9)
     clock = StallingClock(500_000_000, stall_ns, 3_000_000_000, stop)
     with open_transport(fleet.transport, fleet.network_settings()) as transport:
         twin = HardwareTwin(fleet, scenario, lab, transport, clock, seed=0)
+        twin.link.deliveries = []
         twin.run(stop)
         twin.write_record(str(tmp_path / "record.npz"))
         twin.close()
     simulated_ns = round(twin.physics.data.time * 1e9)
     elapsed_ns = twin.physics_ns - clock.start
     assert elapsed_ns >= 2_900_000_000
+    truth = np.array(
+        sorted(
+            stamp for topic, stamp, _ in twin.link.deliveries if topic == f"/{fleet.robots[0].namespace}/ground_truth"
+        )
+    )
+    gaps = np.diff(truth)
     if not jumped:
         assert twin.jumps == []
         assert abs(simulated_ns - elapsed_ns) <= twin.step_ns  # every step of the stall simulated
+        # motion capture sampled through the stall at its own rate (published late), no gap
+        assert len(truth) > 100 and gaps.max() <= 2 * twin.truth_period_ns
     else:
         assert len(twin.jumps) == 1
         at, skipped = twin.jumps[0]
         assert stall_ns - twin.step_ns - 50_000_000 <= skipped <= stall_ns
         assert 400_000_000 <= at - clock.start <= 600_000_000  # where the stall was
+        assert gaps.max() >= skipped - twin.truth_period_ns  # nothing sampled in the frozen world
         assert abs(simulated_ns - (elapsed_ns - skipped)) <= twin.step_ns
     with np.load(tmp_path / "record.npz") as data:
         assert list(data["jump_skipped_ns"]) == [j[1] for j in twin.jumps]
