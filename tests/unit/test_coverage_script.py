@@ -10,7 +10,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_coverage import summary, truth_of  # noqa: E402
+from calibration_coverage import _jumped, summary, truth_of  # noqa: E402
 
 from pipeline.twin.draw import draw_profile_mapping  # noqa: E402
 
@@ -66,3 +66,15 @@ def test_recalibrating_a_folder_without_the_kept_recordings_names_what_is_missin
     assert run.returncode == 2, run.stderr
     assert "drawn_100.mcap" in run.stdout and "drawn_101.yaml" in run.stdout and "drawn_100.yaml" not in run.stdout
     assert "Traceback" not in run.stderr
+
+
+def test_the_progress_line_names_the_stalls_the_twin_jumped(tmp_path: Path) -> None:
+    """A jumped stall freezes the twin's world but not the drive's replay: the run says so, per profile."""
+    import numpy as np
+
+    quiet, stalled, older = tmp_path / "quiet.npz", tmp_path / "stalled.npz", tmp_path / "older.npz"
+    np.savez(quiet, jump_ns=np.zeros(0, np.int64), jump_skipped_ns=np.zeros(0, np.int64))
+    np.savez(stalled, jump_ns=np.array([5, 9], np.int64), jump_skipped_ns=np.array([1_200_000_000, 1_050_000_000]))
+    np.savez(older, cmd_ns=np.zeros(0, np.int64))  # a record from before jumps were recorded
+    assert _jumped(quiet) == _jumped(older) == _jumped(tmp_path / "absent.npz") == ""
+    assert _jumped(stalled) == "; the twin jumped 2 host stall(s), 2.25 s frozen"
