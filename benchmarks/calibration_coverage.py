@@ -151,8 +151,10 @@ def drive_truths(
     _, profile = load_profile(profile_file)
     if len(record.sessions) != 1:
         raise SystemExit(f"calibration_coverage: {recording} holds {len(record.sessions)} sessions; one is replayed")
-    applied = applied_commands(deliveries) if deliveries is not None and deliveries.is_file() else None
-    tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile, applied))
+    known = deliveries is not None and deliveries.is_file()
+    applied = applied_commands(deliveries) if known else None
+    frozen = jumps(deliveries) if known else []
+    tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile, applied, frozen))
     fit = estimate_actuation(tracks, settings, np.random.default_rng(settings.seed))
     out: dict[str, float | None] = {}
     for key, field_name in REPLAYED.items():
@@ -161,15 +163,22 @@ def drive_truths(
     return out
 
 
-def _jumped(record: Path) -> str:
-    """Words for the host stalls the twin jumped over (its world frozen through them; the drive's replay is not)."""
+def jumps(record: Path) -> list[tuple[int, int]]:
+    """The host stalls the twin jumped over, (start ns, ns skipped) on its clock (none in a record without them)."""
     if not record.is_file():
-        return ""
+        return []
     with np.load(record) as data:
-        skipped = data["jump_skipped_ns"] if "jump_skipped_ns" in data else np.zeros(0)
-    if not len(skipped):
+        if "jump_ns" not in data:
+            return []
+        return [(int(a), int(b)) for a, b in zip(data["jump_ns"], data["jump_skipped_ns"], strict=True)]
+
+
+def _jumped(record: Path) -> str:
+    """Words for the host stalls the twin jumped over (its world frozen through them, and the drive's replay too)."""
+    skipped = [b for _, b in jumps(record)]
+    if not skipped:
         return ""
-    return f"; the twin jumped {len(skipped)} host stall(s), {float(skipped.sum()) / 1e9:.2f} s frozen"
+    return f"; the twin jumped {len(skipped)} host stall(s), {sum(skipped) / 1e9:.2f} s frozen"
 
 
 def truth_of(profile: dict[str, Any], key: str) -> float | None:

@@ -50,10 +50,15 @@ class ReplayedDrive:
 
 
 def replay_drive(
-    session: SessionData, profile: RealityProfile, commands: dict[str, CommandTimeline] | None = None
+    session: SessionData,
+    profile: RealityProfile,
+    commands: dict[str, CommandTimeline] | None = None,
+    jumps: Sequence[tuple[int, int]] = (),
 ) -> dict[str, ReplayedDrive]:
     """Every robot's body under the profile's drive, replaying `session`'s commands episode by episode: the recorded
-    ones, or per robot name in `commands` those the robot's driver really took (the twin's record)."""
+    ones, or per robot name in `commands` those the robot's driver really took (the twin's record). `jumps` ((start
+    ns, ns skipped) on the twin's clock, from its record) are host stalls the twin jumped over: its world stood still
+    through them, and so does the replay's."""
     scenario = session.scenario
     if scenario.layouts is not None:
         raise DriveReplayError(
@@ -89,9 +94,13 @@ def replay_drive(
                 commands[:, i] = timeline.at(t, DRIVER_TIMEOUT_NS / NS_PER_S)
         vel = np.empty((len(t), n, 2))
         touch = np.empty((len(t), n), dtype=bool)
+        frozen = np.zeros(len(t), dtype=bool)
+        for at, skipped in jumps:
+            frozen |= (t >= at) & (t < at + skipped)
         for k, now in enumerate(t):
-            physics.set_wheel_targets(driver.wheel_targets(int(now), commands[k], physics.timestep_s))
-            physics.step(1)
+            if not frozen[k]:
+                physics.set_wheel_targets(driver.wheel_targets(int(now), commands[k], physics.timestep_s))
+                physics.step(1)
             vel[k] = physics.body_velocity()
             touch[k] = physics.in_collision()
         times.append(t + step_ns)  # the state after the step

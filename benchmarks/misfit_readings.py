@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from calibration_coverage import applied_commands, drive_truths, realized_jitter
+from calibration_coverage import applied_commands, drive_truths, jumps, realized_jitter
 from drive_replay import replay_drive
 
 from pipeline.calibration import calibrate
@@ -112,7 +112,7 @@ def main() -> int:
                 print(f"    {name:20s} mean {np.mean(v):+.4f} sd {np.std(v, ddof=1):.4f} over {len(v)} robot-episodes")
         record = drive_record(recording, CalibrationSettings(bootstrap=200, seed=seed))
         _, reality = load_profile(args.keep / f"drawn_{seed}.yaml")
-        replay = replay_drive(record.sessions[0], reality, applied_commands(deliveries))
+        replay = replay_drive(record.sessions[0], reality, applied_commands(deliveries), jumps(deliveries))
         recorded, replayed = [], []
         for track in record.tracks:
             velocity, contact = replay[track.robot].at(track.t_ns)

@@ -324,6 +324,28 @@ def test_the_lab_drive_replayed_is_what_its_effective_values_stand_for(lab_recor
     assert not lo <= profile.actuation.delay_s <= hi  # the chain's effective delay is not the driver's
 
 
+def test_a_stall_the_twin_jumped_freezes_the_replay_as_it_froze_the_twin(lab_recording):
+    """A host stall the twin jumped over (its record's `jump_ns`, `jump_skipped_ns`) stood its world still; the
+    replay stands still through it too and takes up the commands after it, so what the drive keys are scored against
+    is the motion the twin realized."""
+    import dataclasses
+
+    record = drive_record(lab_recording, CalibrationSettings(bootstrap=10))
+    session = record.sessions[0]
+    session = dataclasses.replace(session, episodes=session.episodes[:1])
+    _, profile = load_profile("lab")
+    at, skipped = session.episodes[0].start_ns + 3_000_000_000, 1_000_000_000
+    plain = replay_drive(session, profile)
+    frozen = replay_drive(session, profile, jumps=[(at, skipped)])
+    name = session.robots[0].name
+    t, a, b = plain[name].t_ns, plain[name].velocity, frozen[name].velocity
+    before, inside, after = t <= at, (t > at) & (t <= at + skipped), t > at + skipped
+    assert np.array_equal(a[before], b[before])
+    assert np.abs(b[inside] - b[inside][0]).max() == 0.0  # the bodies stood as they were
+    assert np.abs(a[before][-1]).max() > 0.05  # moving when the world froze
+    assert np.abs(a[inside] - b[inside]).max() > 0.01 and not np.array_equal(a[after], b[after])
+
+
 WITHOUT_TRUTH_UNIDENTIFIABLE = (
     "lidar.mount_yaw_rad",
     "lidar.mount_xy_m[0]",
