@@ -61,10 +61,10 @@ the motors: with steps of 0.5 rad/s a deadband of 0.75 read the motors' lag 2-3 
 MOTOR_SHARES = np.linspace(0.0, 2 / 3, 9)
 """Fractions of the total lag taken by the motor (after the limit) rather than the driver (before it)."""
 COARSE_MOTOR_SHARES = MOTOR_SHARES[::2]
-COARSE_LAGS_S = LAGS_S[::2]
 COARSE_ACCELS_RADPS2 = np.array([10.0, 20.0, 40.0, 80.0, np.inf])
-"""The first pass, which picks the delay (and the deadband where the held commands leave it open), on every other
-lag and share and these limits; the second tries every lag, share and limit at the delays next to it."""
+"""The first pass, which picks the delay (and the deadband where the held commands leave it open), on every lag,
+every other share and these limits; the second tries every share and limit at the delays next to it. (Every other
+lag in the first pass moved the delay a grid step or two, with the motors' lag, on one robot of the coverage run.)"""
 MOTOR_LAG_MAX_SPREAD = 4.0
 """The motors' lag is identified only where its interval spans less than this factor: wider, the transients leave
 it to the drive's lag as a whole (the drawn robots' motors lie within a factor of 5 of each other)."""
@@ -309,7 +309,7 @@ def estimate_motors(
         coarse_by.append(
             np.sum(
                 [
-                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, COARSE_LAGS_S, COARSE_MOTOR_SHARES)
+                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, LAGS_S, COARSE_MOTOR_SHARES)
                     for e in transient
                 ],
                 axis=0,
