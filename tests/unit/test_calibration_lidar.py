@@ -183,6 +183,18 @@ def test_a_lab_lidar_in_a_room_that_is_not_where_the_map_says():
     assert fit.dropout_prob.value == pytest.approx(0.02, abs=0.004)
 
 
+def test_noise_that_grows_with_distance_is_read_against_the_distance_not_the_biased_range():
+    """The noise grows with the distance a beam travels; the measured range is that plus the lidar's bias. Against
+    the measured range the noise line's intercept would move by -noise_per_m x bias (here 40 % of it)."""
+    rng = np.random.default_rng(11)
+    data = spans(rng, 0.005, 0.0, 0.2, 0.0, scans=30, per_m=0.01, poses=MANY_POSES)
+    fit = estimate_lidar(GEOMETRY, data, SETTINGS, rng)
+    assert fit.bias_m.ok and fit.bias_m.value == pytest.approx(0.2, abs=0.005)
+    assert fit.noise_sigma_m.value == pytest.approx(0.005, rel=0.1)
+    assert fit.noise_sigma_m.interval[0] <= 0.005 <= fit.noise_sigma_m.interval[1]
+    assert fit.noise_per_m.value == pytest.approx(0.01, rel=0.1)
+
+
 def test_static_errors_do_not_read_as_noise():
     """Noise comes from each beam's spread about its own mean: a 5 cm mounting offset and moved boxes, which
     put centimetres between the scans and the map, do not read as noise."""
