@@ -25,7 +25,8 @@ sim2real benchmark's narrower ones.
 
 --keep DIR keeps each profile and recording (``drawn_<seed>.yaml``, ``drawn_<seed>.mcap``);
 --recalibrate DIR deploys nothing and calibrates the recordings a --keep run left there again (to
-measure a change of the calibration on the same data).
+measure a change of the calibration on the same data); with --parts only those parts of calibration run and
+their keys are scored (e.g. ``--parts lidar``: seconds per recording).
 
 ``clock.offset_s`` is reported unidentifiable on a time-scaled twin (the recorder follows ``/clock``) and is
 not counted. Rows go to --out (CSV); progress on stderr. Last line: ``coverage_min=<lowest coverage over the
@@ -52,7 +53,7 @@ from pipeline.calibration import calibrate
 from pipeline.calibration.actuation import CommandTimeline, estimate_actuation
 from pipeline.calibration.calibrate import drive_record
 from pipeline.calibration.network import pair_rule
-from pipeline.calibration.options import CalibrationSettings
+from pipeline.calibration.options import PARTS, CalibrationSettings, Part
 from pipeline.core.scenario import load_scenario
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
@@ -151,9 +152,9 @@ def drive_truths(
     _, profile = load_profile(profile_file)
     if len(record.sessions) != 1:
         raise SystemExit(f"calibration_coverage: {recording} holds {len(record.sessions)} sessions; one is replayed")
-    known = deliveries is not None and deliveries.is_file()
-    applied = applied_commands(deliveries) if known else None
-    frozen = jumps(deliveries) if known else []
+    record_file = deliveries if deliveries is not None and deliveries.is_file() else None
+    applied = applied_commands(record_file) if record_file is not None else None
+    frozen = jumps(record_file) if record_file is not None else []
     tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile, applied, frozen))
     fit = estimate_actuation(tracks, settings, np.random.default_rng(settings.seed))
     out: dict[str, float | None] = {}
@@ -219,7 +220,13 @@ def main() -> int:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--keep", type=Path, help="keep profiles and recordings in this folder")
     where.add_argument("--recalibrate", type=Path, help="calibrate the recordings of a --keep run again")
+    parser.add_argument(
+        "--parts", nargs="+", choices=PARTS, default=list(PARTS), help="with --recalibrate: the parts calibrated"
+    )
     args = parser.parse_args()
+    if args.recalibrate is None and list(args.parts) != list(PARTS):
+        print("calibration_coverage: --parts goes with --recalibrate (a deployment is calibrated whole)")
+        return 2
     if args.recalibrate is not None:
         missing = [
             f"drawn_{args.seed + p}.{ext}"
@@ -280,13 +287,15 @@ def main() -> int:
 COLUMNS = ["profile", "key", "truth", "truth_of", "profile_truth", "value", "low", "high", "covered", "rel_error"]
 
 
-def _scored(recording: Path, mapping: dict[str, Any], seed: int, profile_file: Path) -> list[dict[str, object]]:
+def _scored(
+    recording: Path, mapping: dict[str, Any], seed: int, profile_file: Path, parts: tuple[Part, ...] = PARTS
+) -> list[dict[str, object]]:
     """Calibrate one recording and score every estimated key against the truth: the profile's, or for `REPLAYED`
     what the key stands for on this recording."""
-    settings = CalibrationSettings(bootstrap=200, seed=seed)
+    settings = CalibrationSettings(bootstrap=200, seed=seed, parts=parts)
     cal = calibrate(recording, settings)
     deliveries = recording.with_suffix(".link.npz")
-    replayed = drive_truths(recording, profile_file, settings, deliveries)
+    replayed = drive_truths(recording, profile_file, settings, deliveries) if "actuation" in parts else {}
     realized = {"network.jitter_s": realized_jitter(deliveries)} if deliveries.is_file() else {}
     rows: list[dict[str, object]] = []
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]
@@ -331,7 +340,7 @@ def _recalibrate(args: argparse.Namespace) -> int:
             mapping = yaml.safe_load((args.recalibrate / f"drawn_{seed}.yaml").read_text(encoding="utf-8"))
             start = time.perf_counter()
             profile_file = args.recalibrate / f"drawn_{seed}.yaml"
-            for row in _scored(args.recalibrate / f"drawn_{seed}.mcap", mapping, seed, profile_file):
+            for row in _scored(args.recalibrate / f"drawn_{seed}.mcap", mapping, seed, profile_file, tuple(args.parts)):
                 rows.append(row)
                 writer.writerow(row)
             f.flush()

@@ -88,10 +88,10 @@ def replay_drive(
         physics.reset(starts)
         driver.reset()
         t = np.arange(episode.start_ns, episode.end_ns, step_ns, dtype=np.int64)
-        commands = np.zeros((len(t), n, 2))
+        acting = np.zeros((len(t), n, 2))
         for i, timeline in enumerate(timelines):
             if timeline is not None:
-                commands[:, i] = timeline.at(t, DRIVER_TIMEOUT_NS / NS_PER_S)
+                acting[:, i] = timeline.at(t, DRIVER_TIMEOUT_NS / NS_PER_S)
         vel = np.empty((len(t), n, 2))
         touch = np.empty((len(t), n), dtype=bool)
         frozen = np.zeros(len(t), dtype=bool)
@@ -99,7 +99,7 @@ def replay_drive(
             frozen |= (t >= at) & (t < at + skipped)
         for k, now in enumerate(t):
             if not frozen[k]:
-                physics.set_wheel_targets(driver.wheel_targets(int(now), commands[k], physics.timestep_s))
+                physics.set_wheel_targets(driver.wheel_targets(int(now), acting[k], physics.timestep_s))
                 physics.step(1)
             vel[k] = physics.body_velocity()
             touch[k] = physics.in_collision()

@@ -68,6 +68,16 @@ def test_recalibrating_a_folder_without_the_kept_recordings_names_what_is_missin
     assert "Traceback" not in run.stderr
 
 
+def test_parts_go_with_a_recalibration_only(tmp_path: Path) -> None:
+    """A deployment is calibrated whole; --parts (e.g. lidar alone, seconds per recording) rescores kept ones."""
+    script = str(ROOT / "benchmarks" / "calibration_coverage.py")
+    run = subprocess.run(
+        [sys.executable, script, "--parts", "lidar", "--keep", str(tmp_path)], capture_output=True, text=True, cwd=ROOT
+    )
+    assert run.returncode == 2 and "--parts goes with --recalibrate" in run.stdout, run.stdout + run.stderr
+    assert not list(tmp_path.iterdir())  # nothing deployed
+
+
 def test_the_progress_line_names_the_stalls_the_twin_jumped(tmp_path: Path) -> None:
     """A jumped stall freezes the twin's world but not the drive's replay: the run says so, per profile."""
     import numpy as np
