@@ -47,11 +47,11 @@ from typing import Any
 
 import numpy as np
 import yaml
-from drive_replay import replay_drive, replayed_tracks
+from drive_replay import ReplayedDrive, replay_drive, replayed_tracks
 
 from pipeline.calibration import calibrate
 from pipeline.calibration.actuation import CommandTimeline, estimate_actuation
-from pipeline.calibration.calibrate import drive_record
+from pipeline.calibration.calibrate import DriveRecord, drive_record
 from pipeline.calibration.network import pair_rule
 from pipeline.calibration.options import PARTS, CalibrationSettings, Part
 from pipeline.core.scenario import load_scenario
@@ -141,13 +141,12 @@ def applied_commands(deliveries: Path) -> dict[str, CommandTimeline] | None:
     }
 
 
-def drive_truths(
+def drive_replayed(
     recording: Path, profile_file: Path, settings: CalibrationSettings, deliveries: Path | None = None
-) -> dict[str, float | None]:
-    """What each of `REPLAYED` stands for on `recording`: the simulator's drive model fitted to the profile's own
-    drive replayed noise-free, on calibration's contact-free stretches (cut where a replayed robot touches
-    something), under the commands as the twin's driver took them where `deliveries` records them (when each took
-    effect on the twin's clock: the command path's latency as the twin realized it), else the recording's."""
+) -> tuple[DriveRecord, dict[str, ReplayedDrive]]:
+    """`recording`'s drive record and the profile's own drive replayed noise-free under the commands as the twin's
+    driver took them where `deliveries` records them (when each took effect on the twin's clock: the command path's
+    latency as the twin realized it), else the recording's, standing still through the stalls the twin jumped."""
     record = drive_record(recording, settings)
     _, profile = load_profile(profile_file)
     if len(record.sessions) != 1:
@@ -155,7 +154,21 @@ def drive_truths(
     record_file = deliveries if deliveries is not None and deliveries.is_file() else None
     applied = applied_commands(record_file) if record_file is not None else None
     frozen = jumps(record_file) if record_file is not None else []
-    tracks = replayed_tracks(record.tracks, replay_drive(record.sessions[0], profile, applied, frozen))
+    return record, replay_drive(record.sessions[0], profile, applied, frozen)
+
+
+def drive_truths(
+    recording: Path,
+    profile_file: Path,
+    settings: CalibrationSettings,
+    deliveries: Path | None = None,
+    replayed: tuple[DriveRecord, dict[str, ReplayedDrive]] | None = None,
+) -> dict[str, float | None]:
+    """What each of `REPLAYED` stands for on `recording`: the simulator's drive model fitted to the profile's own
+    drive replayed (:func:`drive_replayed`, or `replayed` where the caller has it), on calibration's contact-free
+    stretches (cut where a replayed robot touches something)."""
+    record, replay = replayed or drive_replayed(recording, profile_file, settings, deliveries)
+    tracks = replayed_tracks(record.tracks, replay)
     fit = estimate_actuation(tracks, settings, np.random.default_rng(settings.seed))
     out: dict[str, float | None] = {}
     for key, field_name in REPLAYED.items():

@@ -24,16 +24,14 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from calibration_coverage import applied_commands, drive_truths, jumps, realized_jitter
-from drive_replay import replay_drive
+from calibration_coverage import drive_replayed, drive_truths, realized_jitter
 
 from pipeline.calibration import calibrate
-from pipeline.calibration.calibrate import _network_streams, arc_per_m, drive_record
+from pipeline.calibration.calibrate import _network_streams, arc_per_m
 from pipeline.calibration.network import SHAPE_QUANTILES, pair_rule
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import read_session
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
-from pipeline.twin.profile import load_profile
 
 CLOSE_NS = 100_000
 
@@ -110,9 +108,8 @@ def main() -> int:
                 if name == "heading_drift_per_m":
                     v = v + arc
                 print(f"    {name:20s} mean {np.mean(v):+.4f} sd {np.std(v, ddof=1):.4f} over {len(v)} robot-episodes")
-        record = drive_record(recording, CalibrationSettings(bootstrap=200, seed=seed))
-        _, reality = load_profile(args.keep / f"drawn_{seed}.yaml")
-        replay = replay_drive(record.sessions[0], reality, applied_commands(deliveries), jumps(deliveries))
+        settings = CalibrationSettings(bootstrap=200, seed=seed)
+        record, replay = drive_replayed(recording, args.keep / f"drawn_{seed}.yaml", settings, deliveries)
         recorded, replayed = [], []
         for track in record.tracks:
             velocity, contact = replay[track.robot].at(track.t_ns)
@@ -121,9 +118,7 @@ def main() -> int:
         a, r = np.concatenate(recorded), np.concatenate(replayed)
         fast = np.abs(r) > 0.1
         slope = float(np.sum(a[fast] * r[fast]) / np.sum(r[fast] ** 2))
-        truths = drive_truths(
-            recording, args.keep / f"drawn_{seed}.yaml", CalibrationSettings(bootstrap=200, seed=seed), deliveries
-        )
+        truths = drive_truths(recording, args.keep / f"drawn_{seed}.yaml", settings, replayed=(record, replay))
         gain = cal.values["actuation.linear_gain"]
         print(
             f"  drive: recorded / replayed forward speed {slope:.4f} over {int(fast.sum())} samples; linear gain "

@@ -309,7 +309,7 @@ def estimate_motors(
         coarse_by.append(
             np.sum(
                 [
-                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, LAGS_S, COARSE_MOTOR_SHARES)
+                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, shares=COARSE_MOTOR_SHARES)
                     for e in transient
                 ],
                 axis=0,
