@@ -2,9 +2,10 @@
 
 For each of --profiles reality profiles drawn from `pipeline.twin.draw.PROFILE_RANGES` (seeds
 --seed, --seed + 1, ...), the exported policy (--policy) is deployed on the twin for --episodes
-episodes at --time-scale, the recording is calibrated, and every estimated key is compared with the
-profile's true value. Printed per key: profiles where it was identified, coverage of the 95 %
-interval (target >= 0.90), median relative error and median interval half-width.
+episodes at --time-scale (with --drive excitation, the calibration drive over it: held steps of several
+sizes between the policy's driving, pipeline/policy/excitation.py), the recording is calibrated, and every
+estimated key is compared with the profile's true value. Printed per key: profiles where it was identified,
+coverage of the 95 % interval (target >= 0.90), median relative error and median interval half-width.
 
 Some calibrated keys are the simulator's own parameters of an effect the twin produces differently. The drive
 chain's (`REPLAYED`: ``effective.drive_delay_s``, ``drive_lag_s``, ``drive_response_s`` and the linear and angular
@@ -55,6 +56,7 @@ from pipeline.calibration.calibrate import DriveRecord, drive_record
 from pipeline.calibration.network import pair_rule
 from pipeline.calibration.options import PARTS, CalibrationSettings, Part
 from pipeline.core.scenario import load_scenario
+from pipeline.policy.excitation import ExcitationDrive
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
@@ -218,6 +220,12 @@ def truth_of(profile: dict[str, Any], key: str) -> float | None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--policy", type=Path, default=Path("models/nominal/policy"))
+    parser.add_argument(
+        "--drive",
+        choices=("policy", "excitation"),
+        default="policy",
+        help="policy: the policy drives; excitation: the calibration drive over it (pipeline.policy.excitation)",
+    )
     parser.add_argument("--fleet", default="twin")
     parser.add_argument("--profiles", type=int, default=20)
     parser.add_argument("--episodes", type=int, default=10)
@@ -282,7 +290,8 @@ def main() -> int:
                 progress=False,
             )
             deliveries = Path(tmp) / f"drawn_{seed}.link.npz"
-            deploy_policy(runtime, fleet, args.fleet, request, twin_extra_args=["--link-record", str(deliveries)])
+            driver: Any = runtime if args.drive == "policy" else ExcitationDrive(runtime, seed=20000 + 100 * p)
+            deploy_policy(driver, fleet, args.fleet, request, twin_extra_args=["--link-record", str(deliveries)])
             for row in _scored(recording, mapping, seed, path):
                 rows.append(row)
                 writer.writerow(row)

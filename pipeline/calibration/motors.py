@@ -21,8 +21,12 @@ deadband into smaller gains and a slew limit into a longer lag:
    commands never came near the deadband (it is unidentifiable from them), the transients pick it from
    `TRANSIENT_DEADBANDS_RADPS` within the range the held commands leave open: an arbitrary deadband
    there biased the limit upwards by about one grid step.
-Both stages keep per-episode sums, so a bootstrap over robot-episodes gives the intervals (percentiles
-widened by half a grid step; the delay by a whole step, which the coarse deadband and limit grids bend).
+The chain is simulated in `STEP_S` steps, each stage taking its input's value at a step's end as held through the
+step (half a step early per lag stage) and the odometry's window read from end-of-step values: the commands enter
+half a step late and the windows end a step early, so that a delay reads true to within half a step on a
+continuous chain (it read 10-15 ms long before). Both stages keep per-episode sums, so a bootstrap over
+robot-episodes gives the intervals (percentiles widened by half a grid step; the delay and the limit by a whole
+step, which the coarse deadband grid and the chain's steps bend).
 A deadband is identifiable only where commands asked for wheel speeds near it, an acceleration limit
 only where they asked for more than it: otherwise the key is reported unidentifiable with the bound the
 data do give.
@@ -52,6 +56,10 @@ DEADBANDS_RADPS = np.round(np.arange(0.0, 2.501, 0.05), 3)
 ACCELS_RADPS2 = np.r_[np.geomspace(5.0, 300.0, 41), np.inf]
 """Acceleration limits tried (rad/s^2); the last is no limit."""
 DELAYS_S = np.round(np.arange(0.0, 0.241, 0.02), 3)
+"""Delays of the first pass (s)."""
+FINE_DELAY_STEP_S = 0.01
+"""The second pass tries delays this far apart (the wheel chain's step) between the first pass's neighbours of its
+best."""
 LAGS_S = np.geomspace(0.03, 0.4, 24)
 """Total lags tried (driver + motor, s)."""
 TRANSIENT_DEADBANDS_RADPS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5)
@@ -213,13 +221,19 @@ def _transient_costs(
     grid_ns = episode.start_ns + np.round(np.arange(n) * STEP_S * NS_PER_S).astype(np.int64)
     free_t = episode.t_ns[episode.free]
     achieved = episode.wheels[episode.free]
-    k_end = np.clip(np.searchsorted(grid_ns, free_t, side="right") - 1, 0, n - 1)
+    # the chain's wheel speed after step k stands for the end of that step and a mean of such end values stands
+    # for a window half a step later again: the sample's window (its odometry period ending at t) ends in step
+    # k_end where that lands nearest to t
+    k_end = np.clip(np.searchsorted(grid_ns, free_t, side="right") - 2, 0, n - 1)
     span = max(round(period_s / STEP_S), 1)
     n_d, n_l, n_s, n_a = len(delays), len(lags), len(shares), len(accels)
     # the driver's output for every (delay, lag, share), deadbanded: (n, d, l, s, 2)
     targets = np.empty((n, n_d, n_l, n_s, 2))
     for i, delay in enumerate(delays):
-        u = episode.commands.at(grid_ns - round(float(delay) * NS_PER_S), timeout_s)
+        # each stage below takes its input's value at the end of a step as held through that step, half a step
+        # early: the driver's lag and the motors' put the wheels a whole step ahead, which the command in effect
+        # half a step before each step's start takes back (and a command change lands on the step nearest to it)
+        u = episode.commands.at(grid_ns - round((STEP_S / 2 + float(delay)) * NS_PER_S), timeout_s)
         a, b = _parts(u)
         wheels = a * gains[0] + b * gains[1]
         for j, lag in enumerate(lags):
@@ -319,7 +333,8 @@ def estimate_motors(
     coarse, transient_deadband = coarse_by[chosen], candidates[chosen]
     args = (transient_deadband, (g_lin, g_ang), odometry_period_s, timeout)
     i = int(np.unravel_index(int(np.argmin(coarse[..., ::-1])), coarse.shape)[0])
-    delays = DELAYS_S[max(i - 1, 0) : i + 2]
+    lo_d, hi_d = DELAYS_S[max(i - 1, 0)], DELAYS_S[min(i + 1, len(DELAYS_S) - 1)]
+    delays = np.round(np.arange(lo_d, hi_d + FINE_DELAY_STEP_S / 2, FINE_DELAY_STEP_S), 3)
     costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in transient])
     shape = costs.shape[1:]
 
@@ -361,12 +376,12 @@ def estimate_motors(
     return MotorFit(deadband, accel, (g_lin, g_ang), notes, motor, delay, driver)
 
 
-def _interval(indices: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
-    """Percentile interval of bootstrap grid indices, widened by half a grid step on each side."""
+def _interval(indices: np.ndarray, grid: np.ndarray, steps: float = 0.5) -> tuple[float, float]:
+    """Percentile interval of bootstrap grid indices, widened by `steps` grid steps on each side."""
     lo_f, hi_f = np.percentile(indices, [2.5, 97.5])
     lo_i, hi_i = math.floor(lo_f), math.ceil(hi_f)
-    step_lo = (grid[lo_i] - grid[lo_i - 1]) / 2 if lo_i > 0 else 0.0
-    step_hi = (grid[hi_i + 1] - grid[hi_i]) / 2 if hi_i + 1 < len(grid) else 0.0
+    step_lo = (grid[lo_i] - grid[lo_i - 1]) * steps if lo_i > 0 else 0.0
+    step_hi = (grid[hi_i + 1] - grid[hi_i]) * steps if hi_i + 1 < len(grid) else 0.0
     return float(max(grid[lo_i] - step_lo, 0.0)), float(grid[hi_i] + step_hi)
 
 
@@ -477,7 +492,8 @@ def _accel(best: int, draws: np.ndarray, n: int, episodes: int, followed: float)
             f"{bound})",
             "rad/s^2",
         )
-    lo, hi = _interval(idx.astype(float), ACCELS_RADPS2[:-1])
+    # a whole grid step: the chain is simulated in steps of STEP_S, which moves the limit that fits best by about one
+    lo, hi = _interval(idx.astype(float), ACCELS_RADPS2[:-1], steps=1.0)
     value = float(ACCELS_RADPS2[best])
     se = float(value * np.std(np.log(ACCELS_RADPS2[idx]), ddof=1)) if len(idx) > 1 else None
     method = (

@@ -1,4 +1,5 @@
-"""``mrl deploy --policy DIR --fleet FLEET [--out DIR] [--live]``: a recorded deployment on a fleet."""
+"""``mrl deploy --policy DIR --fleet FLEET [--out DIR] [--drive excitation] [--live]``: a recorded deployment on a
+fleet."""
 
 from __future__ import annotations
 
@@ -47,6 +48,13 @@ def add_parser(subparsers: Any) -> None:
         metavar="N",
         help="the DDS domain id (0-232) instead of the fleet file's, e.g. to run beside another deployment",
     )
+    deploy.add_argument(
+        "--drive",
+        choices=("policy", "excitation"),
+        default="policy",
+        help="policy: the policy drives; excitation: a calibration drive with the policy's robots and limits, "
+        "held steps of several sizes between the policy's driving (for `mrl calibrate`; default: policy)",
+    )
     live_options(deploy)
 
 
@@ -64,7 +72,11 @@ def run(args: argparse.Namespace) -> int:
     fleet = load_fleet(cfg.fleet)
     if args.domain_id is not None:  # another DDS domain than the fleet file's, without writing a fleet file
         fleet = replace(fleet, network=replace(fleet.network, domain_id=args.domain_id))
-    runtime = PolicyRuntime(args.policy)
+    runtime: Any = PolicyRuntime(args.policy)
+    if args.drive == "excitation":
+        from pipeline.policy.excitation import ExcitationDrive
+
+        runtime = ExcitationDrive(runtime, seed=cfg.seed)
     run_deployment(runtime, fleet, cfg, out, live=args.live, live_port=args.live_port, live_label=NAME)
     return 0
 

@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from pipeline.calibration.actuation import CommandTimeline
-from pipeline.calibration.motors import WheelEpisode, estimate_motors, wheel_speeds
+from pipeline.calibration.motors import WheelEpisode, _transient_costs, estimate_motors, wheel_speeds
 from pipeline.calibration.options import CalibrationSettings
 
 NS = 1_000_000_000
@@ -30,11 +31,13 @@ def episode(
     seconds: float = 12.0,
     w_max: float = 0.2,
     policy: bool = False,
+    command_phase_s: float = 0.0,
 ) -> WheelEpisode:
     """A robot-episode of excitation phases (stand, turn, arc, straight, each held 0.6-2 s, commands at 10 Hz)
     through the wheel chain (delay, driver lag, gains, deadband, slew limit, motor lag) integrated at 2.5 ms;
     odometry from encoder ticks every 25 ms. With `policy`, commands that change every 0.1 s as a policy's
-    do (small changes, and in three steps of ten a jump to any speed and turn rate), so none is ever held."""
+    do (small changes, and in three steps of ten a jump to any speed and turn rate), so none is ever held. The
+    commands are sent `command_phase_s` after each tenth of a second."""
     t_cmd, values = [], []
     t = 0.0
     v, w = 0.0, 0.0
@@ -60,7 +63,7 @@ def episode(
             t_cmd.append(t + k * 0.1)
             values.append(cmd)
         t += int(hold / 0.1) * 0.1
-    t_cmd_ns = np.round(np.asarray(t_cmd) * NS).astype(np.int64)
+    t_cmd_ns = np.round((np.asarray(t_cmd) + command_phase_s) * NS).astype(np.int64)
     timeline = CommandTimeline(t_cmd_ns, np.asarray(values, dtype=float))
     n = int(seconds / PHYSICS_S)
     times_ns = np.round(np.arange(n) * PHYSICS_S * NS).astype(np.int64)
@@ -146,3 +149,39 @@ def test_too_few_episodes_are_unidentifiable():
     rng = np.random.default_rng(6)
     fit = estimate_motors([episode(rng, "only", 0.6, 25.0)], ODOM_S, SETTINGS, np.random.default_rng(7))
     assert not fit.deadband_radps.ok and not fit.max_wheel_accel_radps2.ok and "needs 2" in fit.deadband_radps.reason
+
+
+def continuous_episode(rng: np.random.Generator, delay_s: float, lags_s: tuple[float, float]) -> WheelEpisode:
+    """Commands changed at arbitrary times (every 0.3-1.2 s) through a delay and two lags in series, integrated at
+    0.1 ms (as good as continuous); odometry every 25 ms, from an arbitrary phase, the exact mean wheel speed over
+    its period."""
+    h, seconds = 1e-4, 20.0
+    t = np.cumsum(rng.uniform(0.3, 1.2, 30))
+    t = t[t < seconds - 1.0]
+    values = np.stack([rng.uniform(0.0, 0.4, len(t)), rng.uniform(-0.2, 0.2, len(t))], axis=1)
+    timeline = CommandTimeline(np.round(t * NS).astype(np.int64), values)
+    fine = np.arange(0.0, seconds, h)
+    u = timeline.at(np.round((fine - delay_s) * NS).astype(np.int64), 5.0)
+    wheels = wheel_speeds(u[:, 0], u[:, 1])
+    for tau in lags_s:
+        a = math.exp(-h / tau)
+        wheels = lfilter([1.0 - a], [1.0, -a], wheels, axis=0)
+    travelled = np.cumsum(wheels, axis=0) * h
+    stamps = np.arange(1.0 + rng.uniform(0.0, ODOM_S), seconds - 0.1, ODOM_S)
+    end, span = np.round(stamps / h).astype(int), round(ODOM_S / h)
+    achieved = (travelled[end] - travelled[end - span]) / ODOM_S
+    ok = np.ones(len(stamps), dtype=bool)
+    return WheelEpisode("robot", "episode", 0, np.round(stamps * NS).astype(np.int64), achieved, ok, timeline)
+
+
+@pytest.mark.parametrize("delay_s", [0.03, 0.05, 0.07, 0.11])
+def test_the_transients_time_a_delay_within_half_a_step_of_the_chain(delay_s):
+    """The chain is simulated in 10 ms steps, each stage taking its input's value at a step's end as held through
+    the step and the wheels' mean over an odometry period read from end-of-step values: the commands and the
+    windows are placed so that the delay that fits best is the true one (these read 10-15 ms long before)."""
+    episode = continuous_episode(np.random.default_rng(int(delay_s * 1000)), delay_s, (0.1, 0.05))
+    delays = np.round(np.arange(0.0, 0.15, 0.005), 3)
+    costs = _transient_costs(
+        episode, 0.0, (1.0, 1.0), ODOM_S, 5.0, delays, np.array([np.inf]), np.array([0.15]), np.array([1 / 3])
+    )
+    assert delays[int(np.argmin(costs[:, 0, 0, 0]))] == pytest.approx(delay_s, abs=0.0051)

@@ -1,0 +1,145 @@
+"""A calibration drive: an exported policy's robots and interface, driven for system identification.
+
+A policy's commands change every control step and seldom hold a small one, so a recording of it leaves the
+drive chain's parts to trade against each other: a delay against a lag, a deadband against a gain, the motors'
+lag against the driver's. Steps tell them apart: the dead time before any response is the delay, the shape of
+the rise is the lag, a step that the acceleration limit clips rises differently from one it does not, and a held
+small command shows the deadband. This drive gives each robot, independently, phases of
+
+- ``policy``: the policy drives (it keeps the robots moving through the room and toward their goals);
+- ``step``: a forward command held at one of `STEP_SIZES` of the policy's top speed (each robot's own), where the
+  lidar shows room ahead for it, ended early (to a stop) when the room runs out;
+- ``turn``: a turn in place held at one of `TURN_SIZES` of the policy's top turn rate, either way;
+- ``stop``: zero, held (a step down, and the stationary spans the lidar's noise is read from),
+
+each `PHASE_S` long (drawn per phase). The robots, observation layout, limits and world are the policy's, so
+the deployment checks it as it checks the policy; its recording is calibrated like any other. Its success
+rates say nothing about the policy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from pipeline.core.actions import ActionCodec
+from pipeline.core.observation import ObservationLayout
+from pipeline.policy.errors import PolicyMismatch
+from pipeline.policy.spec import PolicySpec
+
+PHASES = ("policy", "step", "turn", "stop")
+PHASE_WEIGHTS = (0.25, 0.4, 0.15, 0.2)
+STEP_SIZES = (0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)
+"""Held forward commands, shares of the top speed: the small ones near a deadband, the large ones against an
+acceleration limit."""
+TURN_SIZES = (0.25, 0.5, 1.0)
+PHASE_S = (1.0, 2.5)
+"""A phase lasts between these (s), drawn per phase."""
+ROOM_AHEAD_M = 1.0
+"""A step starts only with this much free range ahead (the lidar's front beams)."""
+STOP_AHEAD_M = 0.45
+"""A step ends (the robot stops) once the free range ahead falls below this."""
+FRONT_HALF_ANGLE_RAD = math.radians(35.0)
+
+
+class DrivenPolicy(Protocol):
+    """What the drive needs of a policy runtime (:class:`~pipeline.policy.runtime.PolicyRuntime`)."""
+
+    spec: PolicySpec
+    layout: ObservationLayout
+    codec: ActionCodec
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def document(self) -> dict[str, Any]: ...
+
+    def commands(self, obs: np.ndarray) -> np.ndarray: ...
+
+    def check_fits(self, robots: Sequence[str], layout: ObservationLayout, *args: Any, **kwargs: Any) -> None: ...
+
+
+class ExcitationDrive:
+    """Drives `policy`'s robots through phases of the policy's own driving and held steps (the module's text)."""
+
+    def __init__(self, policy: DrivenPolicy, seed: int = 0) -> None:
+        if policy.codec.kind != "continuous":
+            raise PolicyMismatch(
+                policy.name,
+                [
+                    f"the calibration drive holds commands of several sizes; a {policy.codec.kind!r} policy's actions "
+                    "name only its discrete set (use a policy with continuous actions)"
+                ],
+            )
+        if "ranges" not in policy.layout.slices:
+            raise PolicyMismatch(policy.name, [f"observation layout {policy.layout.name!r} has no lidar ranges"])
+        self.policy = policy
+        self.spec = policy.spec
+        self.layout = policy.layout
+        self.codec = policy.codec
+        self.period_s = float(policy.spec.world.control_period_s)
+        self.rng = np.random.default_rng(seed)
+        n = len(policy.spec.robots)
+        self._phase = ["stop"] * n
+        self._left = np.zeros(n, dtype=int)
+        self._hold = np.zeros((n, 2))
+        self._limits = self.codec.limits(n)
+        angles = 2 * math.pi * np.arange(self.layout.n_beams) / self.layout.n_beams
+        self._front = np.abs(np.angle(np.exp(1j * angles))) <= FRONT_HALF_ANGLE_RAD
+        self.phases_run: dict[str, int] = dict.fromkeys(PHASES, 0)
+        """Phases started so far, by kind."""
+
+    @property
+    def name(self) -> str:
+        return f"excitation drive over {self.policy.name}"
+
+    @property
+    def document(self) -> dict[str, Any]:
+        return self.policy.document
+
+    def check_fits(self, robots: Sequence[str], layout: ObservationLayout, *args: Any, **kwargs: Any) -> None:
+        self.policy.check_fits(robots, layout, *args, **kwargs)
+
+    def _steps(self) -> int:
+        return max(1, round(float(self.rng.uniform(*PHASE_S)) / self.period_s))
+
+    def _start(self, i: int, ahead_m: float) -> None:
+        phase = str(self.rng.choice(PHASES, p=PHASE_WEIGHTS))
+        if phase == "step" and ahead_m < ROOM_AHEAD_M:
+            phase = "turn"  # no room for a held step: turning in place needs none
+        self._phase[i] = phase
+        self._left[i] = self._steps()
+        self._hold[i] = 0.0
+        if phase == "step":
+            self._hold[i, 0] = float(self.rng.choice(STEP_SIZES)) * self._limits[i, 0]
+        elif phase == "turn":
+            self._hold[i, 1] = float(self.rng.choice([-1.0, 1.0]) * self.rng.choice(TURN_SIZES)) * self._limits[i, 1]
+        self.phases_run[phase] += 1
+
+    def commands(self, obs: np.ndarray) -> np.ndarray:
+        """(n_robots, 2) (v m/s, w rad/s) for observations (n_robots, layout.size)."""
+        x = np.asarray(obs, dtype=np.float64)
+        ranges = x[:, self.layout.slices["ranges"]]
+        ahead = np.where(self._front[None], ranges, np.inf).min(axis=1)
+        driven = self.policy.commands(np.asarray(obs, dtype=np.float32))
+        out = np.zeros((len(x), 2))
+        for i in range(len(x)):
+            if self._phase[i] == "step" and ahead[i] < STOP_AHEAD_M:
+                self._phase[i], self._hold[i], self._left[i] = "stop", 0.0, self._steps()
+                self.phases_run["stop"] += 1
+            if self._left[i] <= 0:
+                self._start(i, float(ahead[i]))
+            self._left[i] -= 1
+            out[i] = driven[i] if self._phase[i] == "policy" else self._hold[i]
+        return out
+
+    def actions(self, obs: np.ndarray) -> np.ndarray:
+        """Actions for the policy's codec: (n_robots, 2) in [-1, 1]."""
+        return self.codec.encode(self.commands(obs))
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.actions(obs)
