@@ -284,18 +284,22 @@ def scale() -> str:
     )
 
 
-def _coverage_rows() -> tuple[dict[str, Any], list[dict[str, Any]]]:
+COVERAGE = "calibration_coverage"
+COVERAGE_EXCITATION = "calibration_coverage/excitation"
+
+
+def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     import csv
 
-    folder = RESULTS / "calibration_coverage"
+    folder = RESULTS / name
     with (folder / "coverage.csv").open(newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
     return run_of(folder), rows
 
 
-def _coverage_table() -> list[tuple[str, int, int, float, float]]:
+def _coverage_table(name: str = COVERAGE) -> list[tuple[str, int, int, float, float]]:
     """Per key: (key, identified, profiles, coverage, median relative error)."""
-    _, rows = _coverage_rows()
+    _, rows = _coverage_rows(name)
     out = []
     for key in dict.fromkeys(r["key"] for r in rows):
         mine = [r for r in rows if r["key"] == key]
@@ -309,16 +313,25 @@ def _coverage_table() -> list[tuple[str, int, int, float, float]]:
     return out
 
 
-def coverage_docs() -> str:
-    run, _ = _coverage_rows()
+def _coverage_counts(name: str = COVERAGE) -> dict[str, str]:
+    """The summary's last line: coverage_min, keys_at_target, identifiable_within_15pct."""
+    last = (RESULTS / name / "summary.txt").read_text(encoding="utf-8").strip().splitlines()[-1]
+    return dict(item.split("=", 1) for item in last.split())
+
+
+def coverage_docs(name: str = COVERAGE) -> str:
+    run, _ = _coverage_rows(name)
+    link = f"../benchmarks/results/{name}"
+    counts = _coverage_counts(name)
     lines = [
-        f"Measured with `{run['command']}` ([run.json](../benchmarks/results/calibration_coverage/run.json), "
-        "[coverage.csv](../benchmarks/results/calibration_coverage/coverage.csv)):",
+        f"Measured with `{run['command']}` ([run.json]({link}/run.json), [coverage.csv]({link}/coverage.csv)); "
+        f"keys at >= 90 %: {counts['keys_at_target']}, identifiable keys within 15 %: "
+        f"{counts['identifiable_within_15pct']}:",
         "",
         "| key | identified | coverage of the 95 % interval | median relative error |",
         "|---|---|---|---|",
     ]
-    for key, ok, total, cov, med in _coverage_table():
+    for key, ok, total, cov, med in _coverage_table(name):
         if not ok:
             lines.append(f"| `{key}` | 0 of {total} | - | - |")
             continue
@@ -326,18 +339,30 @@ def coverage_docs() -> str:
     return "\n".join(lines)
 
 
+def coverage_excitation_docs() -> str:
+    return coverage_docs(COVERAGE_EXCITATION)
+
+
 def coverage() -> str:
     run, _ = _coverage_rows()
     table = [t for t in _coverage_table() if t[1]]
     at_target = sum(t[3] >= 0.9 for t in table)
     worst = min(table, key=lambda t: t[3])
-    return prose(
+    text = (
         f"**Interval coverage on robots calibration was not drawn for** (`{run['command']}`: 20 realities drawn "
         "over the ranges of real robots, each deployed and calibrated; "
         "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)): "
         f"{at_target} of {len(table)} estimated keys have intervals that cover the truth in >= 90 % of the "
         f"realities; the least covered is `{worst[0]}` ({100 * worst[3]:.0f} %)."
     )
+    if (RESULTS / COVERAGE_EXCITATION / "summary.txt").is_file():
+        counts = _coverage_counts(COVERAGE_EXCITATION)
+        text += (
+            f" Driven by the calibration drive instead (`--drive excitation`): {counts['keys_at_target']} keys at "
+            f">= 90 %, identifiable keys within 15 %: {counts['identifiable_within_15pct']} "
+            f"(the policy's own driving: {_coverage_counts()['identifiable_within_15pct']})."
+        )
+    return prose(text)
 
 
 LAYOUT_SETTINGS = (
@@ -629,6 +654,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "scale": scale,
     "coverage": coverage,
     "coverage-docs": coverage_docs,
+    "coverage-excitation-docs": coverage_excitation_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
