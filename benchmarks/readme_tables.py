@@ -654,7 +654,6 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "scale": scale,
     "coverage": coverage,
     "coverage-docs": coverage_docs,
-    "coverage-excitation-docs": coverage_excitation_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
