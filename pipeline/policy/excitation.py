@@ -92,6 +92,8 @@ class ExcitationDrive:
         self._front = np.abs(np.angle(np.exp(1j * angles))) <= FRONT_HALF_ANGLE_RAD
         self.phases_run: dict[str, int] = dict.fromkeys(PHASES, 0)
         """Phases started so far, by kind."""
+        self.session_extra = {"drive": "excitation", "drive_seed": str(seed)}
+        """Written into the recording's session metadata: its episodes are a calibration drive, not the policy's."""
 
     @property
     def name(self) -> str:

@@ -322,6 +322,7 @@ def _deploy(
                 "time_scale": repr(scale),
                 "fleet": fleet_source,
                 **clock_metadata(scale),
+                **getattr(runtime, "session_extra", {}),
             },
         )
         documents = {

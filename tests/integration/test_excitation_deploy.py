@@ -43,6 +43,8 @@ def test_the_calibration_drive_sends_held_steps_through_the_fleet_and_records_th
     )
     assert done.returncode == 0, done.stderr
     log = McapLog(out / "session.mcap")
+    session = log.metadata()["session"]
+    assert session["drive"] == "excitation" and session["drive_seed"] == "7"
     topics = [t for t in log.topics() if t.endswith("/cmd_vel")]
     assert len(topics) == 3
     steps, turns = set(), set()
