@@ -654,6 +654,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "scale": scale,
     "coverage": coverage,
     "coverage-docs": coverage_docs,
+    "coverage-excitation-docs": coverage_excitation_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
