@@ -19,7 +19,6 @@ rates say nothing about the policy.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any, Protocol
 
@@ -28,6 +27,7 @@ import numpy as np
 from pipeline.core.actions import ActionCodec
 from pipeline.core.observation import ObservationLayout
 from pipeline.policy.errors import PolicyMismatch
+from pipeline.policy.scripted import front_beams, range_ahead
 from pipeline.policy.spec import PolicySpec
 
 PHASES = ("policy", "step", "turn", "stop")
@@ -42,7 +42,6 @@ ROOM_AHEAD_M = 1.0
 """A step starts only with this much free range ahead (the lidar's front beams)."""
 STOP_AHEAD_M = 0.45
 """A step ends (the robot stops) once the free range ahead falls below this."""
-FRONT_HALF_ANGLE_RAD = math.radians(35.0)
 
 
 class DrivenPolicy(Protocol):
@@ -88,10 +87,7 @@ class ExcitationDrive:
         self._left = np.zeros(n, dtype=int)
         self._hold = np.zeros((n, 2))
         self._limits = self.codec.limits(n)
-        angles = 2 * math.pi * np.arange(self.layout.n_beams) / self.layout.n_beams
-        self._front = np.abs(np.angle(np.exp(1j * angles))) <= FRONT_HALF_ANGLE_RAD
-        self.phases_run: dict[str, int] = dict.fromkeys(PHASES, 0)
-        """Phases started so far, by kind."""
+        self._front = front_beams(self.layout.n_beams)
         self.session_extra = {"drive": "excitation", "drive_seed": str(seed)}
         """Written into the recording's session metadata: its episodes are a calibration drive, not the policy's."""
 
@@ -120,23 +116,20 @@ class ExcitationDrive:
             self._hold[i, 0] = float(self.rng.choice(STEP_SIZES)) * self._limits[i, 0]
         elif phase == "turn":
             self._hold[i, 1] = float(self.rng.choice([-1.0, 1.0]) * self.rng.choice(TURN_SIZES)) * self._limits[i, 1]
-        self.phases_run[phase] += 1
 
     def commands(self, obs: np.ndarray) -> np.ndarray:
         """(n_robots, 2) (v m/s, w rad/s) for observations (n_robots, layout.size)."""
-        x = np.asarray(obs, dtype=np.float64)
-        ranges = x[:, self.layout.slices["ranges"]]
-        ahead = np.where(self._front[None], ranges, np.inf).min(axis=1)
-        driven = self.policy.commands(np.asarray(obs, dtype=np.float32))
-        out = np.zeros((len(x), 2))
-        for i in range(len(x)):
+        ahead = range_ahead(np.asarray(obs, dtype=np.float64)[:, self.layout.slices["ranges"]], self._front)
+        for i in range(len(obs)):
             if self._phase[i] == "step" and ahead[i] < STOP_AHEAD_M:
                 self._phase[i], self._hold[i], self._left[i] = "stop", 0.0, self._steps()
-                self.phases_run["stop"] += 1
             if self._left[i] <= 0:
                 self._start(i, float(ahead[i]))
             self._left[i] -= 1
-            out[i] = driven[i] if self._phase[i] == "policy" else self._hold[i]
+        out = self._hold.copy()
+        driven = np.array([phase == "policy" for phase in self._phase])
+        if driven.any():  # the policy runs only while it drives a robot
+            out[driven] = self.policy.commands(np.asarray(obs, dtype=np.float32))[driven]
         return out
 
     def actions(self, obs: np.ndarray) -> np.ndarray:

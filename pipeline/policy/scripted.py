@@ -15,6 +15,18 @@ from pipeline.core.actions import ActionCodec
 from pipeline.core.observation import ObservationLayout
 
 
+def front_beams(n_beams: int, half_angle_rad: float = math.radians(35)) -> np.ndarray:
+    """(n_beams,) which of a layout's beams (evenly around, the first straight ahead) look within `half_angle_rad`
+    of straight ahead."""
+    angles = 2 * math.pi * np.arange(n_beams) / n_beams
+    return np.asarray(np.abs(np.angle(np.exp(1j * angles))) <= half_angle_rad)
+
+
+def range_ahead(ranges: np.ndarray, front: np.ndarray) -> np.ndarray:
+    """(n,) the nearest return among the `front` beams of each robot's ranges (n, n_beams) (inf without one)."""
+    return np.asarray(np.where(front[None], ranges, np.inf).min(axis=1))
+
+
 class GoToGoalController:
     """Steers each robot toward its goal, bending away from lidar returns closer than `influence_m`."""
 
@@ -32,7 +44,7 @@ class GoToGoalController:
         self._slices = layout.slices
         angles = 2 * math.pi * np.arange(layout.n_beams) / layout.n_beams
         self._dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        self._front = np.abs(np.angle(np.exp(1j * angles))) <= math.radians(35)
+        self._front = front_beams(layout.n_beams)
 
     def commands(self, obs: np.ndarray) -> np.ndarray:
         """(n_robots, 2) (v m/s, w rad/s) for observations (n_robots, layout.size)."""
@@ -46,7 +58,7 @@ class GoToGoalController:
         weight = np.clip(dist / 0.6, 0.0, 1.0)[:, None]
         want = attract + 1.2 * weight * repulse
         err = np.arctan2(want[:, 1], want[:, 0])
-        front = np.where(self._front[None], ranges, np.inf).min(axis=1)
+        front = range_ahead(ranges, self._front)
         v = self.codec.v_max_mps * np.clip(np.cos(err), 0.0, 1.0) ** 4
         v *= np.clip(dist / 0.4, 0.25, 1.0) * np.clip((front - 0.22) / 0.4, 0.0, 1.0)
         w = np.clip(self.heading_gain * err, -self.codec.w_max_radps, self.codec.w_max_radps)
