@@ -65,3 +65,10 @@ def test_deploy_domain_id_is_checked_by_the_parser(value, capsys):
     with pytest.raises(SystemExit) as done:
         main(["deploy", "--policy", "p", "--domain-id", value])
     assert done.value.code == 2 and "a DDS domain id, an integer from 0 to 232" in capsys.readouterr().err
+
+
+def test_deploy_drive_is_checked_by_the_parser(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["deploy", "--policy", "p", "--fleet", "twin", "--drive", "wobble"])
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and "--drive" in err and "'policy', 'excitation'" in err
