@@ -120,6 +120,15 @@ class ExcitationRuntime:
         return self.codec.encode(self.commands(obs))
 
 
+TWIN_EPISODES = 8
+TWIN_STEPS = 120
+TWIN_TIME_SCALE = 2.0
+"""The twin sessions of the bundled profiles (tests/integration/conftest.py::twin_session): 8 episodes of 12 s of
+twin time at 2x. The wheel-level twin with its lidar keeps real time at 3x on a 2-core host with the runner beside
+it; at 2x the host's scheduling jitter (which the receive times carry, scaled by the time scale) stays well under the
+profiles' network jitter."""
+
+
 def record_twin_session(
     out: Path,
     profile: str | Path,

@@ -1,8 +1,10 @@
-"""Shared fixtures of the integration tier: a tiny trained and exported policy, fleet files on loopback."""
+"""Shared fixtures of the integration tier: a tiny trained and exported policy, fleet files on loopback, twin
+recordings of the bundled profiles."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -101,3 +103,26 @@ def tiny_params(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     load_params(path)  # valid
     return path
+
+
+@pytest.fixture(scope="session")
+def twin_session(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path]:
+    """The recording of one session of the excitation drive against the twin playing a bundled profile (mild,
+    harsh), made once per test run: the twin calibration and the plain-bag tests read the same recording, and
+    neither writes into its folder."""
+    from tests.calibration_helpers import TWIN_EPISODES, TWIN_STEPS, TWIN_TIME_SCALE, record_twin_session
+
+    made: dict[str, Path] = {}
+
+    def session(profile: str) -> Path:
+        if profile not in made:
+            made[profile] = record_twin_session(
+                tmp_path_factory.mktemp(f"twin_{profile}"),
+                profile,
+                TWIN_EPISODES,
+                time_scale=TWIN_TIME_SCALE,
+                max_steps=TWIN_STEPS,
+            )
+        return made[profile]
+
+    return session

@@ -1,11 +1,12 @@
 """A plain ROS 2 bag of a twin deployment (standard topics only) calibrates like the full recording.
 
 Each bundled profile (mild, harsh) drives one deployment session of the excitation controller
-against the hardware twin over DDS on loopback, as in test_calibration_twin.py (8 episodes of
-12 s of twin time at time scale 3). Its rosbag2 copy keeps the robots' topics only: no
-/mrl/episode, no metadata. The twin redraws every robot's odometry errors at each reset, so the
-bag's episodes must be found from the resets in its poses; calibrating it as one episode averages
-the draws of all episodes and shrinks drift_per_m by about 1/sqrt(8).
+against the hardware twin over DDS on loopback: the recording test_calibration_twin.py calibrates
+(tests/integration/conftest.py::twin_session, 8 episodes of 12 s of twin time at time scale 2). Its
+rosbag2 copy keeps the robots' topics only: no /mrl/episode, no metadata. The twin redraws every
+robot's odometry errors at each reset, so the bag's episodes must be found from the resets in its
+poses; calibrating it as one episode averages the draws of all episodes and shrinks drift_per_m by
+about 1/sqrt(8).
 """
 
 from __future__ import annotations
@@ -18,13 +19,10 @@ import yaml
 
 from pipeline.calibration import CalibrationSettings, calibrate
 from pipeline.calibration.recording import read_session
-from tests.calibration_helpers import record_twin_session
+from tests.calibration_helpers import TWIN_EPISODES
 from tests.integration.test_calibration_inputs import rosbag2_copy
 from tests.integration.test_calibration_twin import (
     EFFECTIVE_KEYS,
-    EPISODES,
-    STEPS,
-    TIME_SCALE,
     TOLERANCES,
     truth_of_effective,
     with_ideal_defaults,
@@ -45,11 +43,11 @@ class PlainBag(NamedTuple):
 
 
 @pytest.fixture(scope="session", params=["mild", "harsh"])
-def plain_bag(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> PlainBag:
+def plain_bag(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory, twin_session) -> PlainBag:
     """A twin deployment of one profile and its standard-topics-only rosbag2 copy."""
     name = request.param
     folder = tmp_path_factory.mktemp(f"plain_{name}")
-    recording = record_twin_session(folder / "session", name, EPISODES, time_scale=TIME_SCALE, max_steps=STEPS)
+    recording = twin_session(name)
     profile = with_ideal_defaults(
         yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text())
     )
@@ -59,10 +57,10 @@ def plain_bag(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathF
 def test_the_bag_is_split_at_the_resets_between_the_recorded_episodes(plain_bag):
     recorded = read_session(plain_bag.recording, ["odometry"]).episodes
     data = read_session(plain_bag.bag, ["odometry"], "obstacles")
-    assert not data.has_episode_topic and f"inferred from {EPISODES - 1} reset(s)" in data.notes[0]
+    assert not data.has_episode_topic and f"inferred from {TWIN_EPISODES - 1} reset(s)" in data.notes[0]
     inferred = data.episodes
-    assert len(inferred) == len(recorded) == EPISODES
-    for k in range(1, EPISODES):
+    assert len(inferred) == len(recorded) == TWIN_EPISODES
+    for k in range(1, TWIN_EPISODES):
         # the reset follows the end event: the bag's episode ends with the last pose before it and
         # the next begins before the next start event. Slack: the last poses before a reset can be
         # lost (or stalled, on a busy host: gaps of 0.3 s of twin time seen at time scale 5)

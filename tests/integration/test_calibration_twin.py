@@ -24,7 +24,7 @@ from pipeline.calibration.localize import OccupancyMap
 from pipeline.core.scenario import load_scenario
 from pipeline.params import WorldConfig, calibrated_world
 from pipeline.twin.profile import load_profile
-from tests.calibration_helpers import record_twin_session
+from tests.calibration_helpers import TWIN_STEPS, record_twin_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from drive_replay import replay_drive, replayed_tracks
@@ -32,12 +32,6 @@ from drive_replay import replay_drive, replayed_tracks
 pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
-EPISODES = 8
-STEPS = 120
-TIME_SCALE = 2.0
-"""The wheel-level twin with its lidar keeps real time at 3x on a 2-core host with the runner beside it; at 2x the
-host's scheduling jitter (which the receive times carry, scaled by the time scale) stays well under the
-profiles' network jitter."""
 
 
 class Tolerance(NamedTuple):
@@ -128,12 +122,10 @@ TOLERANCES: dict[str, Tolerance] = {
 
 
 @pytest.fixture(scope="session", params=["mild", "harsh"])
-def twin_calibration(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory):
+def twin_calibration(request: pytest.FixtureRequest, twin_session):
     """(profile name, the profile as the twin read it, the calibration of one recorded session)."""
     name = request.param
-    recording = record_twin_session(
-        tmp_path_factory.mktemp(f"twin_{name}"), name, EPISODES, time_scale=TIME_SCALE, max_steps=STEPS
-    )
+    recording = twin_session(name)
     truth = yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text())
     return name, with_ideal_defaults(truth), calibrate(recording, CalibrationSettings(bootstrap=100))
 
@@ -256,7 +248,7 @@ LAB_TOLERANCES: dict[str, Tolerance] = {
 
 @pytest.fixture(scope="session")
 def lab_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return record_twin_session(tmp_path_factory.mktemp("twin_lab"), "lab", 6, time_scale=1.0, max_steps=STEPS)
+    return record_twin_session(tmp_path_factory.mktemp("twin_lab"), "lab", 6, time_scale=1.0, max_steps=TWIN_STEPS)
 
 
 @pytest.fixture(scope="session")
