@@ -15,6 +15,10 @@ smoothed truth (timing jitter, motion-capture noise) enter only at the chunk's e
 pile up along the path or leak into the regressors (which would bias k and h towards -1 and 0).
 A jump of the odometry that no motion explains (its driver restarting; see
 :func:`pipeline.calibration.recording.pose_jumps`) also separates chunks, as a gap in the truth does.
+Chunks whose distance or heading residual about the episode's draws is far beyond the others' (`OUTLIER_CUT`
+robust spreads) are left out and the draws taken again: a robot turned or moved by a push (another robot, a
+wall it grazed) without its wheels, or wheels spinning against a wall, is not the drift a simulator draws, and
+one such chunk can read an episode's yaw-scale error as -100 %.
 Distances are chord lengths of the chunks for both odometry and truth, so the chord-vs-arc
 shortening cancels in the ratio; the distance regressor of h is the odometry's own path length
 over the chunk divided by (1 + s).
@@ -78,6 +82,8 @@ class EpisodeDrift:
     yaw_scale_se: float
     heading_drift_se: float
     error_curve: tuple[np.ndarray, np.ndarray]
+    disturbed_chunks: int = 0
+    """Chunks left out: a push or a spinning wheel, not the odometry's drift."""
     """(distance travelled m, position error m) along the episode, odometry aligned with truth at its start."""
 
 
@@ -142,7 +148,8 @@ def continuous_stretches(episode: OdometryEpisode) -> np.ndarray:
 
 
 def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> EpisodeDrift:
-    """The draws of one robot-episode (see the module's description)."""
+    """The draws of one robot-episode (see the module's description), without the chunks a push or a spinning wheel
+    made (:func:`_undisturbed`)."""
     piece = continuous_stretches(episode)
     a, b = chunk_bounds(episode.t_ns, piece)
     same = piece[1:] == piece[:-1]
@@ -151,37 +158,122 @@ def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> Ep
     cum_to = np.r_[0.0, np.cumsum(np.where(same, to, 0.0))]
     cum_tt = np.r_[0.0, np.cumsum(np.where(same, tt, 0.0))]
     cum_path = np.r_[0.0, np.cumsum(np.where(same, np.hypot(fo, lo), 0.0))]
-    chord_o = np.hypot(*(episode.odom[b, :2] - episode.odom[a, :2]).T)
-    chord_t = np.hypot(*(episode.truth[b, :2] - episode.truth[a, :2]).T)
-    turn_o = cum_to[b] - cum_to[a]
-    turn_t = cum_tt[b] - cum_tt[a]
-    path_o = cum_path[b] - cum_path[a]
-    distance = float(chord_t.sum())
-    turn = float(np.abs(turn_t).sum())
+    chunks = _DriftChunks(
+        chord_o=np.hypot(*(episode.odom[b, :2] - episode.odom[a, :2]).T),
+        chord_t=np.hypot(*(episode.truth[b, :2] - episode.truth[a, :2]).T),
+        turn_o=cum_to[b] - cum_to[a],
+        turn_t=cum_tt[b] - cum_tt[a],
+        path_o=cum_path[b] - cum_path[a],
+    )
+    # the first cut is about odometry without drift: a push that turned the robot most of an episode's turning would
+    # otherwise pull the least-squares draws onto itself and hide among their residuals
+    kept = _undisturbed(chunks, _DrawFit(0.0, 0.0, 0.0, None, None, 0.0, 0.0, np.zeros(0), ()))
+    if not kept.any():
+        kept = np.ones(len(a), dtype=bool)
+    for _ in range(OUTLIER_ITERATIONS):
+        fit = _draws(chunks, kept, settings)
+        new = _undisturbed(chunks, fit)
+        if np.array_equal(new, kept) or not new.any():
+            break
+        kept = new
+    fit = _draws(chunks, kept, settings)
+    curve = _aligned_error(episode.odom, episode.truth)
+    return EpisodeDrift(
+        episode.robot,
+        episode.label,
+        fit.distance_m,
+        fit.turn_rad,
+        fit.scale,
+        fit.yaw_scale,
+        fit.heading,
+        fit.yaw_scale_se,
+        fit.heading_se,
+        curve,
+        int(np.sum(~kept)),
+    )
+
+
+OUTLIER_CUT = 8.0
+"""Chunks whose distance or heading residual exceeds this many robust spreads are left out: a push turned or moved
+the robot without its wheels, or its wheels spun against a wall; neither is the odometry's drift."""
+MIN_SPREAD_M = 1e-4
+MIN_SPREAD_RAD = 1e-4
+"""Floors of the robust spreads of the chunks' residuals (about one encoder tick)."""
+OUTLIER_ITERATIONS = 10
+MAD_NORMAL = 0.6745
+"""Median absolute deviation of a standard normal variable."""
+
+
+@dataclass(frozen=True)
+class _DriftChunks:
+    """Per chunk: odometry and true chord (m), odometry and true turn (rad), odometry path length (m)."""
+
+    chord_o: np.ndarray
+    chord_t: np.ndarray
+    turn_o: np.ndarray
+    turn_t: np.ndarray
+    path_o: np.ndarray
+
+
+@dataclass(frozen=True)
+class _DrawFit:
+    distance_m: float
+    turn_rad: float
+    scale: float | None
+    yaw_scale: float | None
+    heading: float | None
+    yaw_scale_se: float
+    heading_se: float
+    coef: np.ndarray
+    columns: tuple[str, ...]
+
+
+def _regressors(chunks: _DriftChunks, scale: float | None, columns: tuple[str, ...]) -> np.ndarray:
+    """(n, len(columns)) the true turn and the true path length (the odometry's over 1 + s) of each chunk."""
+    path_t = chunks.path_o / (1.0 + (scale or 0.0))
+    available = {"turn": chunks.turn_t, "path": path_t}
+    return np.stack([available[c] for c in columns], axis=1) if columns else np.zeros((len(path_t), 0))
+
+
+def _draws(chunks: _DriftChunks, kept: np.ndarray, settings: CalibrationSettings) -> _DrawFit:
+    """s from the kept chunks' chords, k and h by least squares of their heading errors (see the module)."""
+    distance = float(chunks.chord_t[kept].sum())
+    turn = float(np.abs(chunks.turn_t[kept]).sum())
     use_s = distance >= settings.odometry_min_distance_m
-    scale = float(chord_o.sum() / distance - 1.0) if use_s else None
-    path_t = path_o / (1.0 + (scale or 0.0))
-    err = turn_o - turn_t
+    scale = float(chunks.chord_o[kept].sum() / distance - 1.0) if use_s else None
     use_k = turn >= settings.odometry_min_turn_rad
-    use_h = use_s
-    columns = ([turn_t] if use_k else []) + ([path_t] if use_h else [])
+    columns = (("turn",) if use_k else ()) + (("path",) if use_s else ())
+    err = (chunks.turn_o - chunks.turn_t)[kept]
     k = h = None
     k_se = h_se = 0.0
+    coef = np.zeros(len(columns))
     if columns and len(err) > len(columns):
-        x = np.stack(columns, axis=1)
+        x = _regressors(chunks, scale, columns)[kept]
         coef, *_ = np.linalg.lstsq(x, err, rcond=None)
         dof = max(len(err) - x.shape[1], 1)
         resid = err - x @ coef
         cov = np.linalg.pinv(x.T @ x) * float(resid @ resid) / dof
         ses = np.sqrt(np.diag(cov))
-        col = 0
         if use_k:
-            k, k_se = float(coef[col]), float(ses[col])
-            col += 1
-        if use_h:
-            h, h_se = float(coef[col]), float(ses[col])
-    curve = _aligned_error(episode.odom, episode.truth)
-    return EpisodeDrift(episode.robot, episode.label, distance, turn, scale, k, h, k_se, h_se, curve)
+            k, k_se = float(coef[0]), float(ses[0])
+        if use_s:
+            h, h_se = float(coef[-1]), float(ses[-1])
+    else:
+        columns = ()
+    return _DrawFit(distance, turn, scale, k, h, k_se, h_se, np.asarray(coef), columns)
+
+
+def _undisturbed(chunks: _DriftChunks, fit: _DrawFit) -> np.ndarray:
+    """(n,) the chunks whose distance and heading residuals about the episode's draws lie within `OUTLIER_CUT` robust
+    spreads (median absolute residual of the moving chunks over `MAD_NORMAL`)."""
+    distance = chunks.chord_o - (1.0 + (fit.scale or 0.0)) * chunks.chord_t
+    heading = chunks.turn_o - chunks.turn_t - _regressors(chunks, fit.scale, fit.columns) @ fit.coef
+    moving = (chunks.chord_o > 0) | (chunks.turn_o != 0)
+    if not moving.any():
+        return np.ones(len(distance), dtype=bool)
+    spread_d = max(float(np.median(np.abs(distance[moving]))) / MAD_NORMAL, MIN_SPREAD_M)
+    spread_h = max(float(np.median(np.abs(heading[moving]))) / MAD_NORMAL, MIN_SPREAD_RAD)
+    return np.asarray((np.abs(distance) <= OUTLIER_CUT * spread_d) & (np.abs(heading) <= OUTLIER_CUT * spread_h))
 
 
 def estimate_odometry(
@@ -216,7 +308,10 @@ def estimate_odometry(
             component_se["heading_drift_per_m"].append(d.heading_drift_se)
     rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in components.items() if v}
     n = len(draws)
-    notes: tuple[str, ...] = (f"{len(drifts)} robot-episodes, {n} draws",)
+    disturbed = sum(d.disturbed_chunks for d in drifts)
+    notes: tuple[str, ...] = (
+        f"{len(drifts)} robot-episodes, {n} draws; {disturbed} chunks left out as pushes or spinning wheels",
+    )
     if n < MIN_DRAWS:
         reason = (
             f"only {n} per-episode odometry errors (need {MIN_DRAWS}): robots must drive >= "

@@ -228,12 +228,40 @@ def _solve(m: _Moments, weight: float, start: np.ndarray | None = None) -> np.nd
     return theta
 
 
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The value below which half the weight lies (1.0 where there is no weight)."""
+    if not np.any(weights > 0):
+        return 1.0
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, cum[-1] / 2)])
+
+
+def _own_scale_residuals(chunks: WheelChunks, theta: np.ndarray, weight: float, kept: np.ndarray) -> np.ndarray:
+    """(n,) lengths of the chunks' residuals about the fit at theta after the robot-episode's own scale of distance
+    and of turn (the median ratio of measured to predicted over its kept chunks, each weighted by its predicted
+    motion): the residuals a slip burst or a push leaves within its episode, not the per-episode scale errors of the
+    odometry that every chunk of the episode shares."""
+    k, beta = theta[:2], theta[2]
+    predicted = np.stack([chunks.travel @ k / 2, beta * (chunks.travel * _SPIN) @ k], axis=1)
+    measured = np.stack([chunks.distance_m, chunks.turn_rad], axis=1)
+    size = np.abs(predicted)
+    ratio = measured / np.where(size > 0, predicted, 1.0)
+    own = np.array([_weighted_median(ratio[:, j], kept * size[:, j]) for j in range(2)])
+    residual = measured - own * predicted
+    return np.asarray(np.hypot(residual[:, 0], weight * residual[:, 1]))
+
+
 def _robust_fit(chunks: Sequence[WheelChunks], weight: float) -> tuple[np.ndarray, list[np.ndarray]]:
-    """theta = (kL, kR, 1/b) by least squares without the slip bursts, and the chunks' weights (1 kept, 0 left out)."""
+    """theta = (kL, kR, 1/b) by least squares without the slip bursts, and the chunks' weights (1 kept, 0 left out).
+
+    A burst is told by its residual within its robot-episode (see :func:`_own_scale_residuals`): an episode whose
+    odometry reads a few per cent long or short is not slip, and cutting its fast chunks would take the spread
+    between episodes (what the intervals rest on) out of the data."""
     weights = [np.ones(len(c.distance_m)) for c in chunks]
     theta = _solve(_moments(chunks, weights).weighted(np.ones(len(chunks))), weight)
     for _ in range(ROBUST_ITERATIONS):
-        lengths = [np.hypot(*_residuals(c, theta, weight).T) for c in chunks]
+        lengths = [_own_scale_residuals(c, theta, weight, w) for c, w in zip(chunks, weights, strict=True)]
         moving = np.concatenate([np.any(c.travel != 0.0, axis=1) for c in chunks])
         scale = max(float(np.median(np.concatenate(lengths)[moving])) / RAYLEIGH_MEDIAN, MIN_SLIP_SCALE_M)
         new = [(e <= SLIP_CUT * scale).astype(np.float64) for e in lengths]
