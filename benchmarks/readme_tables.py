@@ -286,6 +286,9 @@ def scale() -> str:
 
 COVERAGE = "calibration_coverage"
 COVERAGE_EXCITATION = "calibration_coverage/excitation"
+COVERAGE_RESCORED = "calibration_coverage/policy_rescored"
+COVERAGE_EXCITATION_RESCORED = "calibration_coverage/excitation_rescored"
+"""The recordings of the two runs above, every part calibrated again with the code named in their run.json."""
 
 
 def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -343,26 +346,44 @@ def coverage_excitation_docs() -> str:
     return coverage_docs(COVERAGE_EXCITATION)
 
 
+def coverage_rescored_docs() -> str:
+    return coverage_docs(COVERAGE_RESCORED)
+
+
+def coverage_excitation_rescored_docs() -> str:
+    return coverage_docs(COVERAGE_EXCITATION_RESCORED)
+
+
+def _coverage_line(name: str) -> str:
+    """How many keys are at target, the least covered, identifiable keys within 15 %."""
+    table = [t for t in _coverage_table(name) if t[1]]
+    worst = min(table, key=lambda t: t[3])
+    counts = _coverage_counts(name)
+    return (
+        f"{sum(t[3] >= 0.9 for t in table)} of {len(table)} estimated keys cover the truth in >= 90 % of the "
+        f"realities (the least `{worst[0]}`, {100 * worst[3]:.0f} %), identifiable keys within 15 %: "
+        f"{counts['identifiable_within_15pct']}"
+    )
+
+
 def coverage() -> str:
     run, _ = _coverage_rows()
-    table = [t for t in _coverage_table() if t[1]]
-    at_target = sum(t[3] >= 0.9 for t in table)
-    worst = min(table, key=lambda t: t[3])
-    text = (
-        f"**Interval coverage on robots calibration was not drawn for** (`{run['command']}`: 20 realities drawn "
-        "over the ranges of real robots, each deployed and calibrated; "
-        "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)): "
-        f"{at_target} of {len(table)} estimated keys have intervals that cover the truth in >= 90 % of the "
-        f"realities; the least covered is `{worst[0]}` ({100 * worst[3]:.0f} %)."
-    )
-    if (RESULTS / COVERAGE_EXCITATION / "summary.txt").is_file():
-        counts = _coverage_counts(COVERAGE_EXCITATION)
-        text += (
-            f" Driven by the calibration drive instead (`--drive excitation`): {counts['keys_at_target']} keys at "
-            f">= 90 %, identifiable keys within 15 %: {counts['identifiable_within_15pct']} "
-            f"(the policy's own driving: {_coverage_counts()['identifiable_within_15pct']})."
+    if not (RESULTS / COVERAGE_RESCORED / "summary.txt").is_file():
+        return prose(
+            f"**Interval coverage on robots calibration was not drawn for** (`{run['command']}`; "
+            "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)): " + _coverage_line(COVERAGE) + "."
         )
-    return prose(text)
+    rescored = run_of(RESULTS / COVERAGE_RESCORED)
+    return prose(
+        "**Interval coverage on robots calibration was not drawn for** (20 realities drawn over the ranges of real "
+        f"robots, each deployed 10 episodes on the twin: `{run['command']}`, with `--drive excitation` for the "
+        f"calibration drive; the recordings calibrated again at {rescored['commit']}: `{rescored['command']}`; "
+        "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)). Driven by the policy: "
+        + _coverage_line(COVERAGE_RESCORED)
+        + ". Driven by the calibration drive: "
+        + _coverage_line(COVERAGE_EXCITATION_RESCORED)
+        + "."
+    )
 
 
 LAYOUT_SETTINGS = (
@@ -655,6 +676,8 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage": coverage,
     "coverage-docs": coverage_docs,
     "coverage-excitation-docs": coverage_excitation_docs,
+    "coverage-rescored-docs": coverage_rescored_docs,
+    "coverage-excitation-rescored-docs": coverage_excitation_rescored_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
