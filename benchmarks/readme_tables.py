@@ -368,11 +368,6 @@ def _coverage_line(name: str) -> str:
 
 def coverage() -> str:
     run, _ = _coverage_rows()
-    if not (RESULTS / COVERAGE_RESCORED / "summary.txt").is_file():
-        return prose(
-            f"**Interval coverage on robots calibration was not drawn for** (`{run['command']}`; "
-            "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)): " + _coverage_line(COVERAGE) + "."
-        )
     rescored = run_of(RESULTS / COVERAGE_RESCORED)
     return prose(
         "**Interval coverage on robots calibration was not drawn for** (20 realities drawn over the ranges of real "

@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from pipeline.calibration.estimates import Z_95, Estimate, bootstrap, normal_interval, spread
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, bootstrap, normal_interval, spread
 from pipeline.calibration.network import StampStream
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.timebase import NS_PER_S
@@ -83,7 +83,6 @@ MAX_AUTOCORRELATION = 0.8
 """Largest lag-one correlation of neighbouring blocks' residuals used to widen the drift's error."""
 SLOPE_GRID = 21
 """Slopes tried across the drift interval when bounding the offset."""
-MAD_TO_SIGMA = 1.4826
 
 
 @dataclass(frozen=True)

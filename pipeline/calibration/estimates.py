@@ -14,6 +14,8 @@ from pipeline.core.stats import wilson_interval
 
 Status = Literal["ok", "unidentifiable"]
 Z_95 = 1.959963984540054
+MAD_TO_SIGMA = 1.4826
+"""A normal variable's standard deviation over its median absolute deviation."""
 
 
 @dataclass(frozen=True)

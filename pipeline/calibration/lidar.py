@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from pipeline.calibration.estimates import Z_95, Estimate, binomial_estimate, bootstrap, spread
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, binomial_estimate, bootstrap, spread
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry, cast_circles, wrap
 from pipeline.calibration.smoothing import Track
@@ -518,7 +518,7 @@ def _fit_geometry(
     ridge = np.eye(size) * 1e-9
     for _ in range(GAUSS_NEWTON_STEPS):
         r, j, w, who, seen = _normal_equations(geometry, design, spans, means, sets, p)
-        scale = 1.4826 * float(np.median(np.abs(r - np.median(r)) * np.sqrt(w))) + 1e-6
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)) * np.sqrt(w))) + 1e-6
         delta = HUBER_K * scale / np.sqrt(w)
         w = w * np.minimum(1.0, delta / np.maximum(np.abs(r), 1e-12))
         a = np.zeros((len(spans), size, size))
@@ -779,7 +779,7 @@ def clipped_moments(
     """
     r = np.asarray(residuals, dtype=np.float64)
     centre = float(np.median(r))
-    scale = 1.4826 * float(np.median(np.abs(r - centre)))
+    scale = MAD_TO_SIGMA * float(np.median(np.abs(r - centre)))
     correction = truncation_correction(sigmas)
     for _ in range(iterations):
         half = sigmas * max(scale, 1e-9)

@@ -425,7 +425,9 @@ def small_sample_factor(clusters: int) -> float:
 
 
 def _widened(value: float, lo: float, hi: float, clusters: int) -> tuple[float, float]:
-    """(lo, hi) about a positive `value`, each side's log distance stretched by :func:`small_sample_factor`."""
+    """(lo, hi) stretched to hold `value` and, about a positive `value`, each side's log distance stretched by
+    :func:`small_sample_factor`."""
+    lo, hi = min(lo, value), max(hi, value)
     f = small_sample_factor(clusters)
     if value <= 0:
         return lo, hi
@@ -455,7 +457,7 @@ def _motor_lag(best: np.ndarray, draws: np.ndarray, n: int, episodes: int) -> Es
     half_step = float(MOTOR_SHARES[1] - MOTOR_SHARES[0]) / 2 * lags
     lo = max(float(np.percentile(motor - half_step, 2.5)), 0.0)
     hi = float(np.percentile(motor + half_step, 97.5))
-    lo, hi = _widened(value, min(lo, value), max(hi, value), episodes)
+    lo, hi = _widened(value, lo, hi, episodes)
     if hi > MOTOR_LAG_MAX_SPREAD * lo:
         return Estimate.unidentifiable(
             f"the transients leave the motors' own lag between {lo:.3g} and {hi:.3g} s (a spread beyond a factor "
@@ -468,7 +470,7 @@ def _motor_lag(best: np.ndarray, draws: np.ndarray, n: int, episodes: int) -> Es
         f"{episodes} robot-episodes, widened by half a share step and the small-sample factor "
         f"{small_sample_factor(episodes):.2f}"
     )
-    return Estimate.of(value, float(np.std(motor, ddof=1)), (min(lo, value), max(hi, value)), "s", method, n)
+    return Estimate.of(value, float(np.std(motor, ddof=1)), (lo, hi), "s", method, n)
 
 
 def _driver(
@@ -503,8 +505,8 @@ def _driver(
     value = float(LAGS_S[int(best[1])] * (1 - MOTOR_SHARES[int(best[2])]))
     lo = max(float(np.percentile(own - half, 2.5)), 0.0)
     hi = float(np.percentile(own + half, 97.5))
-    lo, hi = _widened(value, min(lo, value), max(hi, value), episodes)
-    lag = Estimate.of(value, float(np.std(own, ddof=1)), (min(lo, value), max(hi, value)), "s", method, n)
+    lo, hi = _widened(value, lo, hi, episodes)
+    lag = Estimate.of(value, float(np.std(own, ddof=1)), (lo, hi), "s", method, n)
     return delay, lag
 
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.calibration.estimates import Z_95, Estimate, bootstrap, spread
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, bootstrap, spread
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.stats import wilson_interval
 from pipeline.core.timebase import NS_PER_S
@@ -154,7 +154,7 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
         return None
     deviation = gaps - steps * slope
     grid_s = _grid_s(deviation[regular], steps[regular])
-    spread_s = 1.4826 * float(np.median(np.abs(deviation[regular])))
+    spread_s = MAD_TO_SIGMA * float(np.median(np.abs(deviation[regular])))
     regular &= np.abs(deviation) <= max(RUN_BREAK_MADS * spread_s, 1.5 * grid_s, RUN_BREAK_MIN_S)
     refit = _slope_over_runs(t, regular, steps)
     if refit[2]:

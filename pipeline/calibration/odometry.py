@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.calibration.estimates import Z_95, Estimate, chi_interval
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, chi_interval
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import pose_jumps
 from pipeline.core.timebase import NS_PER_S
@@ -82,9 +82,9 @@ class EpisodeDrift:
     yaw_scale_se: float
     heading_drift_se: float
     error_curve: tuple[np.ndarray, np.ndarray]
+    """(distance travelled m, position error m) along the episode, odometry aligned with truth at its start."""
     disturbed_chunks: int = 0
     """Chunks left out: a push or a spinning wheel, not the odometry's drift."""
-    """(distance travelled m, position error m) along the episode, odometry aligned with truth at its start."""
 
 
 @dataclass(frozen=True)
@@ -167,7 +167,7 @@ def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> Ep
     )
     # the first cut is about odometry without drift: a push that turned the robot most of an episode's turning would
     # otherwise pull the least-squares draws onto itself and hide among their residuals
-    kept = _undisturbed(chunks, _DrawFit(0.0, 0.0, 0.0, None, None, 0.0, 0.0, np.zeros(0), ()))
+    kept = _undisturbed(chunks, _NO_DRIFT)
     if not kept.any():
         kept = np.ones(len(a), dtype=bool)
     for _ in range(OUTLIER_ITERATIONS):
@@ -200,8 +200,6 @@ MIN_SPREAD_M = 1e-4
 MIN_SPREAD_RAD = 1e-4
 """Floors of the robust spreads of the chunks' residuals (about one encoder tick)."""
 OUTLIER_ITERATIONS = 10
-MAD_NORMAL = 0.6745
-"""Median absolute deviation of a standard normal variable."""
 
 
 @dataclass(frozen=True)
@@ -226,6 +224,10 @@ class _DrawFit:
     heading_se: float
     coef: np.ndarray
     columns: tuple[str, ...]
+
+
+_NO_DRIFT = _DrawFit(0.0, 0.0, 0.0, None, None, 0.0, 0.0, np.zeros(0), ())
+"""Odometry without drift: what the first cut of an episode's chunks is made about."""
 
 
 def _regressors(chunks: _DriftChunks, scale: float | None, columns: tuple[str, ...]) -> np.ndarray:
@@ -265,14 +267,14 @@ def _draws(chunks: _DriftChunks, kept: np.ndarray, settings: CalibrationSettings
 
 def _undisturbed(chunks: _DriftChunks, fit: _DrawFit) -> np.ndarray:
     """(n,) the chunks whose distance and heading residuals about the episode's draws lie within `OUTLIER_CUT` robust
-    spreads (median absolute residual of the moving chunks over `MAD_NORMAL`)."""
+    spreads (the moving chunks' median absolute residual times `MAD_TO_SIGMA`)."""
     distance = chunks.chord_o - (1.0 + (fit.scale or 0.0)) * chunks.chord_t
     heading = chunks.turn_o - chunks.turn_t - _regressors(chunks, fit.scale, fit.columns) @ fit.coef
     moving = (chunks.chord_o > 0) | (chunks.turn_o != 0)
     if not moving.any():
         return np.ones(len(distance), dtype=bool)
-    spread_d = max(float(np.median(np.abs(distance[moving]))) / MAD_NORMAL, MIN_SPREAD_M)
-    spread_h = max(float(np.median(np.abs(heading[moving]))) / MAD_NORMAL, MIN_SPREAD_RAD)
+    spread_d = max(MAD_TO_SIGMA * float(np.median(np.abs(distance[moving]))), MIN_SPREAD_M)
+    spread_h = max(MAD_TO_SIGMA * float(np.median(np.abs(heading[moving]))), MIN_SPREAD_RAD)
     return np.asarray((np.abs(distance) <= OUTLIER_CUT * spread_d) & (np.abs(heading) <= OUTLIER_CUT * spread_h))
 
 

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from pipeline.calibration.actuation import VelocityTrack
-from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Estimate
 from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
 from pipeline.core.timebase import NS_PER_S
 
@@ -52,7 +52,6 @@ KEYS = ("delay_s", "time_constant_s", "linear_gain", "angular_gain")
 LOWER = np.array([0.0, 0.005, 0.01, 0.01])
 """Draws are clipped to the simulator's bounds of each key."""
 UPPER = np.array([1.0, 2.0, 5.0, 5.0])
-MAD_TO_SIGMA = 1.4826
 EPSILON = 0.02
 """Least measurement noise per channel, as a fraction of the recorded velocities' rms (DROPO's epsilon: a smoothed
 ground truth is smoother than it is right)."""

@@ -174,12 +174,17 @@ def _moments(chunks: Sequence[WheelChunks], weights: Sequence[np.ndarray]) -> _M
     return _Moments(zz, zd, zt)
 
 
+def _predicted(chunks: WheelChunks, theta: np.ndarray) -> np.ndarray:
+    """(n, 2) the true distance (m) and turn (rad) the geometry theta = (kL, kR, 1/b) gives the chunks' wheel
+    travels."""
+    k, beta = theta[:2], theta[2]
+    return np.stack([chunks.travel @ k / 2, beta * (chunks.travel * _SPIN) @ k], axis=1)
+
+
 def _residuals(chunks: WheelChunks, theta: np.ndarray, weight: float) -> np.ndarray:
     """(n, 2) residuals of the chunks at theta = (kL, kR, 1/b): distance (m) and `weight` times turn (rad)."""
-    k, beta = theta[:2], theta[2]
-    distance = chunks.distance_m - chunks.travel @ k / 2
-    turn = chunks.turn_rad - beta * (chunks.travel * _SPIN) @ k
-    return np.stack([distance, weight * turn], axis=1)
+    residual = np.stack([chunks.distance_m, chunks.turn_rad], axis=1) - _predicted(chunks, theta)
+    return np.asarray(residual * np.array([1.0, weight]))
 
 
 def _normal_equations(m: _Moments, theta: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray]:
@@ -242,8 +247,7 @@ def _own_scale_residuals(chunks: WheelChunks, theta: np.ndarray, weight: float, 
     and of turn (the median ratio of measured to predicted over its kept chunks, each weighted by its predicted
     motion): the residuals a slip burst or a push leaves within its episode, not the per-episode scale errors of the
     odometry that every chunk of the episode shares."""
-    k, beta = theta[:2], theta[2]
-    predicted = np.stack([chunks.travel @ k / 2, beta * (chunks.travel * _SPIN) @ k], axis=1)
+    predicted = _predicted(chunks, theta)
     measured = np.stack([chunks.distance_m, chunks.turn_rad], axis=1)
     size = np.abs(predicted)
     ratio = measured / np.where(size > 0, predicted, 1.0)
