@@ -16,9 +16,9 @@ pile up along the path or leak into the regressors (which would bias k and h tow
 A jump of the odometry that no motion explains (its driver restarting; see
 :func:`pipeline.calibration.recording.pose_jumps`) also separates chunks, as a gap in the truth does.
 Chunks whose distance or heading residual about the episode's draws is far beyond the others' (`OUTLIER_CUT`
-robust spreads) are left out and the draws taken again: a robot turned or moved by a push (another robot, a
-wall it grazed) without its wheels, or wheels spinning against a wall, is not the drift a simulator draws, and
-one such chunk can read an episode's yaw-scale error as -100 %.
+robust spreads) and a large share of their own motion (`DRIFT_SHARE`) are left out and the draws taken again:
+a robot turned or moved by a push (another robot, a wall it grazed) without its wheels, or wheels spinning against
+a wall, is not the drift a simulator draws, and one such chunk can read an episode's yaw-scale error as -100 %.
 Distances are chord lengths of the chunks for both odometry and truth, so the chord-vs-arc
 shortening cancels in the ratio; the distance regressor of h is the odometry's own path length
 over the chunk divided by (1 + s).
@@ -196,6 +196,11 @@ def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> Ep
 OUTLIER_CUT = 8.0
 """Chunks whose distance or heading residual exceeds this many robust spreads are left out: a push turned or moved
 the robot without its wheels, or its wheels spun against a wall; neither is the odometry's drift."""
+DRIFT_SHARE = 0.4
+"""A chunk whose odometry errs by less than this share of its own motion (distance; turn plus path for the heading)
+is always kept: that is drift (five spreads of the harshest bundled profile's draws), whatever the other chunks do.
+Without it a robot whose odometry reads 17 % long, driving half of its chunks and creeping through the rest, had
+its driving cut as outlying against the creeping chunks' small residuals."""
 MIN_SPREAD_M = 1e-4
 MIN_SPREAD_RAD = 1e-4
 """Floors of the robust spreads of the chunks' residuals (about one encoder tick)."""
@@ -267,7 +272,8 @@ def _draws(chunks: _DriftChunks, kept: np.ndarray, settings: CalibrationSettings
 
 def _undisturbed(chunks: _DriftChunks, fit: _DrawFit) -> np.ndarray:
     """(n,) the chunks whose distance and heading residuals about the episode's draws lie within `OUTLIER_CUT` robust
-    spreads (the moving chunks' median absolute residual times `MAD_TO_SIGMA`)."""
+    spreads (the moving chunks' median absolute residual times `MAD_TO_SIGMA`) or within `DRIFT_SHARE` of the chunk's
+    own motion."""
     distance = chunks.chord_o - (1.0 + (fit.scale or 0.0)) * chunks.chord_t
     heading = chunks.turn_o - chunks.turn_t - _regressors(chunks, fit.scale, fit.columns) @ fit.coef
     moving = (chunks.chord_o > 0) | (chunks.turn_o != 0)
@@ -275,7 +281,11 @@ def _undisturbed(chunks: _DriftChunks, fit: _DrawFit) -> np.ndarray:
         return np.ones(len(distance), dtype=bool)
     spread_d = max(MAD_TO_SIGMA * float(np.median(np.abs(distance[moving]))), MIN_SPREAD_M)
     spread_h = max(MAD_TO_SIGMA * float(np.median(np.abs(heading[moving]))), MIN_SPREAD_RAD)
-    return np.asarray((np.abs(distance) <= OUTLIER_CUT * spread_d) & (np.abs(heading) <= OUTLIER_CUT * spread_h))
+    own_d = DRIFT_SHARE * np.maximum(chunks.chord_o, chunks.chord_t)
+    own_h = DRIFT_SHARE * (np.maximum(np.abs(chunks.turn_o), np.abs(chunks.turn_t)) + chunks.path_o)
+    close_d = np.abs(distance) <= np.maximum(OUTLIER_CUT * spread_d, own_d)
+    close_h = np.abs(heading) <= np.maximum(OUTLIER_CUT * spread_h, own_h)
+    return np.asarray(close_d & close_h)
 
 
 def estimate_odometry(

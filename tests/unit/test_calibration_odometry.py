@@ -22,10 +22,12 @@ def drive(
     unseen: float = 0.0,
     bias: tuple[float, float] = (0.0, 0.0),
     push: slice | None = None,
+    creep_from: float | None = None,
 ) -> tuple[OdometryEpisode, np.ndarray]:
     """One robot-episode of random arcs at 50 Hz; the episode and its draws (scale, yaw scale, heading drift).
     `bias`: a scale and a yaw-scale error added to every episode's draws (wheels unlike the odometry's nominal ones).
-    `push`: steps in which another robot turns this one by 1 rad in all, its wheels still (its odometry unmoved)."""
+    `push`: steps in which another robot turns this one by 1 rad in all, its wheels still (its odometry unmoved).
+    `creep_from`: from this time (s) on the robot creeps at 3 % of its speeds (pressed against a wall, held)."""
     rng = np.random.default_rng(seed + 1000)
     odometry = OdometryDrift(drift, unseen)
     start = np.array([[1.0, 1.0, 0.3]])
@@ -40,6 +42,8 @@ def drive(
     for k in range(int(seconds / dt)):
         if k % 50 == 0:
             v, w = rng.uniform(0.0, 0.4), rng.uniform(-0.3, 0.3)
+            if creep_from is not None and k * 0.02 >= creep_from:
+                v, w = 0.03 * v, 0.03 * w
         x, y, yaw = truth[-1]
         if push is not None and push.start <= k < push.stop:
             truth.append(np.array([x, y, np.angle(np.exp(1j * (yaw + 1.0 / (push.stop - push.start))))]))
@@ -74,6 +78,18 @@ def test_a_push_that_turned_the_robot_without_its_wheels_is_left_out_of_its_draw
     fit = estimate_odometry([drive(seed, 0.05, push=slice(300, 400))[0] for seed in range(20)], SETTINGS)
     assert fit.drift_per_m.interval is not None and fit.drift_per_m.interval[0] < 0.05 < fit.drift_per_m.interval[1]
     assert re.search(r"; [1-9]\d* chunks left out as pushes or spinning wheels", fit.notes[0]), fit.notes
+
+
+@pytest.mark.parametrize("creep_from", [5.0, 6.0, 7.0])
+def test_an_episode_that_drives_and_then_creeps_keeps_its_driving_whatever_its_share(creep_from):
+    """Odometry that reads 15 % long drives half an episode and creeps through the rest: the creeping chunks'
+    residuals are tiny, and measured against them every driving chunk looked like a push (the draws of that
+    episode were lost, or kept, by whether the driving was just more or just less than half of its chunks)."""
+    episode, (scale, _, heading) = drive(3, 0.05, bias=(0.15, 0.0), creep_from=creep_from)
+    d = episode_drift(episode, SETTINGS)
+    assert d.disturbed_chunks == 0
+    assert d.scale_error == pytest.approx(scale + 0.15, abs=2e-3)
+    assert d.heading_drift_per_m == pytest.approx(heading, abs=5e-3)
 
 
 def test_drift_per_m_is_the_spread_of_the_draws_with_a_chi_interval():
