@@ -229,34 +229,42 @@ def _transient_costs(
     k_end = np.clip(np.searchsorted(grid_ns, free_t, side="right") - 2, 0, n - 1)
     span = max(round(period_s / STEP_S), 1)
     n_d, n_l, n_s, n_a = len(delays), len(lags), len(shares), len(accels)
-    # the driver's output for every (delay, lag, share), deadbanded: (n, d, l, s, 2)
-    targets = np.empty((n, n_d, n_l, n_s, 2))
+    # the driver's output for every (delay, lag, share), deadbanded: (n, 2, d, l, s), the wheel first so that each
+    # wheel's part of the state below is contiguous
+    targets = np.empty((n, 2, n_d, n_l, n_s))
+    wheels = np.empty((n, 2, n_d))
     for i, delay in enumerate(delays):
         # each stage below takes its input's value at the end of a step as held through that step, half a step
         # early: the driver's lag and the motors' put the wheels a whole step ahead, which the command in effect
         # half a step before each step's start takes back (and a command change lands on the step nearest to it)
         u = episode.commands.at(grid_ns - round((STEP_S / 2 + float(delay)) * NS_PER_S), timeout_s)
         a, b = _parts(u)
-        wheels = a * gains[0] + b * gains[1]
-        for j, lag in enumerate(lags):
-            for m, share in enumerate(shares):
-                targets[:, i, j, m] = _lag(wheels, float(lag) * (1.0 - float(share)))
+        wheels[:, :, i] = a * gains[0] + b * gains[1]
+    for j, lag in enumerate(lags):
+        for m, share in enumerate(shares):  # every delay's wheels through one filter
+            targets[:, :, :, j, m] = _lag(wheels, float(lag) * (1.0 - float(share)))
     targets[np.abs(targets) < deadband] = 0.0
-    step = np.broadcast_to((accels * STEP_S)[None, None, None, :, None], (n_d, n_l, n_s, n_a, 2))
+    # the state (2, d, l, s, a) with its bounds and the motors' factor laid out in full: min/max and products
+    # against contiguous arrays of its shape run several times faster than np.clip against broadcast views
+    shape = (2, n_d, n_l, n_s, n_a)
+    step = np.ascontiguousarray(np.broadcast_to(accels * STEP_S, shape))
+    neg_step = -step
     motor_tau = lags[:, None] * shares[None, :]
-    follow = np.where(motor_tau > 0, 1.0 - np.exp(-STEP_S / np.maximum(motor_tau, 1e-12)), 1.0)[None, :, :, None, None]
-    setpoint = np.zeros((n_d, n_l, n_s, n_a, 2))
+    follow = np.where(motor_tau > 0, 1.0 - np.exp(-STEP_S / np.maximum(motor_tau, 1e-12)), 1.0)[None, None, :, :, None]
+    follow = np.ascontiguousarray(np.broadcast_to(follow, shape))
+    setpoint = np.zeros(shape)
     wheel = np.zeros_like(setpoint)
     running = np.zeros_like(setpoint)
     change = np.empty_like(setpoint)
-    history = np.zeros((span + 1, *setpoint.shape))  # running sums of the last span + 1 steps
+    history = np.zeros((span + 1, *shape))  # running sums of the last span + 1 steps
     costs = np.zeros((n_d, n_l, n_s, n_a))
     order = np.argsort(k_end, kind="stable")
-    neg_step = -step
     j = 0
-    for k in range(n):
-        np.subtract(targets[k][:, :, :, None, :], setpoint, out=change)
-        np.clip(change, neg_step, step, out=change)
+    last = int(k_end.max()) if len(k_end) else -1
+    for k in range(last + 1):  # no sample reads a step after the last one's
+        np.subtract(targets[k][..., None], setpoint, out=change)
+        np.minimum(change, step, out=change)  # the limit: np.clip(change, neg_step, step)
+        np.maximum(change, neg_step, out=change)
         setpoint += change
         np.subtract(setpoint, wheel, out=change)
         change *= follow
@@ -271,10 +279,10 @@ def _transient_costs(
             else:
                 change[...] = running
             change /= steps
-            change -= achieved[sample]
+            change -= achieved[sample][:, None, None, None, None]
             change *= change
-            costs += change[..., 0]
-            costs += change[..., 1]
+            costs += change[0]
+            costs += change[1]
             j += 1
     return costs
 
