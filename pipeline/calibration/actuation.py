@@ -256,9 +256,10 @@ def _sums(
     for c in range(2):
         y = problem.y[:, c] - free[c]
         m = forced[c]
-        np.add.at(out[:, c, 0], who, y * m)
-        np.add.at(out[:, c, 1], who, m * m)
-        np.add.at(out[:, c, 2], who, y * y)
+        # bincount adds in the samples' order, as np.add.at does, many times faster
+        out[:, c, 0] = np.bincount(who, y * m, n_clusters)
+        out[:, c, 1] = np.bincount(who, m * m, n_clusters)
+        out[:, c, 2] = np.bincount(who, y * y, n_clusters)
     return out
 
 
