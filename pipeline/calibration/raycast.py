@@ -126,12 +126,15 @@ class MapGeometry:
 
 def _pair_hits(a: np.ndarray, b: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Ray parameter t of each ray (o, d) (n, 2) against the segment (a, b) (n, 2) paired with it; inf for a miss."""
-    e = b - a
-    ao = a - o
-    denom = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+    # component by component: every product is of contiguous (or small broadcast) arrays, about twice as fast as
+    # strided views into (..., 2) differences, with the same arithmetic
+    ex, ey = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    aox, aoy = a[..., 0] - o[..., 0], a[..., 1] - o[..., 1]
+    dx, dy = d[..., 0], d[..., 1]
+    denom = dx * ey - dy * ex
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ao[..., 0] * e[..., 1] - ao[..., 1] * e[..., 0]) / denom
-        s = (ao[..., 0] * d[..., 1] - ao[..., 1] * d[..., 0]) / denom
+        t = (aox * ey - aoy * ex) / denom
+        s = (aox * dy - aoy * dx) / denom
     valid = (np.abs(denom) > 1e-12) & (t > 1e-9) & (s >= 0.0) & (s <= 1.0)
     return np.where(valid, t, np.inf)
 
