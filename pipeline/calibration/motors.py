@@ -62,6 +62,8 @@ DELAYS_S = np.round(np.arange(0.0, 0.241, 0.02), 3)
 FINE_DELAY_STEP_S = 0.01
 """The second pass tries delays this far apart (the wheel chain's step) between the first pass's neighbours of its
 best."""
+FINE_MARGIN = 2
+"""Steps of the second pass's delays kept on each side of its least cost (see :func:`_fine_window`)."""
 LAGS_S = np.geomspace(0.03, 0.4, 24)
 """Total lags tried (driver + motor, s)."""
 TRANSIENT_DEADBANDS_RADPS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5)
@@ -287,6 +289,40 @@ def _transient_costs(
     return costs
 
 
+def _least_delay(costs: np.ndarray) -> int:
+    """Index of the delay of the least total cost over the episodes' costs (episodes, delays, ...)."""
+    total = costs.sum(axis=0)
+    return int(np.unravel_index(int(np.argmin(total)), total.shape)[0])
+
+
+def _fine_window(
+    transient: Sequence[WheelEpisode],
+    args: tuple[float, tuple[float, float], float, float],
+    delays: np.ndarray,
+    costs: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The second pass's delays (and costs (episodes, delays, ...)) moved outwards, a step at a time, until the least
+    cost lies `FINE_MARGIN` steps inside them (or at the first pass's range's end). The first pass sees the limit on
+    a coarse grid, and a limit between two of its values bends the delay: on a coverage robot (limit 23.6 rad/s^2,
+    delay 29 ms) it chose 80 ms, the second pass's least cost lay on its window's edge at 60 ms, and the interval
+    missed the delay and the motors' lag that traded against it."""
+    low, high = float(DELAYS_S[0]), float(DELAYS_S[-1])
+    while True:
+        best = _least_delay(costs)
+        lower = best < FINE_MARGIN and delays[0] > low + 1e-9
+        upper = best > len(delays) - 1 - FINE_MARGIN and delays[-1] < high - 1e-9
+        if not (lower or upper):
+            return delays, costs
+        if lower:
+            new = np.array([round(float(delays[0]) - FINE_DELAY_STEP_S, 3)])
+            more = np.stack([_transient_costs(e, *args, new, ACCELS_RADPS2) for e in transient])
+            delays, costs = np.r_[new, delays], np.concatenate([more, costs], axis=1)
+        if upper:
+            new = np.array([round(float(delays[-1]) + FINE_DELAY_STEP_S, 3)])
+            more = np.stack([_transient_costs(e, *args, new, ACCELS_RADPS2) for e in transient])
+            delays, costs = np.r_[delays, new], np.concatenate([costs, more], axis=1)
+
+
 def _unfitted(reason: str) -> MotorFit:
     """Every motor key unidentifiable for `reason`."""
     return MotorFit(
@@ -346,6 +382,7 @@ def estimate_motors(
     lo_d, hi_d = DELAYS_S[max(i - 1, 0)], DELAYS_S[min(i + 1, len(DELAYS_S) - 1)]
     delays = np.round(np.arange(lo_d, hi_d + FINE_DELAY_STEP_S / 2, FINE_DELAY_STEP_S), 3)
     costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in transient])
+    delays, costs = _fine_window(transient, args, delays, costs)
     shape = costs.shape[1:]
 
     def solve(weights: np.ndarray) -> np.ndarray:

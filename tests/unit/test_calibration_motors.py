@@ -153,6 +153,20 @@ def test_a_limit_is_recovered_from_a_policys_commands_that_leave_the_deadband_op
     assert "deadband for them 0.5 rad/s" in fit.notes[0]
 
 
+def test_a_limit_between_the_first_passs_values_does_not_hold_the_delay_at_the_edge_of_the_second():
+    """A slow limit (23.6 rad/s^2, between the first pass's 20 and 40) bent its delay to 60-80 ms for a 30 ms one;
+    the second pass, 10 ms either side, then read 40 ms with the motors' lag short (85 ms, interval up to 98 ms, for
+    100). Its window now moves until the least cost lies two steps inside it."""
+    rng = np.random.default_rng(3)
+    episodes = [
+        episode(rng, f"episode {k}", 0.5, 23.6, delay_s=0.03, driver_lag_s=0.18, motor_lag_s=0.1) for k in range(10)
+    ]
+    fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(0))
+    assert fit.delay_s.value == pytest.approx(0.03, abs=0.005) and covers(fit.delay_s, 0.03), fit.delay_s
+    assert covers(fit.motor_time_constant_s, 0.1), fit.motor_time_constant_s
+    assert covers(fit.max_wheel_accel_radps2, 23.6), fit.max_wheel_accel_radps2
+
+
 def test_too_few_episodes_are_unidentifiable():
     rng = np.random.default_rng(6)
     fit = estimate_motors([episode(rng, "only", 0.6, 25.0)], ODOM_S, SETTINGS, np.random.default_rng(7))
