@@ -92,6 +92,19 @@ def test_an_episode_that_drives_and_then_creeps_keeps_its_driving_whatever_its_s
     assert d.heading_drift_per_m == pytest.approx(heading, abs=5e-3)
 
 
+def test_an_episodes_error_far_beyond_the_others_is_left_out_of_the_spread_and_named():
+    """Two of 20 robot-episodes read a yaw-scale error of -25 % (spread evenly over their chunks, so no chunk stands
+    out) among draws of N(0, 0.03): counted, they lift drift_per_m to 0.055 and the interval misses 0.03."""
+    episodes = [drive(seed, 0.03, bias=(0.0, -0.25) if seed < 2 else (0.0, 0.0))[0] for seed in range(20)]
+    fit = estimate_odometry(episodes, SETTINGS)
+    low, high = fit.drift_per_m.interval
+    assert low <= 0.03 <= high and fit.drift_per_m.value == pytest.approx(0.03, rel=0.2)
+    assert re.search(r"2 draw\(s\) beyond 5 robust spreads .*yaw_scale_error -0\.2", fit.notes[1]), fit.notes
+    # 180 draws of the model itself: none is that far out
+    plain = estimate_odometry([drive(seed, 0.03)[0] for seed in range(100, 160)], SETTINGS)
+    assert len(plain.notes) == 1 and plain.drift_per_m.n == 180
+
+
 def test_drift_per_m_is_the_spread_of_the_draws_with_a_chi_interval():
     episodes = [drive(seed, 0.05)[0] for seed in range(40)]
     fit = estimate_odometry(episodes, SETTINGS)
