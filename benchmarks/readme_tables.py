@@ -289,6 +289,8 @@ COVERAGE_EXCITATION = "calibration_coverage/excitation"
 COVERAGE_RESCORED = "calibration_coverage/policy_rescored"
 COVERAGE_EXCITATION_RESCORED = "calibration_coverage/excitation_rescored"
 """The recordings of the two runs above, every part calibrated again with the code named in their run.json."""
+COVERAGE_EXCITATION_FINE = "calibration_coverage/excitation_fine"
+"""The same realities driven again by the calibration drive with turns of drawn sizes, calibrated as recorded."""
 
 
 def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -354,6 +356,10 @@ def coverage_excitation_rescored_docs() -> str:
     return coverage_docs(COVERAGE_EXCITATION_RESCORED)
 
 
+def coverage_excitation_fine_docs() -> str:
+    return coverage_docs(COVERAGE_EXCITATION_FINE)
+
+
 def _coverage_line(name: str) -> str:
     """How many keys are at target, the least covered, identifiable keys within 15 %."""
     table = [t for t in _coverage_table(name) if t[1]]
@@ -372,11 +378,13 @@ def coverage() -> str:
     return prose(
         "**Interval coverage on robots calibration was not drawn for** (20 realities drawn over the ranges of real "
         f"robots, each deployed 10 episodes on the twin: `{run['command']}`, with `--drive excitation` for the "
-        f"calibration drive; the recordings calibrated again at {rescored['commit']}: `{rescored['command']}`; "
-        "[docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)). Driven by the policy: "
+        f"calibration drive; the policy's recordings calibrated again at {rescored['commit']}: "
+        f"`{rescored['command']}`; [docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)). "
+        "Driven by the policy: "
         + _coverage_line(COVERAGE_RESCORED)
-        + ". Driven by the calibration drive: "
-        + _coverage_line(COVERAGE_EXCITATION_RESCORED)
+        + ". Driven by the calibration drive with turns of every size (recorded and calibrated at "
+        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE)['commit']}): "
+        + _coverage_line(COVERAGE_EXCITATION_FINE)
         + "."
     )
 
@@ -673,6 +681,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage-excitation-docs": coverage_excitation_docs,
     "coverage-rescored-docs": coverage_rescored_docs,
     "coverage-excitation-rescored-docs": coverage_excitation_rescored_docs,
+    "coverage-excitation-fine-docs": coverage_excitation_fine_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
