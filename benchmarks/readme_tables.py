@@ -291,6 +291,8 @@ COVERAGE_EXCITATION_RESCORED = "calibration_coverage/excitation_rescored"
 """The recordings of the two runs above, every part calibrated again with the code named in their run.json."""
 COVERAGE_EXCITATION_FINE = "calibration_coverage/excitation_fine"
 """The same realities driven again by the calibration drive with turns of drawn sizes, calibrated as recorded."""
+COVERAGE_EXCITATION_FINE_RESCORED = "calibration_coverage/excitation_fine_rescored"
+"""Those recordings, every part calibrated again with the code named in its run.json."""
 
 
 def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -360,6 +362,10 @@ def coverage_excitation_fine_docs() -> str:
     return coverage_docs(COVERAGE_EXCITATION_FINE)
 
 
+def coverage_excitation_fine_rescored_docs() -> str:
+    return coverage_docs(COVERAGE_EXCITATION_FINE_RESCORED)
+
+
 def _coverage_line(name: str) -> str:
     """How many keys are at target, the least covered, identifiable keys within 15 %."""
     table = [t for t in _coverage_table(name) if t[1]]
@@ -382,9 +388,10 @@ def coverage() -> str:
         f"`{rescored['command']}`; [docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)). "
         "Driven by the policy: "
         + _coverage_line(COVERAGE_RESCORED)
-        + ". Driven by the calibration drive with turns of every size (recorded and calibrated at "
-        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE)['commit']}): "
-        + _coverage_line(COVERAGE_EXCITATION_FINE)
+        + ". Driven by the calibration drive with turns of every size (recorded at "
+        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE)['commit']}, calibrated again at "
+        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE_RESCORED)['commit']}): "
+        + _coverage_line(COVERAGE_EXCITATION_FINE_RESCORED)
         + "."
     )
 
@@ -682,6 +689,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage-rescored-docs": coverage_rescored_docs,
     "coverage-excitation-rescored-docs": coverage_excitation_rescored_docs,
     "coverage-excitation-fine-docs": coverage_excitation_fine_docs,
+    "coverage-excitation-fine-rescored-docs": coverage_excitation_fine_rescored_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
