@@ -307,6 +307,11 @@ def _fine_window(
     delay 29 ms) it chose 80 ms, the second pass's least cost lay on its window's edge at 60 ms, and the interval
     missed the delay and the motors' lag that traded against it."""
     low, high = float(DELAYS_S[0]), float(DELAYS_S[-1])
+
+    def at(delay: float) -> tuple[np.ndarray, np.ndarray]:
+        new = np.array([round(delay, 3)])
+        return new, np.stack([_transient_costs(e, *args, new, ACCELS_RADPS2) for e in transient])
+
     while True:
         best = _least_delay(costs)
         lower = best < FINE_MARGIN and delays[0] > low + 1e-9
@@ -314,12 +319,10 @@ def _fine_window(
         if not (lower or upper):
             return delays, costs
         if lower:
-            new = np.array([round(float(delays[0]) - FINE_DELAY_STEP_S, 3)])
-            more = np.stack([_transient_costs(e, *args, new, ACCELS_RADPS2) for e in transient])
+            new, more = at(float(delays[0]) - FINE_DELAY_STEP_S)
             delays, costs = np.r_[new, delays], np.concatenate([more, costs], axis=1)
         if upper:
-            new = np.array([round(float(delays[-1]) + FINE_DELAY_STEP_S, 3)])
-            more = np.stack([_transient_costs(e, *args, new, ACCELS_RADPS2) for e in transient])
+            new, more = at(float(delays[-1]) + FINE_DELAY_STEP_S)
             delays, costs = np.r_[delays, new], np.concatenate([costs, more], axis=1)
 
 
