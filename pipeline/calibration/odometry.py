@@ -147,9 +147,13 @@ def continuous_stretches(episode: OdometryEpisode) -> np.ndarray:
     return np.cumsum(changed)
 
 
-def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> EpisodeDrift:
+def episode_drift(
+    episode: OdometryEpisode, settings: CalibrationSettings, unseen_yaw_per_m: float = 0.0
+) -> EpisodeDrift:
     """The draws of one robot-episode (see the module's description), without the chunks a push or a spinning wheel
-    made (:func:`_undisturbed`)."""
+    made (:func:`_undisturbed`). `unseen_yaw_per_m`: the arc of unequal wheels per metre driven (signed: forward
+    driving turns the base one way, reversing the other), which the odometry does not see; it is taken out of each
+    chunk's heading error before the draws are fitted."""
     piece = continuous_stretches(episode)
     a, b = chunk_bounds(episode.t_ns, piece)
     same = piece[1:] == piece[:-1]
@@ -158,12 +162,15 @@ def episode_drift(episode: OdometryEpisode, settings: CalibrationSettings) -> Ep
     cum_to = np.r_[0.0, np.cumsum(np.where(same, to, 0.0))]
     cum_tt = np.r_[0.0, np.cumsum(np.where(same, tt, 0.0))]
     cum_path = np.r_[0.0, np.cumsum(np.where(same, np.hypot(fo, lo), 0.0))]
+    cum_forward = np.r_[0.0, np.cumsum(np.where(same, fo, 0.0))]
     chunks = _DriftChunks(
         chord_o=np.hypot(*(episode.odom[b, :2] - episode.odom[a, :2]).T),
         chord_t=np.hypot(*(episode.truth[b, :2] - episode.truth[a, :2]).T),
         turn_o=cum_to[b] - cum_to[a],
         turn_t=cum_tt[b] - cum_tt[a],
         path_o=cum_path[b] - cum_path[a],
+        forward_o=cum_forward[b] - cum_forward[a],
+        arc_per_m=unseen_yaw_per_m,
     )
     # the first cut is about odometry without drift: a push that turned the robot most of an episode's turning would
     # otherwise pull the least-squares draws onto itself and hide among their residuals
@@ -209,13 +216,26 @@ OUTLIER_ITERATIONS = 10
 
 @dataclass(frozen=True)
 class _DriftChunks:
-    """Per chunk: odometry and true chord (m), odometry and true turn (rad), odometry path length (m)."""
+    """Per chunk: odometry and true chord (m), odometry and true turn (rad), odometry path length (m), odometry's
+    signed forward path (m, reversing negative); the arc per metre of unequal wheels that the odometry misses."""
 
     chord_o: np.ndarray
     chord_t: np.ndarray
     turn_o: np.ndarray
     turn_t: np.ndarray
     path_o: np.ndarray
+    forward_o: np.ndarray
+    arc_per_m: float = 0.0
+
+    def heading(self, scale: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """(the odometry's heading error with the unseen arc taken out, the true turn the odometry sees) per chunk.
+
+        Unequal wheels turn the base by `arc_per_m` per metre driven, signed (reversing turns it back), and the
+        odometry does not count it: its turn is (1 + k) (turn - arc forward) + h path. Taken about a constant, the
+        arc lands in each episode's heading drift in proportion to its share of reversing (slope 2 arc: on a
+        calibration drive with an arc of 0.094 rad/m the heading draws spread 1.4 times the drawn drift)."""
+        arc = self.arc_per_m * self.forward_o / (1.0 + (scale or 0.0))
+        return self.turn_o - self.turn_t + arc, self.turn_t - arc
 
 
 @dataclass(frozen=True)
@@ -238,7 +258,7 @@ _NO_DRIFT = _DrawFit(0.0, 0.0, 0.0, None, None, 0.0, 0.0, np.zeros(0), ())
 def _regressors(chunks: _DriftChunks, scale: float | None, columns: tuple[str, ...]) -> np.ndarray:
     """(n, len(columns)) the true turn and the true path length (the odometry's over 1 + s) of each chunk."""
     path_t = chunks.path_o / (1.0 + (scale or 0.0))
-    available = {"turn": chunks.turn_t, "path": path_t}
+    available = {"turn": chunks.heading(scale)[1], "path": path_t}
     return np.stack([available[c] for c in columns], axis=1) if columns else np.zeros((len(path_t), 0))
 
 
@@ -250,7 +270,7 @@ def _draws(chunks: _DriftChunks, kept: np.ndarray, settings: CalibrationSettings
     scale = float(chunks.chord_o[kept].sum() / distance - 1.0) if use_s else None
     use_k = turn >= settings.odometry_min_turn_rad
     columns = (("turn",) if use_k else ()) + (("path",) if use_s else ())
-    err = (chunks.turn_o - chunks.turn_t)[kept]
+    err = chunks.heading(scale)[0][kept]
     k = h = None
     k_se = h_se = 0.0
     coef = np.zeros(len(columns))
@@ -275,7 +295,7 @@ def _undisturbed(chunks: _DriftChunks, fit: _DrawFit) -> np.ndarray:
     spreads (the moving chunks' median absolute residual times `MAD_TO_SIGMA`) or within `DRIFT_SHARE` of the chunk's
     own motion."""
     distance = chunks.chord_o - (1.0 + (fit.scale or 0.0)) * chunks.chord_t
-    heading = chunks.turn_o - chunks.turn_t - _regressors(chunks, fit.scale, fit.columns) @ fit.coef
+    heading = chunks.heading(fit.scale)[0] - _regressors(chunks, fit.scale, fit.columns) @ fit.coef
     moving = (chunks.chord_o > 0) | (chunks.turn_o != 0)
     if not moving.any():
         return np.ones(len(distance), dtype=bool)
@@ -294,9 +314,10 @@ def estimate_odometry(
     """drift_per_m (per metre; the spread of the per-episode scale, yaw-scale and heading-drift errors).
 
     `unseen_yaw_per_m`: the arc per metre of unequal wheels (see :func:`pipeline.calibration.calibrate.arc_per_m`),
-    which the simulator's odometry leaves out of its turn by itself (-arc per metre driven forward); the heading
-    drifts are taken about it, so the spread is what the simulator must still draw."""
-    drifts = tuple(episode_drift(e, settings) for e in episodes if len(e.odom) >= 3)
+    which the simulator's odometry leaves out of its turn by itself (-arc per metre driven, signed); each chunk's
+    heading error is taken about it (:meth:`_DriftChunks.heading`), so the spread is what the simulator must still
+    draw."""
+    drifts = tuple(episode_drift(e, settings, unseen_yaw_per_m) for e in episodes if len(e.odom) >= 3)
     entries: list[tuple[str, float, float]] = []  # (component, draw, its standard error)
     for d in drifts:
         if d.scale_error is not None:
@@ -304,7 +325,7 @@ def estimate_odometry(
         if d.yaw_scale_error is not None:
             entries.append(("yaw_scale_error", d.yaw_scale_error, d.yaw_scale_se))
         if d.heading_drift_per_m is not None:
-            entries.append(("heading_drift_per_m", d.heading_drift_per_m + unseen_yaw_per_m, d.heading_drift_se))
+            entries.append(("heading_drift_per_m", d.heading_drift_per_m, d.heading_drift_se))
     far = _far_draws(entries)
     draws = [v for (_, v, _), out in zip(entries, far, strict=True) if not out]
     variances = [se * se for (_, _, se), out in zip(entries, far, strict=True) if not out]
