@@ -167,7 +167,7 @@ def test_not_an_mcap_file(tmp_path):
     assert str(path) in str(err.value)
 
 
-@pytest.mark.parametrize("tail", [b"", b"\x01\x05", os.urandom(3), b"\x07" * 40])
+@pytest.mark.parametrize("tail", [b"", b"\x01\x05", b"\x13gE", b"\x07" * 40])
 def test_truncated_garbage(tmp_path, tail):
     path = tmp_path / "g.mcap"
     path.write_bytes(b"\x89MCAP0\r\n"[: 5 if not tail else 8] + tail)
