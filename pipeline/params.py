@@ -422,6 +422,10 @@ class TrainConfig:
     """Gradient steps per stored transition (off-policy)."""
     train_every_steps: int = setting(4, ge=1)
     """World steps between update rounds (off-policy)."""
+    share_experience: bool = setting(False, optional=True)
+    """independent mode, sac and dqn: every robot's network also stores the other robots' transitions in its replay
+    (its own network and its own gradient steps: as many as without them, one per own transition times
+    `updates_per_transition`)."""
     checkpoint_every_episodes: int = setting(100, ge=1)
     torch_threads: int = setting(1, ge=1, le=64)
     sac: SacConfig = setting(SacConfig())
@@ -440,6 +444,9 @@ class TrainConfig:
             bad.append(("observation_scaling", self.observation_scaling, f"'none' with algorithm {self.algorithm}"))
         if self.imitation.steps > 0 and self.algorithm != "ppo":
             bad.append(("imitation.steps", self.imitation.steps, f"0 with algorithm {self.algorithm} (ppo only)"))
+        if self.share_experience and (self.mode != "independent" or self.algorithm == "ppo"):
+            bad.append(("share_experience", True, f"false with mode {self.mode} and algorithm {self.algorithm} "
+                        "(independent sac or dqn only)"))  # fmt: skip
         if self.total_steps == 0 and self.imitation.steps == 0:
             bad.append(("total_steps", 0, ">= 1, or 0 with imitation.steps > 0 (the imitated policy alone)"))
         return bad

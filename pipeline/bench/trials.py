@@ -48,6 +48,7 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.rounds": 1,
     "train.imitation.teacher": "scripted",
     "train.imitation.memory_dropout": 0.0,
+    "train.share_experience": False,
     **{f"world.network.{k}": v for k, v in to_mapping(NetworkConfig()).items()},
     **{f"world.randomize.network.{k}": v for k, v in to_mapping(NetworkRanges()).items()},
 }

@@ -180,7 +180,14 @@ class OffPolicyLearner:
         with buffer.batch() if isinstance(buffer, PrioritizedReplayBuffer) else contextlib.nullcontext():
             self._observe(obs, actions, batch)
 
-    def _observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+    def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        """Store another robot's transitions (``share_experience``): they fill the replay and count toward
+        ``learning_starts``, but earn no gradient steps, so the learner takes as many as without them."""
+        buffer = self.model.replay_buffer
+        with buffer.batch() if isinstance(buffer, PrioritizedReplayBuffer) else contextlib.nullcontext():
+            self._observe(obs, actions, batch, credit=False)
+
+    def _observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch, credit: bool = True) -> None:
         for i in np.flatnonzero(batch.active):
             self.model.store(
                 obs[i],
@@ -190,7 +197,7 @@ class OffPolicyLearner:
                 bool(batch.terminated[i]),
                 bool(batch.truncated[i]),
             )
-            if self.model.num_timesteps > self.cfg.learning_starts:
+            if credit and self.model.num_timesteps > self.cfg.learning_starts:
                 self._credit += self.cfg.updates_per_transition
 
     def set_progress(self, fraction_done: float) -> None:
@@ -235,6 +242,21 @@ class BatchedSACMember(OffPolicyLearner):
         self.model.num_timesteps += len(active)
         counted = max(0, self.model.num_timesteps - max(before, self.cfg.learning_starts))
         self.group.credit += self.cfg.updates_per_transition * counted / self.group.k
+
+    def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        """Another robot's transitions into this learner's buffer, without gradient steps of their own."""
+        active = np.flatnonzero(batch.active)
+        if not len(active):
+            return
+        self.group.add(
+            self.index,
+            obs[active],
+            batch.next_obs[active],
+            np.asarray(actions)[active],
+            batch.reward[active],
+            batch.terminated[active],
+        )
+        self.model.num_timesteps += len(active)
 
     def update(self) -> None:
         if self.index != self.group.k - 1:

@@ -254,8 +254,13 @@ class _TrainingRun:
         result = self.worlds.step(streams.world_actions(actions))
         batches = streams.learner_batches(result)
         self.steps += self.worlds.n_worlds
-        for learner, o, a, b in zip(self.learners, per_learner, actions, batches, strict=True):
+        share = self.cfg.share_experience
+        for i, (learner, o, a, b) in enumerate(zip(self.learners, per_learner, actions, batches, strict=True)):
             learner.observe(o, a, b)
+            if share:  # independent off-policy learners: the other robots' transitions too, in robot order
+                for j in range(len(self.learners)):
+                    if j != i:
+                        learner.observe_other(per_learner[j], actions[j], batches[j])  # type: ignore[union-attr]
             learner.set_progress(self.steps / self.cfg.total_steps)
             learner.update()
         return result
