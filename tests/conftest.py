@@ -8,6 +8,27 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
+SHARED_SCOPES = {
+    "tests/integration/test_calibration_twin.py": "twin_session",
+    "tests/integration/test_calibration_plain_bags.py": "twin_session",
+}
+"""Modules whose session fixtures (integration/conftest.py::twin_session's recordings) one worker of a parallel run
+makes once for all of them."""
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """A parallel run (pytest -n N) sends whole modules to a worker, so that module and session fixtures are made
+    once (the modules of `SHARED_SCOPES` together)."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ByModule(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return SHARED_SCOPES.get(module, module)
+
+    return ByModule(config, log)
+
 
 @pytest.fixture
 def params_data() -> dict:

@@ -19,7 +19,7 @@ def readme_commands() -> list[str]:
 
 def test_readme_opens_with_main_job_then_tests_and_ci_runs_the_test_command():
     main_job, tests = readme_commands()
-    assert main_job.endswith("dvc repro") and tests.endswith("python -m pytest")
+    assert main_job.endswith("dvc repro") and tests.endswith("python -m pytest -n 2")
     for command in (main_job, tests):
         # the venv is activated, so the `python` that dvc stages call is the project's
         assert ". .venv/bin/activate" in command
