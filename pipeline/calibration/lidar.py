@@ -252,11 +252,17 @@ def _coarse_cost(
 
 
 def _usable(
-    geometry: MapGeometry, span: ScanSpan, yaw: float, settings: CalibrationSettings, edge_rad: float
+    geometry: MapGeometry,
+    span: ScanSpan,
+    yaw: float,
+    settings: CalibrationSettings,
+    edge_rad: float,
+    mount_xy: tuple[float, float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """(beams,) beams whose cast at mount yaw `yaw` is clean: inside the range margins, not grazing, not at an edge."""
+    """(beams,) beams whose cast at mount yaw `yaw` (from the mounting at `mount_xy`) is clean: inside the range
+    margins, not grazing, not at an edge."""
     offs = np.array([yaw - edge_rad, yaw, yaw + edge_rad])
-    rng, surface, cos = _cast_span(geometry, span, offs)
+    rng, surface, cos = _cast_span(geometry, span, offs, mount_xy)
     margin = settings.lidar_range_margin_m
     ok = (rng[1] > span.range_min_m + margin) & (rng[1] < span.range_max_m - margin)
     ok &= cos[1] >= math.cos(settings.lidar_max_incidence_rad)
@@ -881,7 +887,10 @@ def estimate_lidar(
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
     for k, span in enumerate(spans):
-        use = _usable(geometry, span, yaw, settings, settings.lidar_edge_rad) & ~blocked[span.ranges.shape[1]]
+        # clean beams of the room as fitted, cast from the fitted mounting: a box corner a few centimetres off its
+        # mapped place, beside a robot that stands against it, reads closer than the range minimum to beams that the
+        # map sends past it, and those counted as dropouts (0.0120 for 0.0116 on a calibration drive)
+        use = _usable(room, span, yaw, settings, settings.lidar_edge_rad, mount_xy) & ~blocked[span.ranges.shape[1]]
         cast, _, _ = _cast_span(geometry, span, np.array([yaw]), mount_xy)
         cast = cast[0]
         free = _robot_free(span, yaw, cast, geometry.robot_radius_m, settings.lidar_robot_margin_m)
