@@ -227,24 +227,17 @@ class BatchedSACMember(OffPolicyLearner):
         self.index = index
 
     def observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
-        active = np.flatnonzero(batch.active)
-        if not len(active):
-            return
-        self.group.add(
-            self.index,
-            obs[active],
-            batch.next_obs[active],
-            np.asarray(actions)[active],
-            batch.reward[active],
-            batch.terminated[active],
-        )
         before = self.model.num_timesteps
-        self.model.num_timesteps += len(active)
+        self._store(obs, actions, batch)
         counted = max(0, self.model.num_timesteps - max(before, self.cfg.learning_starts))
         self.group.credit += self.cfg.updates_per_transition * counted / self.group.k
 
     def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
         """Another robot's transitions into this learner's buffer, without gradient steps of their own."""
+        self._store(obs, actions, batch)
+
+    def _store(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
+        """The batch's active transitions into this learner's buffer of the group, counted as its timesteps."""
         active = np.flatnonzero(batch.active)
         if not len(active):
             return
