@@ -16,6 +16,7 @@ from pipeline.learn.trainer import train
 from pipeline.mappings import from_mapping, merge, to_mapping
 from pipeline.params import TrainConfig, load_params, world_config
 from pipeline.sim import make_world
+from tests.domains import domain_id
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY_TRAIN = {
@@ -44,8 +45,8 @@ def tiny_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def free_domain_id() -> int:
-    """A DDS domain id unlikely to be used by another test run on this host."""
-    return 100 + (os.getpid() * 7 + int(np.random.default_rng().integers(0, 1000))) % 120
+    """A DDS domain id unlikely to be used by another test run on this host, and not by this run's other worker."""
+    return domain_id("fleet", os.getpid() * 7 + int(np.random.default_rng().integers(0, 1000)))
 
 
 def write_fleet(path: Path, **changes: object) -> Path:

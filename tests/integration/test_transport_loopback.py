@@ -30,6 +30,7 @@ from pipeline.messages import convert
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
 from pipeline.ros import NetworkSettings, Transport, open_transport
+from tests.domains import domain_id as run_domain_id
 
 pytestmark = pytest.mark.integration
 
@@ -143,8 +144,8 @@ def backend(request: pytest.FixtureRequest) -> str:
 
 @pytest.fixture
 def domain_id() -> int:
-    """A domain id of this run (40..99), different for every test."""
-    return 40 + (os.getpid() + next(_runs)) % 60
+    """A domain id of this run (40..99, this worker's share), different for every test."""
+    return run_domain_id("loopback", os.getpid() + next(_runs))
 
 
 @pytest.fixture

@@ -20,6 +20,7 @@ from pipeline.messages import convert
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
 from pipeline.ros import NetworkSettings, Transport, TransportError, open_transport
+from tests.domains import domain_id as run_domain_id
 
 _domains = itertools.count()
 
@@ -29,7 +30,7 @@ def transport(request: pytest.FixtureRequest) -> Iterator[Transport]:
     if request.param == "rclpy":
         pytest.importorskip("rclpy", reason="rclpy (a ROS 2 installation) is not available in this environment")
     master = request.getfixturevalue("ros1_master") if request.param == "ros1" else ""
-    domain_id = 102 + (os.getpid() + next(_domains)) % 30
+    domain_id = run_domain_id("contract", os.getpid() + next(_domains))
     with open_transport(request.param, NetworkSettings(domain_id=domain_id, master_uri=master)) as t:
         yield t
 
