@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import contextlib
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -8,26 +10,35 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SHARED_SCOPES = {
-    "tests/integration/test_calibration_twin.py": "twin_session",
-    "tests/integration/test_calibration_plain_bags.py": "twin_session",
-}
-"""Modules whose session fixtures (integration/conftest.py::twin_session's recordings) one worker of a parallel run
-makes once for all of them."""
+UNIT_NICENESS = 10
+"""Scheduling priority of the unit tier in a parallel run: the integration tier's twins, runners and peers keep real
+time against deadlines (a reset's 10 s, a command's validity), so they take the CPU first."""
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """A parallel run (pytest -n N) sends whole modules to a worker, so that module and session fixtures are made
-    once (the modules of `SHARED_SCOPES` together)."""
+    """A parallel run (pytest -n N) sends the integration tier to one worker as a whole, in order, so that its
+    module and session fixtures are made once and no two of its deployments run at once; the unit tier's modules go
+    to the other workers (and to that one when it is done)."""
     from xdist.scheduler import LoadScopeScheduling
 
-    class ByModule(LoadScopeScheduling):
+    class IntegrationInOne(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            return SHARED_SCOPES.get(module, module)
+            return "tests/integration" if module.startswith("tests/integration/") else module
 
-    return ByModule(config, log)
+    return IntegrationInOne(config, log)
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """In a parallel run, the unit tier at `UNIT_NICENESS` and the integration tier at the default priority (a worker
+    runs both kinds in turn; lowering the niceness again needs the right to, which root has: without it the worker
+    stays at the lower priority)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return
+    unit = Path(str(item.path)).is_relative_to(ROOT / "tests" / "unit")
+    with contextlib.suppress(PermissionError):
+        os.setpriority(os.PRIO_PROCESS, 0, UNIT_NICENESS if unit else 0)
 
 
 @pytest.fixture
