@@ -13,32 +13,59 @@ ROOT = Path(__file__).resolve().parents[1]
 UNIT_NICENESS = 10
 """Scheduling priority of the unit tier in a parallel run: the integration tier's twins, runners and peers keep real
 time against deadlines (a reset's 10 s, a command's validity), so they take the CPU first."""
+OFFLINE = frozenset(
+    f"tests/integration/{name}.py"
+    for name in (
+        "test_analysis_sim",
+        "test_calibration_inputs",
+        "test_eval_sim_session",
+        "test_export_agreement",
+        "test_imitation",
+        "test_layout_failures_run",
+        "test_map_replay",
+        "test_memory_dropout",
+        "test_path_teacher",
+        "test_replay",
+        "test_scripted_eval_stage",
+        "test_selection",
+        "test_teachers_script",
+        "test_world_workers",
+    )
+)
+"""Integration modules without deadlines (simulation, files, training; no twin, fleet, peer or Ray cluster): in a
+parallel run they go with the unit tier."""
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """A parallel run (pytest -n N) sends the integration tier to one worker as a whole, in order, so that its
-    module and session fixtures are made once and no two of its deployments run at once; the unit tier's modules go
-    to the other workers (and to that one when it is done)."""
+    """A parallel run (pytest -n N) sends the integration tier (but its `OFFLINE` modules) to one worker as a whole,
+    in order, so that its module and session fixtures are made once and no two of its deployments run at once; the
+    other modules go to the other workers (and to that one when it is done)."""
     from xdist.scheduler import LoadScopeScheduling
 
     class IntegrationInOne(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            return "tests/integration" if module.startswith("tests/integration/") else module
+            return "tests/integration" if _real_time(module) else module
 
     return IntegrationInOne(config, log)
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """In a parallel run, the unit tier at `UNIT_NICENESS` and the integration tier at the default priority (a worker
-    runs both kinds in turn; lowering the niceness again needs the right to, which root has: without it the worker
-    stays at the lower priority)."""
+    """In a parallel run, the unit tier and the `OFFLINE` modules at `UNIT_NICENESS`, the rest of the integration tier
+    at the default priority (a worker runs both kinds in turn; lowering the niceness again needs the right to, which
+    root has: without it the worker stays at the lower priority)."""
     if "PYTEST_XDIST_WORKER" not in os.environ:
         return
-    unit = Path(str(item.path)).is_relative_to(ROOT / "tests" / "unit")
+    module = Path(str(item.path)).relative_to(ROOT).as_posix()
     with contextlib.suppress(PermissionError):
-        os.setpriority(os.PRIO_PROCESS, 0, UNIT_NICENESS if unit else 0)
+        os.setpriority(os.PRIO_PROCESS, 0, 0 if _real_time(module) else UNIT_NICENESS)
+
+
+def _real_time(module: str) -> bool:
+    """Whether a test module (its path from the repository's root) runs against deadlines: the integration tier but
+    its `OFFLINE` modules."""
+    return module.startswith("tests/integration/") and module not in OFFLINE
 
 
 @pytest.fixture

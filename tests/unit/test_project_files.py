@@ -107,3 +107,13 @@ def test_every_stage_depends_on_the_code_it_runs():
             )
         )
         assert not uncovered, f"dvc.yaml stage {name} runs {uncovered} but does not depend on them"
+
+
+def test_the_offline_integration_modules_exist_and_start_no_fleet():
+    """A parallel run gives tests/conftest.py's OFFLINE modules a low priority: none may start a twin, a fleet or a
+    peer, whose deadlines would then be missed."""
+    from tests.conftest import OFFLINE
+
+    for module in sorted(OFFLINE):
+        text = (ROOT / module).read_text()
+        assert not re.search(r"write_fleet|twin_session|record_twin_session|ros1_master|open_transport", text), module
