@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from pipeline.calibration.actuation import CommandTimeline
@@ -289,6 +290,148 @@ def _transient_costs(
     return costs
 
 
+REFINE_STEP_S = 0.002
+"""Time step of the chain in the refinement (a drive's own control period: nothing the steps bend is a grid's)."""
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """What the chain of one robot-episode is compared with: the free samples' times (s from the episode's start) and
+    achieved speeds (m, 2), the odometry period, and the commands as pieces."""
+
+    t_s: np.ndarray
+    period_s: float
+    achieved: np.ndarray
+    wheels: np.ndarray
+    """(pieces, 2) the wheel speeds the commands ask for (gains applied), each from `since_s` to the next piece."""
+    since_s: np.ndarray
+    integral: np.ndarray
+    """(pieces, 2) the wheel speeds' integral (rad) from the first piece to each piece's start."""
+
+
+def _samples(episode: WheelEpisode, gains: tuple[float, float], period_s: float, timeout_s: float) -> _Samples:
+    # the commands as pieces: each from its sending until the next, or until it times out (then zero)
+    cmd = episode.commands
+    t = (cmd.t_ns - episode.start_ns) / NS_PER_S
+    ends = np.r_[t[1:], np.inf]
+    lapsed = ends - t > timeout_s
+    since = np.r_[t, t[lapsed] + timeout_s]
+    values = np.r_[cmd.values, np.zeros((int(lapsed.sum()), 2))]
+    order = np.argsort(since, kind="stable")
+    since, values = np.r_[-np.inf, since[order]], np.r_[np.zeros((1, 2)), values[order]]
+    a, b = _parts(values)
+    wheels = a * gains[0] + b * gains[1]
+    lengths = np.diff(since)[1:, None]
+    integral = np.r_[np.zeros((2, 2)), np.cumsum(wheels[1:-1] * lengths, axis=0)]
+    t_s = (episode.t_ns[episode.free] - episode.start_ns) / NS_PER_S
+    return _Samples(t_s, period_s, episode.wheels[episode.free], wheels, since, integral)
+
+
+def _commanded_integral(s: _Samples, t: np.ndarray) -> np.ndarray:
+    """(len(t), 2) the commanded wheel speeds' integral (rad) up to times `t` (s from the episode's start)."""
+    j = np.searchsorted(s.since_s, t, side="right") - 1
+    start = np.where(j > 0, s.since_s[np.maximum(j, 1)], 0.0)
+    return s.integral[j] + s.wheels[j] * np.where(j > 0, t - start, 0.0)[:, None]
+
+
+def _slew(target: np.ndarray, step: float) -> np.ndarray:
+    """A setpoint that follows `target` (n, 2) from rest by at most `step` per step."""
+    if not math.isfinite(step):
+        return target
+    out = np.empty_like(target)
+    for side in range(target.shape[1]):
+        s, column = 0.0, out[:, side]
+        for k, x in enumerate(target[:, side].tolist()):
+            s += min(max(x - s, -step), step)
+            column[k] = s
+    return out
+
+
+def _lag_at(x: np.ndarray, tau_s: float, step_s: float) -> np.ndarray:
+    """First-order lag along axis 0 in steps of `step_s` (exact for inputs held over each step), from rest."""
+    if tau_s <= 0:
+        return x
+    a = math.exp(-step_s / tau_s)
+    return np.asarray(lfilter([1.0 - a], [1.0, -a], x, axis=0))
+
+
+def _chain_residuals(
+    s: _Samples, delay: float, deadband: float, driver_s: float, motor_s: float, accel: float
+) -> np.ndarray:
+    """(m, 2) the chain's mean wheel speeds over each sample's odometry period less the achieved ones, for one set of
+    values, from rest at the episode's start: in steps of `REFINE_STEP_S`, each step's input the command's mean
+    over the step (delayed), the lags exact for inputs held through a step, the limit per step, and the window's
+    mean by the trapezoid rule on the steps' ends."""
+    h = REFINE_STEP_S
+    n = math.ceil(float(s.t_s.max()) / h) + 1
+    times = np.arange(n + 1) * h
+    commanded = _commanded_integral(s, times - delay)
+    target = _lag_at(np.diff(commanded, axis=0) / h, driver_s, h)
+    target = np.where(np.abs(target) < deadband, 0.0, target)
+    wheel = np.r_[np.zeros((1, 2)), _lag_at(_slew(target, accel * h), motor_s, h)]
+    travelled = np.r_[np.zeros((1, 2)), np.cumsum((wheel[1:] + wheel[:-1]) / 2 * h, axis=0)]
+
+    def at(t: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(t, times, travelled[:, side]) for side in range(2)], axis=1)
+
+    return (at(s.t_s) - at(s.t_s - s.period_s)) / s.period_s - s.achieved
+
+
+@dataclass(frozen=True)
+class _Refined:
+    """The delay, the lags (driver, motor) and the limit fitted between the grid's values (`values`, the delay in s
+    and the rest as logs), each robot-episode's residuals and their Jacobian there."""
+
+    values: np.ndarray
+    jacobians: list[np.ndarray]
+    residuals: list[np.ndarray]
+
+
+REFINE_STEPS = (0.2, 0.02, 0.02, 0.02)
+"""Steps of the delay (in steps of the chain) and of the log lags and limit by which the residuals' Jacobian is
+taken."""
+
+
+def _refine(samples: Sequence[_Samples], deadband: float, start: tuple[float, float, float, float]) -> _Refined:
+    """Least squares over the delay (in steps of the chain) and log (driver lag, motor lag[, limit]) from `start` and
+    from a step of delay either side of it (the delay trades against the lags along a narrow valley); the limit
+    stays infinite where `start`'s is."""
+    free = 4 if math.isfinite(start[3]) else 3
+
+    def residuals(x: np.ndarray) -> list[np.ndarray]:
+        d, m = math.exp(x[1]), math.exp(x[2])
+        a = math.exp(x[3]) if free == 4 else math.inf
+        return [_chain_residuals(s, float(x[0]) * STEP_S, deadband, d, m, a).ravel() for s in samples]
+
+    x0 = np.r_[start[0] / STEP_S, np.log(np.maximum(np.array(start[1:free]), 1e-3))]
+    fits = [
+        least_squares(lambda x: np.concatenate(residuals(x)), x0 + shift * np.eye(free)[0], diff_step=1e-2)
+        for shift in (0.0, -1.0, 1.0)
+    ]
+    x = min(fits, key=lambda f: float(f.cost)).x
+    base = residuals(x)
+    moved = [residuals(x + REFINE_STEPS[i] * np.eye(free)[i]) for i in range(free)]
+    jacobians = [
+        np.stack([(mv[e] - base[e]) / REFINE_STEPS[i] for i, mv in enumerate(moved)], axis=1) for e in range(len(base))
+    ]
+    return _Refined(np.r_[x[0] * STEP_S, x[1:]], jacobians, base)
+
+
+def _refined_draw(r: _Refined, weights: np.ndarray) -> np.ndarray:
+    """(delay, driver lag, motor lag) of one bootstrap draw: the fit moved by the linearized least-squares step of
+    the draw's weights; NaN where the step is singular or leaves the linear neighbourhood."""
+    h = sum(w * j.T @ j for w, j in zip(weights, r.jacobians, strict=True) if w)
+    g = sum(w * j.T @ res for w, j, res in zip(weights, r.jacobians, r.residuals, strict=True) if w)
+    try:
+        step = -np.linalg.solve(h, g)
+    except np.linalg.LinAlgError:
+        return np.full(3, np.nan)
+    if np.any(np.abs(step[1:]) > 2.0):
+        return np.full(3, np.nan)
+    x = r.values + step
+    return np.array([r.values[0] + step[0] * STEP_S, math.exp(x[1]), math.exp(x[2])])
+
+
 def _least_delay(costs: np.ndarray) -> int:
     """Index of the delay of the least total cost over the episodes' costs (episodes, delays, ...)."""
     total = costs.sum(axis=0)
@@ -413,6 +556,18 @@ def estimate_motors(
     d, lag, share = delays[int(best[0])], LAGS_S[int(best[1])], MOTOR_SHARES[int(best[2])]
     motor = _motor_lag(best, accel_draws, n_free, len(transient))
     delay, driver = _driver(best, accel_draws, delays, n_free, len(transient), motor)
+    refined_note = ""
+    if motor.ok and driver.ok:
+        limit = float(ACCELS_RADPS2[int(best[3])]) if accel.ok else math.inf
+        samples = [_samples(e, (g_lin, g_ang), odometry_period_s, timeout) for e in transient]
+        refined = _refine(samples, transient_deadband, (float(d), driver.value, motor.value, limit))
+        delay, driver, motor = _refined_estimates(refined, delay, driver, motor, n_free, settings, rng)
+        refined_note = (
+            f"; between the grid's values (least squares): delay {delay.value:.3f} s, driver lag "
+            f"{driver.value:.3f} s, motors' lag {motor.value:.3f} s"
+            if motor.ok
+            else f"; {motor.reason}"
+        )
     notes = (
         f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
         f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples of {len(transient)} of them give "
@@ -421,9 +576,57 @@ def estimate_motors(
             f"; deadband for them {transient_deadband:g} rad/s, the best of {', '.join(f'{c:g}' for c in candidates)}"
             if len(candidates) > 1
             else ""
-        ),
+        )
+        + refined_note,
     )
     return MotorFit(deadband, accel, (g_lin, g_ang), notes, motor, delay, driver)
+
+
+def _refined_estimates(
+    r: _Refined,
+    grid_delay: Estimate,
+    grid_driver: Estimate,
+    grid_motor: Estimate,
+    n: int,
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+) -> tuple[Estimate, Estimate, Estimate]:
+    """The delay and the lags of the refinement: its values, and intervals that hold both the one-step bootstrap's
+    (:func:`_refined_draw`; the lags' widened by the small-sample factor) and the grid's, stretched to hold the
+    value: the refinement moves the point off the grid, the grid's intervals already allow for a chain that is not
+    exactly the robot's."""
+    episodes = len(r.residuals)
+    draws = bootstrap(lambda w: _refined_draw(r, w), episodes, settings.bootstrap, rng)
+    good = draws[np.all(np.isfinite(draws), axis=1)]
+    if len(good) < 0.9 * len(draws):
+        reason = (
+            f"the driver's and the motors' lags trade freely: {len(draws) - len(good)} of {len(draws)} bootstrap "
+            "draws leave them unseparated; they are part of effective.drive_lag_s"
+        )
+        return grid_delay, Estimate.unidentifiable(reason, "s"), Estimate.unidentifiable(reason, "s")
+    values = (float(r.values[0]), math.exp(r.values[1]), math.exp(r.values[2]))
+    out = []
+    for column, (v, grid) in enumerate(zip(values, (grid_delay, grid_driver, grid_motor), strict=True)):
+        lo, hi = (float(x) for x in np.percentile(good[:, column], [2.5, 97.5]))
+        if column:
+            lo, hi = _widened(v, lo, hi, episodes)
+        assert grid.interval is not None  # an identified grid estimate has one
+        lo, hi = min(lo, grid.interval[0], v), max(hi, grid.interval[1], v)
+        method = (
+            f"{grid.method}; then least squares between the grid's values, the interval also holding a one-step "
+            f"bootstrap's about it"
+        )
+        out.append(Estimate.of(v, float(np.std(good[:, column], ddof=1)), (lo, hi), "s", method, n))
+    delay, driver, motor = out
+    assert motor.interval is not None
+    if motor.interval[1] > MOTOR_LAG_MAX_SPREAD * motor.interval[0]:
+        reason = (
+            f"the transients leave the motors' own lag between {motor.interval[0]:.3g} and {motor.interval[1]:.3g} "
+            f"s (a spread beyond a factor of {MOTOR_LAG_MAX_SPREAD:g}): it is part of effective.drive_lag_s; steps "
+            "of several sizes against a binding acceleration limit would separate it"
+        )
+        return delay, Estimate.unidentifiable(reason, "s"), Estimate.unidentifiable(reason, "s")
+    return delay, driver, motor
 
 
 def _interval(indices: np.ndarray, grid: np.ndarray, steps: float = 0.5) -> tuple[float, float]:

@@ -12,6 +12,8 @@ from pipeline.calibration.actuation import CommandTimeline
 from pipeline.calibration.estimates import bootstrap
 from pipeline.calibration.motors import (
     WheelEpisode,
+    _refine,
+    _samples,
     _transient_costs,
     _widened,
     estimate_motors,
@@ -207,6 +209,39 @@ def test_the_transients_time_a_delay_within_half_a_step_of_the_chain(delay_s):
         episode, 0.0, (1.0, 1.0), ODOM_S, 5.0, delays, np.array([np.inf]), np.array([0.15]), np.array([1 / 3])
     )
     assert delays[int(np.argmin(costs[:, 0, 0, 0]))] == pytest.approx(delay_s, abs=0.0051)
+
+
+@pytest.mark.parametrize("delay_s", [0.03, 0.037, 0.045])
+def test_the_refinement_reads_a_delay_and_lags_between_the_grids_values(delay_s):
+    """Commands changed at arbitrary times through a delay between the grid's 10 ms steps and lags of 0.1 and
+    0.043 s (between the grid's values): least squares from a grid point, on a chain in 2 ms steps whose inputs are
+    the command's mean over each step, reads the delay within 1.5 ms (the second lag takes the first's value at a
+    step's end as held through the step, half a step early, as a drive's control loop does) and the lags within
+    2 %. Without a deadband or a limit the two lags commute, so only the pair is asked for."""
+    episodes = [continuous_episode(np.random.default_rng(20 + k), delay_s, (0.1, 0.043)) for k in range(3)]
+    samples = [_samples(e, (1.0, 1.0), ODOM_S, 5.0) for e in episodes]
+    fit = _refine(samples, 0.0, (round(delay_s, 2), 0.114, 0.038, math.inf))
+    assert fit.values[0] == pytest.approx(delay_s, abs=0.0015)
+    assert sorted(np.exp(fit.values[1:3])) == pytest.approx([0.043, 0.1], rel=0.02)
+
+
+def test_the_motors_lag_is_read_between_the_grids_values():
+    """A motor lag of 28 ms behind a driver lag of 95 ms: the grid's total lags (12 % apart) and the motors' share
+    of them (in twelfths) read 43 ms [37, 50] ms, the truth outside; least squares between the grid's values reads
+    it within 10 % and the interval holds it."""
+    rng = np.random.default_rng(1)
+    episodes = [
+        episode(
+            rng, f"c{k}", 0.006, 30.1, delay_s=0.061, driver_lag_s=0.095, motor_lag_s=0.028, seconds=20.0, w_max=1.0
+        )
+        for k in range(10)
+    ]
+    fit = estimate_motors(episodes, ODOM_S, SETTINGS, np.random.default_rng(0))
+    assert fit.motor_time_constant_s.value == pytest.approx(0.028, rel=0.1), fit.motor_time_constant_s
+    assert covers(fit.motor_time_constant_s, 0.028), fit.motor_time_constant_s
+    assert fit.driver_time_constant_s.value == pytest.approx(0.095, rel=0.1), fit.driver_time_constant_s
+    assert fit.delay_s.value == pytest.approx(0.061, abs=0.005), fit.delay_s
+    assert "between the grid's values" in fit.notes[0]
 
 
 def test_the_small_sample_factor_makes_a_ten_cluster_bootstrap_cover_95_percent():
