@@ -45,6 +45,7 @@ from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, binomia
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry, cast_circles, wrap
 from pipeline.calibration.smoothing import Track
+from pipeline.core.stats import wilson_interval
 from pipeline.core.timebase import NS_PER_S
 
 MIN_SPANS_FOR_BOOTSTRAP = 5
@@ -840,6 +841,31 @@ def _line_misfit(total: np.ndarray, line: np.ndarray, correction: float) -> np.n
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
+def dropout_estimate(drops: np.ndarray, trials: np.ndarray) -> Estimate:
+    """The dropout probability from each stationary span's dropouts and usable beams: the pooled share, with a
+    design-effect Wilson interval. The ratio's cluster-robust variance over the spans (at least the binomial one)
+    gives the design effect where dropouts cluster in some spans; the Wilson interval is taken on the counts divided
+    by it, with Student's t on the spans' degrees of freedom. (A percentile bootstrap over the spans covered the
+    truth of the coverage benchmark's robots on 16 of 20, each miss a dropout count 1.9-2.5 binomial standard errors
+    off.)"""
+    used = trials > 0
+    k = int(used.sum())
+    d, t = drops[used], trials[used]
+    events, n = float(d.sum()), float(t.sum())
+    p = events / n
+    binomial = max(p * (1 - p), 1.0 / n) / n
+    robust = k / (k - 1) * float(np.sum((d - p * t) ** 2)) / n**2 if k > 1 else binomial
+    effect = max(robust / binomial, 1.0)
+    z = float(stats.t.ppf(0.975, k - 1)) if k > 1 else Z_95
+    interval = wilson_interval(events / effect, n / effect, z)
+    method = (
+        f"share of usable beams over {k} stationary spans: design effect {effect:.2f} (cluster-robust over the "
+        f"binomial variance, at least 1), Wilson interval on the counts divided by it with Student's t on {k - 1} "
+        "degrees of freedom"
+    )
+    return Estimate.of(p, math.sqrt(binomial * effect), interval, "probability", method, int(n))
+
+
 def estimate_lidar(
     geometry: MapGeometry, spans: Sequence[ScanSpan], settings: CalibrationSettings, rng: np.random.Generator
 ) -> LidarFit:
@@ -921,17 +947,7 @@ def estimate_lidar(
     sigma_est, per_m_est, noise_curve = _within_span_noise(spans, masks, rng, settings, bias_value)
     spans_used = int(np.sum(trials > 0))
     if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
-        samples = bootstrap(
-            lambda c: np.array([(c @ drops) / (c @ trials) if c @ trials > 0 else np.nan]),
-            len(spans),
-            settings.bootstrap,
-            rng,
-        )
-        drop_se, drop_ci = spread(samples[:, 0])
-        p = float(drops.sum() / n_trials)
-        drop_est = Estimate.of(
-            p, drop_se, drop_ci, "probability", f"bootstrap over {spans_used} stationary spans", n_trials
-        )
+        drop_est = dropout_estimate(drops, trials)
     else:
         drop_est = binomial_estimate(int(drops.sum()), n_trials)
     spectrum = (

@@ -331,7 +331,7 @@ def _commanded_integral(s: _Samples, t: np.ndarray) -> np.ndarray:
     """(len(t), 2) the commanded wheel speeds' integral (rad) up to times `t` (s from the episode's start)."""
     j = np.searchsorted(s.since_s, t, side="right") - 1
     start = np.where(j > 0, s.since_s[np.maximum(j, 1)], 0.0)
-    return s.integral[j] + s.wheels[j] * np.where(j > 0, t - start, 0.0)[:, None]
+    return np.asarray(s.integral[j] + s.wheels[j] * np.where(j > 0, t - start, 0.0)[:, None])
 
 
 def _slew(target: np.ndarray, step: float) -> np.ndarray:
@@ -374,7 +374,7 @@ def _chain_residuals(
     def at(t: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(t, times, travelled[:, side]) for side in range(2)], axis=1)
 
-    return (at(s.t_s) - at(s.t_s - s.period_s)) / s.period_s - s.achieved
+    return np.asarray((at(s.t_s) - at(s.t_s - s.period_s)) / s.period_s - s.achieved)
 
 
 @dataclass(frozen=True)
@@ -560,7 +560,8 @@ def estimate_motors(
     if motor.ok and driver.ok:
         limit = float(ACCELS_RADPS2[int(best[3])]) if accel.ok else math.inf
         samples = [_samples(e, (g_lin, g_ang), odometry_period_s, timeout) for e in transient]
-        refined = _refine(samples, transient_deadband, (float(d), driver.value, motor.value, limit))
+        start = (float(d), float(driver.value or 0.0), float(motor.value or 0.0), limit)
+        refined = _refine(samples, transient_deadband, start)
         delay, driver, motor = _refined_estimates(refined, delay, driver, motor, n_free, settings, rng)
         refined_note = (
             f"; between the grid's values (least squares): delay {delay.value:.3f} s, driver lag "

@@ -10,8 +10,9 @@ Z_95 = 1.959963984540054
 """The two-sided 95 % normal quantile."""
 
 
-def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
-    """The Wilson score interval (default 95 %) for a binomial proportion; (0, 1) when trials == 0."""
+def wilson_interval(successes: float, trials: float, z: float = Z_95) -> tuple[float, float]:
+    """The Wilson score interval (default 95 %) for a binomial proportion; (0, 1) when trials == 0. Counts may be
+    fractional (effective counts of overdispersed data: the counts divided by the dispersion)."""
     if trials < 0 or not 0 <= successes <= trials:
         raise ValueError(f"need 0 <= successes <= trials, got successes={successes}, trials={trials}")
     if trials == 0:
@@ -20,7 +21,8 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     denom = 1 + z * z / trials
     centre = (p + z * z / (2 * trials)) / denom
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    low = 0.0 if successes == 0 else max(0.0, centre - half)  # exact where rounding leaves a trace
+    return low, 1.0 if successes == trials else min(1.0, centre + half)
 
 
 def newcombe_interval(
