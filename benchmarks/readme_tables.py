@@ -563,8 +563,11 @@ def speedup() -> str:
     )
 
 
-SWEEPS = ("paper", "shared", "ppo")
+SWEEPS = ("paper", "share", "shared", "ppo")
 """The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
+MODE_WORDS = {"share": "independent, experience shared"}
+"""How the README's table names the mode of a sweep whose settings change it (`train.share_experience`: one network
+per robot, every robot's transitions in every network's replay)."""
 
 
 def _sweep_rows(folder: Path) -> Any:
@@ -581,7 +584,9 @@ def sweeps() -> str:
     lines = [
         prose(
             "**The paper's cells, swept on Ray** (100 000 world steps per trial, the settings of "
-            "[benchmarks/sweeps/paper.yaml](benchmarks/sweeps/paper.yaml); rows, curves and full tables in "
+            "[benchmarks/sweeps/paper.yaml](benchmarks/sweeps/paper.yaml), for `share` of "
+            "[share.yaml](benchmarks/sweeps/share.yaml): the same with each robot's network also learning from the "
+            "other robots' transitions; rows, curves and full tables in "
             "[benchmarks/results/sweeps/](docs/benchmarks.md#sweep-results)):"
         ),
         "",
@@ -597,7 +602,8 @@ def sweeps() -> str:
             continue
         for s in cell_stats(rows):
             lines.append(
-                f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | {s.algorithm} | {s.mode} | {s.scenario} | "
+                f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | {s.algorithm} | "
+                f"{MODE_WORDS.get(name, s.mode)} | {s.scenario} | "
                 f"{s.seeds} | {100 * s.robot_iqm:.1f} [{100 * s.robot_ci[0]:.1f}, {100 * s.robot_ci[1]:.1f}] | "
                 f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
             )
