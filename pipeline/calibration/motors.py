@@ -10,7 +10,7 @@ Model per wheel: the command passes a delay and the driver's lag, is scaled by t
 gains, zeroed where smaller than the deadband, followed by a setpoint that changes at most `accel`
 rad/s^2 (a slew-rate limit), which the wheel follows through the motor's lag.
 
-Two stages, because the body-velocity fit of the actuation module (one lag, no deadband) absorbs a
+Stages, because the body-velocity fit of the actuation module (one lag, no deadband) absorbs a
 deadband into smaller gains and a slew limit into a longer lag:
 1. Held commands: samples at least `SETTLE_S` after the command last changed show the steady state,
    where the achieved speed is the gained target, or zero under the deadband. For each deadband on a
@@ -28,6 +28,12 @@ continuous chain (it read 10-15 ms long before). Both stages keep per-episode su
 robot-episodes gives the intervals (percentiles widened by half a grid step; the delay and the limit by a whole
 step, which the coarse deadband grid and the chain's steps bend; the lags also by the small-sample factor of so few
 robot-episodes, :func:`small_sample_factor`).
+3. Between the grid's values: from the grid's best point, least squares moves the delay, both lags and the limit on
+   the same chain simulated in `REFINE_STEP_S` steps, each step's input the command's mean over the step
+   (:func:`_refine`; the limit's estimate stays the grid's); the intervals hold both the grid's and a one-step
+   bootstrap's about the fit. The delay read so
+   at the wheels holds whatever the commands' path adds between their sending and the driver (on the twin at time
+   scale 3, 8 ms in the median).
 A deadband is identifiable only where commands asked for wheel speeds near it, an acceleration limit
 only where they asked for more than it: otherwise the key is reported unidentifiable with the bound the
 data do give.
