@@ -563,9 +563,9 @@ def speedup() -> str:
     )
 
 
-SWEEPS = ("paper", "share", "shared", "ppo")
+SWEEPS = ("paper", "share", "shared", "ppo", "centralized_300k")
 """The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
-MODE_WORDS = {"share": "independent, experience shared"}
+MODE_WORDS = {"share": "independent, experience shared", "centralized_300k": "centralized, 300 000 steps"}
 """How the README's table names the mode of a sweep whose settings change it (`train.share_experience`: one network
 per robot, every robot's transitions in every network's replay)."""
 
@@ -617,6 +617,7 @@ def sweeps() -> str:
     return (
         "\n".join(lines)
         + "\n\n"
+        + _centralized_budget_line()
         + prose(
             "The target: a robot success IQM of at least 95 % over at least 5 seeds, at least 4 in 5 of them converged "
             f"within {TARGET_EPISODES} training episodes (every robot over 80 % in 20 consecutive episodes); 200 "
@@ -624,6 +625,40 @@ def sweeps() -> str:
             "; ".join(made),
             " (each folder's sweep.json has every run, its dates and its trials).",
         )
+    )
+
+
+def _centralized_budget_line() -> str:
+    """Centralized PPO at three times the budget against shared PPO at the budget (the same gradient steps per robot
+    decision), from the committed rows; empty where either sweep is missing."""
+    from pipeline.bench.stats import cell_stats
+
+    def cell(name: str, mode: str) -> Any:
+        rows = _sweep_rows(RESULTS / "sweeps" / name)
+        found = [] if rows is None else [c for c in cell_stats(rows) if c.algorithm == "ppo" and c.mode == mode]
+        return found[0] if found else None
+
+    central, shared = cell("centralized_300k", "centralized"), cell("ppo", "shared")
+    if central is None or shared is None:
+        return ""
+
+    def pct(c: Any) -> str:
+        return (
+            f"{100 * c.robot_iqm:.1f} % [{100 * c.robot_ci[0]:.1f}, {100 * c.robot_ci[1]:.1f}], team "
+            f"{100 * c.team_iqm:.1f} %"
+        )
+
+    return (
+        prose(
+            f"**Centralized mode, measured:** at 300 000 world steps, where its one learner has had shared mode's "
+            f"gradient steps per robot decision at 100 000, centralized PPO reaches a robot success IQM of "
+            f"{pct(central)} ({central.seeds} seeds), shared PPO at 100 000 {pct(shared)} ({shared.seeds} seeds): "
+            "the budget closes the robots' gap, not the team's; the summed reward leaves one robot of three behind "
+            "(per robot "
+            + ", ".join(f"{100 * v:.0f}" for v in central.per_robot_iqm.values())
+            + " %). [docs/experiments/sweeps.md](docs/experiments/sweeps.md#what-centralized-mode-is)."
+        )
+        + "\n\n"
     )
 
 
