@@ -294,9 +294,11 @@ COVERAGE_EXCITATION_FINE = "calibration_coverage/excitation_fine"
 COVERAGE_EXCITATION_FINE_RESCORED = "calibration_coverage/excitation_fine_rescored"
 """Those recordings, every part calibrated again with the code named in its run.json."""
 COVERAGE_EXCITATION_FINE_ARC = "calibration_coverage/excitation_fine_signed_arc"
-COVERAGE_EXCITATION_FINE_REFINED = "calibration_coverage/excitation_fine_refined"
 """Those recordings calibrated again after the odometry took the wheels' arc out by the signed distance and the lidar
 masked its beams in the fitted room."""
+COVERAGE_EXCITATION_FINE_REFINED = "calibration_coverage/excitation_fine_refined"
+"""Those recordings calibrated again after the drive chain's lags were read between the transients' grid values and
+the dropout interval took the spans' design effect."""
 
 
 def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -571,8 +573,9 @@ def speedup() -> str:
 SWEEPS = ("paper", "share", "shared", "ppo", "centralized_300k")
 """The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
 MODE_WORDS = {"share": "independent, experience shared", "centralized_300k": "centralized, 300 000 steps"}
-"""How the README's table names the mode of a sweep whose settings change it (`train.share_experience`: one network
-per robot, every robot's transitions in every network's replay)."""
+"""How the README's table names the mode of a sweep whose settings change it (`share`: `train.share_experience`, one
+network per robot with every robot's transitions in every network's replay; `centralized_300k`: three times the
+budget)."""
 
 
 def _sweep_rows(folder: Path) -> Any:

@@ -208,12 +208,21 @@ def _steady_fit(samples: Sequence[_Steady], weights: np.ndarray) -> tuple[float,
     return float(DEADBANDS_RADPS[first]), float(DEADBANDS_RADPS[run]), float(g[0]), float(g[1])
 
 
-def _lag(x: np.ndarray, tau_s: float) -> np.ndarray:
-    """First-order lag along axis 0 (exact for inputs held over each step), from rest."""
+def _lag(x: np.ndarray, tau_s: float, step_s: float = STEP_S) -> np.ndarray:
+    """First-order lag along axis 0 in steps of `step_s` (exact for inputs held over each step), from rest."""
     if tau_s <= 0:
         return x
-    a = math.exp(-STEP_S / tau_s)
+    a = math.exp(-step_s / tau_s)
     return np.asarray(lfilter([1.0 - a], [1.0, -a], x, axis=0))
+
+
+def _unseparated(lo: float, hi: float) -> str:
+    """Why the motors' lag is unidentified where its interval spans [lo, hi] s."""
+    return (
+        f"the transients leave the motors' own lag between {lo:.3g} and {hi:.3g} s (a spread beyond a factor "
+        f"of {MOTOR_LAG_MAX_SPREAD:g}): it is part of effective.drive_lag_s; steps of several sizes against a "
+        "binding acceleration limit would separate it"
+    )
 
 
 def _transient_costs(
@@ -353,14 +362,6 @@ def _slew(target: np.ndarray, step: float) -> np.ndarray:
     return out
 
 
-def _lag_at(x: np.ndarray, tau_s: float, step_s: float) -> np.ndarray:
-    """First-order lag along axis 0 in steps of `step_s` (exact for inputs held over each step), from rest."""
-    if tau_s <= 0:
-        return x
-    a = math.exp(-step_s / tau_s)
-    return np.asarray(lfilter([1.0 - a], [1.0, -a], x, axis=0))
-
-
 def _chain_residuals(
     s: _Samples, delay: float, deadband: float, driver_s: float, motor_s: float, accel: float
 ) -> np.ndarray:
@@ -372,9 +373,9 @@ def _chain_residuals(
     n = math.ceil(float(s.t_s.max()) / h) + 1
     times = np.arange(n + 1) * h
     commanded = _commanded_integral(s, times - delay)
-    target = _lag_at(np.diff(commanded, axis=0) / h, driver_s, h)
+    target = _lag(np.diff(commanded, axis=0) / h, driver_s, h)
     target = np.where(np.abs(target) < deadband, 0.0, target)
-    wheel = np.r_[np.zeros((1, 2)), _lag_at(_slew(target, accel * h), motor_s, h)]
+    wheel = np.r_[np.zeros((1, 2)), _lag(_slew(target, accel * h), motor_s, h)]
     travelled = np.r_[np.zeros((1, 2)), np.cumsum((wheel[1:] + wheel[:-1]) / 2 * h, axis=0)]
 
     def at(t: np.ndarray) -> np.ndarray:
@@ -386,11 +387,12 @@ def _chain_residuals(
 @dataclass(frozen=True)
 class _Refined:
     """The delay, the lags (driver, motor) and the limit fitted between the grid's values (`values`, the delay in s
-    and the rest as logs), each robot-episode's residuals and their Jacobian there."""
+    and the rest as logs), and each robot-episode's part of the least-squares normal equations there: J^T J
+    (episodes, k, k) and J^T r (episodes, k) of its residuals r and their Jacobian J."""
 
     values: np.ndarray
-    jacobians: list[np.ndarray]
-    residuals: list[np.ndarray]
+    normal: np.ndarray
+    gradient: np.ndarray
 
 
 REFINE_STEPS = (0.2, 0.02, 0.02, 0.02)
@@ -420,14 +422,16 @@ def _refine(samples: Sequence[_Samples], deadband: float, start: tuple[float, fl
     jacobians = [
         np.stack([(mv[e] - base[e]) / REFINE_STEPS[i] for i, mv in enumerate(moved)], axis=1) for e in range(len(base))
     ]
-    return _Refined(np.r_[x[0] * STEP_S, x[1:]], jacobians, base)
+    normal = np.stack([j.T @ j for j in jacobians])
+    gradient = np.stack([j.T @ r for j, r in zip(jacobians, base, strict=True)])
+    return _Refined(np.r_[x[0] * STEP_S, x[1:]], normal, gradient)
 
 
 def _refined_draw(r: _Refined, weights: np.ndarray) -> np.ndarray:
     """(delay, driver lag, motor lag) of one bootstrap draw: the fit moved by the linearized least-squares step of
     the draw's weights; NaN where the step is singular or leaves the linear neighbourhood."""
-    h = sum(w * j.T @ j for w, j in zip(weights, r.jacobians, strict=True) if w)
-    g = sum(w * j.T @ res for w, j, res in zip(weights, r.jacobians, r.residuals, strict=True) if w)
+    h = np.tensordot(weights, r.normal, axes=1)
+    g = np.tensordot(weights, r.gradient, axes=1)
     try:
         step = -np.linalg.solve(h, g)
     except np.linalg.LinAlgError:
@@ -602,7 +606,7 @@ def _refined_estimates(
     (:func:`_refined_draw`; the lags' widened by the small-sample factor) and the grid's, stretched to hold the
     value: the refinement moves the point off the grid, the grid's intervals already allow for a chain that is not
     exactly the robot's."""
-    episodes = len(r.residuals)
+    episodes = len(r.normal)
     draws = bootstrap(lambda w: _refined_draw(r, w), episodes, settings.bootstrap, rng)
     good = draws[np.all(np.isfinite(draws), axis=1)]
     if len(good) < 0.9 * len(draws):
@@ -617,21 +621,16 @@ def _refined_estimates(
         lo, hi = (float(x) for x in np.percentile(good[:, column], [2.5, 97.5]))
         if column:
             lo, hi = _widened(v, lo, hi, episodes)
-        assert grid.interval is not None  # an identified grid estimate has one
-        lo, hi = min(lo, grid.interval[0], v), max(hi, grid.interval[1], v)
+        grid_lo, grid_hi = grid.interval or (v, v)
+        lo, hi = min(lo, grid_lo, v), max(hi, grid_hi, v)
         method = (
             f"{grid.method}; then least squares between the grid's values, the interval also holding a one-step "
             f"bootstrap's about it"
         )
-        out.append(Estimate.of(v, float(np.std(good[:, column], ddof=1)), (lo, hi), "s", method, n))
-    delay, driver, motor = out
-    assert motor.interval is not None
-    if motor.interval[1] > MOTOR_LAG_MAX_SPREAD * motor.interval[0]:
-        reason = (
-            f"the transients leave the motors' own lag between {motor.interval[0]:.3g} and {motor.interval[1]:.3g} "
-            f"s (a spread beyond a factor of {MOTOR_LAG_MAX_SPREAD:g}): it is part of effective.drive_lag_s; steps "
-            "of several sizes against a binding acceleration limit would separate it"
-        )
+        out.append((Estimate.of(v, float(np.std(good[:, column], ddof=1)), (lo, hi), "s", method, n), (lo, hi)))
+    (delay, _), (driver, _), (motor, (lo, hi)) = out
+    if hi > MOTOR_LAG_MAX_SPREAD * lo:
+        reason = _unseparated(lo, hi)
         return delay, Estimate.unidentifiable(reason, "s"), Estimate.unidentifiable(reason, "s")
     return delay, driver, motor
 
@@ -717,12 +716,7 @@ def _motor_lag(best: np.ndarray, draws: np.ndarray, n: int, episodes: int) -> Es
     hi = float(np.percentile(motor + half_step, 97.5))
     lo, hi = _widened(value, lo, hi, episodes)
     if hi > MOTOR_LAG_MAX_SPREAD * lo:
-        return Estimate.unidentifiable(
-            f"the transients leave the motors' own lag between {lo:.3g} and {hi:.3g} s (a spread beyond a factor "
-            f"of {MOTOR_LAG_MAX_SPREAD:g}): it is part of effective.drive_lag_s; steps of several sizes against a "
-            "binding acceleration limit would separate it",
-            "s",
-        )
+        return Estimate.unidentifiable(_unseparated(lo, hi), "s")
     method = (
         "transients of the wheel speeds: the motor's share of the total lag; bootstrap over "
         f"{episodes} robot-episodes, widened by half a share step and the small-sample factor "
