@@ -18,7 +18,11 @@ kept no record). ``network.jitter_s`` is scored against
 the jitter the twin's link realized on that run (`REALIZED`): the twin records each stamped message's hand-over
 (``--link-record``) and calibration's pair rule reads those deliveries at the sender, free of the recorder's side; a
 busy twin realizes less than its profile's jitter (benchmarks/twin_link_jitter.py), and the profile's value is in the
-CSV beside it (``profile_truth``). ``odometry.drift_per_m`` keeps the profile's truth (the random part of the
+CSV beside it (``profile_truth``). ``actuation.delay_s`` (the delay from a command's time in the recording to its
+effect at the wheels: the simulator has no command path of its own, so its delay holds the path's) is scored against
+the profile's driver delay plus the command path's mean latency realized on the run (:func:`command_path_s`: the
+recorded commands against when the twin's driver took them); the profile's driver delay alone is ``profile_truth``.
+``odometry.drift_per_m`` keeps the profile's truth (the random part of the
 odometry's errors; the systematic part of wheels unlike the odometry's nominal ones widens its interval). A low
 coverage says the simulator's model does not contain the twin's: it is reported, not hidden. --ranges wide
 (the default) draws from `pipeline.twin.draw.WIDE_RANGES`, the ranges of real robots; --ranges drawn from the
@@ -26,7 +30,9 @@ sim2real benchmark's narrower ones.
 
 --keep DIR keeps each profile and recording (``drawn_<seed>.yaml``, ``drawn_<seed>.mcap``);
 --recalibrate DIR deploys nothing and calibrates the recordings a --keep run left there again (to
-measure a change of the calibration on the same data); with --parts only those parts of calibration run and
+measure a change of the calibration on the same data); --pool CSV... deploys and calibrates nothing and prints the
+summary over several runs' rows (other profiles: more drawn robots), a key scored against different truths in
+different runs summarized per truth; with --parts only those parts of calibration run and
 their keys are scored (e.g. ``--parts lidar``: seconds per recording).
 
 ``clock.offset_s`` is reported unidentifiable on a time-scaled twin (the recorder follows ``/clock``) and is
@@ -55,7 +61,9 @@ from pipeline.calibration.actuation import CommandTimeline, estimate_actuation
 from pipeline.calibration.calibrate import DriveRecord, drive_record
 from pipeline.calibration.network import pair_rule
 from pipeline.calibration.options import PARTS, CalibrationSettings, Part
+from pipeline.calibration.recording import SessionData
 from pipeline.core.scenario import load_scenario
+from pipeline.core.timebase import NS_PER_S
 from pipeline.policy.excitation import ExcitationDrive
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
@@ -100,8 +108,14 @@ REPLAYED = {
     "actuation.angular_gain": "angular_gain",
 }
 """The keys scored against the drive model's fit to the reality's own drive replayed (key: the drive fit's field)."""
-REALIZED = ("network.jitter_s",)
-"""The keys scored against what the twin realized on the run (its link's recorded deliveries)."""
+REALIZED = ("network.jitter_s", "actuation.delay_s")
+"""The keys scored against what the twin realized on the run (its link's recorded deliveries; the commands as its
+driver took them)."""
+MATCH_WINDOW_S = 0.5
+"""A recorded command is matched to the first command of the same values that the twin's driver took after it and
+before the robot's next recorded command (within this long at most): a later one of the same values is the next
+command's arrival where this one was lost among held commands. One with none is left out of the path's mean (a
+latency longer than the commands' period is not told from a loss)."""
 SENSOR_KINDS = ("/ground_truth", "/odom", "/scan")
 """The topics calibration reads the network from."""
 
@@ -141,6 +155,33 @@ def applied_commands(deliveries: Path) -> dict[str, CommandTimeline] | None:
         str(name): CommandTimeline(t[robot == name], np.stack([v[robot == name], w[robot == name]], axis=1))
         for name in np.unique(robot)
     }
+
+
+def command_path_s(session: SessionData, applied: dict[str, CommandTimeline]) -> tuple[float, int] | None:
+    """The mean latency (s) of the commands' path as the twin realized it, and the number of commands it is the mean
+    of: from each command's time in the recording (what calibration reads the delay from) to when the twin's driver
+    took it (`applied`, its record), matched per robot as `MATCH_WINDOW_S` says. The mean, not the median: a single
+    delay fitted to responses under a varying latency reads (to first order) its mean. None where no command
+    matches."""
+    gaps: list[np.ndarray] = []
+    window = round(MATCH_WINDOW_S * NS_PER_S)
+    for robot in session.robots:
+        taken, sent = applied.get(robot.name), robot.commands
+        if taken is None or sent is None or not len(sent.t_ns) or not len(taken.t_ns):
+            continue
+        values = np.stack([sent.v, sent.w], axis=1)
+        first = np.searchsorted(taken.t_ns, sent.t_ns, side="left")
+        gap = np.full(len(sent.t_ns), -1, dtype=np.int64)
+        ends = np.minimum(np.append(sent.t_ns[1:], np.iinfo(np.int64).max), sent.t_ns + window)
+        for i, (t, k) in enumerate(zip(sent.t_ns, first, strict=True)):
+            while k < len(taken.t_ns) and taken.t_ns[k] < ends[i]:
+                if np.array_equal(taken.values[k], values[i]):
+                    gap[i] = taken.t_ns[k] - t
+                    break
+                k += 1
+        gaps.append(gap[gap >= 0])
+    matched = np.concatenate(gaps) if gaps else np.zeros(0, dtype=np.int64)
+    return (float(np.mean(matched)) / NS_PER_S, len(matched)) if len(matched) else None
 
 
 def drive_replayed(
@@ -241,10 +282,19 @@ def main() -> int:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--keep", type=Path, help="keep profiles and recordings in this folder")
     where.add_argument("--recalibrate", type=Path, help="calibrate the recordings of a --keep run again")
+    where.add_argument(
+        "--pool",
+        type=Path,
+        nargs="+",
+        metavar="CSV",
+        help="deploy and calibrate nothing: the summary over the rows of these runs' CSVs together (other profiles)",
+    )
     parser.add_argument(
         "--parts", nargs="+", choices=PARTS, default=list(PARTS), help="with --recalibrate: the parts calibrated"
     )
     args = parser.parse_args()
+    if args.pool is not None:
+        return _pool(args.pool)
     if args.recalibrate is None and list(args.parts) != list(PARTS):
         print("calibration_coverage: --parts goes with --recalibrate (a deployment is calibrated whole)")
         return 2
@@ -317,8 +367,18 @@ def _scored(
     settings = CalibrationSettings(bootstrap=200, seed=seed, parts=parts)
     cal = calibrate(recording, settings)
     deliveries = recording.with_suffix(".link.npz")
-    replayed = drive_truths(recording, profile_file, settings, deliveries) if "actuation" in parts else {}
-    realized = {"network.jitter_s": realized_jitter(deliveries)} if deliveries.is_file() else {}
+    realized: dict[str, float | None] = {}
+    replayed: dict[str, float | None] = {}
+    if "actuation" in parts:
+        drive = drive_replayed(recording, profile_file, settings, deliveries)
+        replayed = drive_truths(recording, profile_file, settings, deliveries, drive)
+        applied = applied_commands(deliveries) if deliveries.is_file() else None
+        path = command_path_s(drive[0].sessions[0], applied) if applied else None
+        delay = truth_of(mapping, "actuation.delay_s")
+        if path is not None and delay is not None:
+            realized["actuation.delay_s"] = delay + path[0]
+    if deliveries.is_file():
+        realized["network.jitter_s"] = realized_jitter(deliveries)
     rows: list[dict[str, object]] = []
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]
     scored += [(f"effective.{name}", value.estimate, None) for name, value in cal.effective.items()]
@@ -375,23 +435,57 @@ def _recalibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pool(files: list[Path]) -> int:
+    """The summary over several runs' rows (their profiles must differ: a profile in two files is refused)."""
+    rows: list[dict[str, object]] = []
+    seen: dict[str, Path] = {}
+    for path in files:
+        if not path.is_file():
+            print(f"calibration_coverage: --pool: {path} does not exist")
+            return 2
+        with path.open(newline="") as f:
+            mine = list(csv.DictReader(f))
+        if not mine or set(COLUMNS) - set(mine[0]):
+            print(f"calibration_coverage: --pool: {path} is not a coverage CSV (columns: {', '.join(COLUMNS)})")
+            return 2
+        for profile in sorted({str(r["profile"]) for r in mine}):
+            if profile in seen:
+                print(f"calibration_coverage: --pool: profile {profile} is in both {seen[profile]} and {path}")
+                return 2
+            seen[profile] = path
+        rows += [{k: v for k, v in r.items() if v != ""} for r in mine]
+    print(f"{len(seen)} profiles from {len(files)} runs")
+    summary(rows)
+    return 0
+
+
 def summary(rows: list[dict[str, object]]) -> None:
     """Per key: how often it was identified, its interval's coverage of the truth and its median relative error;
     the verdict against the targets (every key >= 90 % covered; identifiable keys within 15 % in the median)."""
     keys = list(dict.fromkeys(str(r["key"]) for r in rows))
+    truths = {key: {str(r.get("truth_of", "profile")) for r in rows if r["key"] == key} for key in keys}
+    if any(len(t) > 1 for t in truths.values()):  # pooled runs that scored a key against different truths
+        keys = [f"{key} ({t})" if len(truths[key]) > 1 else key for key in keys for t in sorted(truths[key])]
+        rows = [
+            {**r, "key": f"{r['key']} ({r.get('truth_of', 'profile')})"} if len(truths[str(r["key"])]) > 1 else r
+            for r in rows
+        ]
     print(f"{'key':34s} {'kind':10s} {'identified':>10s} {'coverage':>8s} {'med rel err':>11s} {'med half-width':>14s}")
     worst, at_target, counted, close, identifiable = 1.0, 0, 0, 0, 0
     for key in keys:
         mine = [r for r in rows if r["key"] == key]
         ok = [r for r in mine if "covered" in r]
         realized = any(r.get("truth_of") == "realized" for r in mine)
-        kind = "replayed" if key in REPLAYED else "realized" if realized else "effective" if key in EFFECTIVE else (
-            "identif." if key in IDENTIFIABLE or "box" in key else "other"
+        base = key.split(" ")[0]
+        kind = "replayed" if base in REPLAYED else "effective" if base in EFFECTIVE else (
+            "identif." if base in IDENTIFIABLE or "box" in base else "other"
         )  # fmt: skip
+        if realized:  # an identifiable key scored against what the run realized stays identifiable
+            kind = "realized" if kind != "identif." else "identif.r"
         if not ok:
             print(f"{key:34s} {kind:10s} {0:>4d}/{len(mine):<5d} {'-':>8s}")
             continue
-        cov = float(np.mean([r["covered"] for r in ok]))
+        cov = float(np.mean([int(r["covered"]) for r in ok]))  # type: ignore[call-overload]
         rel = [float(r["rel_error"]) for r in ok if math.isfinite(float(r["rel_error"]))]  # type: ignore[arg-type]
         half = float(np.median([(float(r["high"]) - float(r["low"])) / 2 for r in ok]))  # type: ignore[arg-type]
         med = f"{np.median(rel):.3f}" if rel else "-"
@@ -399,7 +493,7 @@ def summary(rows: list[dict[str, object]]) -> None:
         worst = min(worst, cov)
         counted += 1
         at_target += cov >= 0.9
-        if kind == "identif." and rel:
+        if kind.startswith("identif.") and rel:
             identifiable += 1
             close += float(np.median(rel)) <= 0.15
     print(

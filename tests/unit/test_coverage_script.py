@@ -10,8 +10,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_coverage import _jumped, summary, truth_of  # noqa: E402
+from calibration_coverage import _jumped, command_path_s, summary, truth_of  # noqa: E402
 
+from pipeline.calibration.actuation import CommandTimeline  # noqa: E402
 from pipeline.twin.draw import draw_profile_mapping  # noqa: E402
 
 
@@ -88,3 +89,59 @@ def test_the_progress_line_names_the_stalls_the_twin_jumped(tmp_path: Path) -> N
     np.savez(older, cmd_ns=np.zeros(0, np.int64))  # a record from before jumps were recorded
     assert _jumped(quiet) == _jumped(older) == _jumped(tmp_path / "absent.npz") == ""
     assert _jumped(stalled) == "; the twin jumped 2 host stall(s), 2.25 s frozen"
+
+
+def test_the_command_paths_latency_is_read_from_the_twins_record() -> None:
+    """Held commands repeat the same values: each recorded one is matched to its own arrival, a lost one to none."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    n = 600
+    sent_ns = np.arange(n, dtype=np.int64) * 100_000_000 + 7
+    v = np.repeat(rng.uniform(-0.3, 0.3, n // 20), 20)  # held for 2 s at 10 Hz
+    w = np.repeat(rng.uniform(-1.0, 1.0, n // 20), 20)
+    latency = rng.exponential(0.010, n) + 0.002  # a busy host's path: mean 12 ms
+    taken = np.sort(sent_ns + np.round(latency * 1e9).astype(np.int64))
+    kept = np.ones(n, dtype=bool)
+    kept[[40, 41, 300]] = False  # lost on the way (two inside a held block)
+    applied = {"tb1": CommandTimeline(taken[kept], np.stack([v, w], axis=1)[kept])}
+    robot = SimpleNamespace(name="tb1", commands=SimpleNamespace(t_ns=sent_ns, v=v, w=w))
+    other = SimpleNamespace(name="tb2", commands=None)
+    path = command_path_s(SimpleNamespace(robots=[robot, other]), applied)  # type: ignore[arg-type]
+    assert path is not None
+    mean_s, matched = path
+    assert matched == n - 3
+    assert mean_s == pytest.approx(float(np.mean(latency[kept])), abs=2e-6)
+    assert command_path_s(SimpleNamespace(robots=[other]), applied) is None  # type: ignore[arg-type]
+
+
+def test_pooled_runs_keep_a_key_scored_against_different_truths_apart(capsys: pytest.CaptureFixture[str]) -> None:
+    """An identifiable key scored against what the run realized stays identifiable; runs that scored it against
+    the profile and the realization are summarized apart, never mixed."""
+    rows: list[dict[str, object]] = []
+    for p in range(10):
+        common = {"covered": 1, "low": 0.0, "high": 0.1}
+        rows.append({"key": "actuation.delay_s", "truth_of": "profile", "rel_error": 0.2, **common})
+        rows.append({"key": "actuation.delay_s", "truth_of": "realized", "rel_error": 0.05, **common})
+        rows.append({"key": "lidar.bias_m", "truth_of": "profile", "rel_error": 0.01, **common, "covered": int(p > 0)})
+    summary(rows)
+    out = capsys.readouterr().out
+    lines = {line.split("  ")[0]: line for line in out.splitlines()}
+    assert "identif.r" in lines["actuation.delay_s (realized)"] and "0.050" in lines["actuation.delay_s (realized)"]
+    assert "0.200" in lines["actuation.delay_s (profile)"] and "lidar.bias_m" in lines
+    assert "keys_at_target=3/3 identifiable_within_15pct=2/3" in out
+
+
+def test_pooling_refuses_a_profile_counted_twice(tmp_path: Path) -> None:
+    header = "profile,key,truth,truth_of,profile_truth,value,low,high,covered,rel_error\n"
+    row = "100,lidar.bias_m,0.01,profile,0.01,0.011,0.009,0.012,1,0.1\n"
+    first, second = tmp_path / "a.csv", tmp_path / "b.csv"
+    first.write_text(header + row)
+    second.write_text(header + row.replace("100,", "101,", 1))
+    script = str(ROOT / "benchmarks" / "calibration_coverage.py")
+    ok = subprocess.run([sys.executable, script, "--pool", str(first), str(second)], capture_output=True, text=True)
+    assert ok.returncode == 0 and "2 profiles from 2 runs" in ok.stdout, ok.stdout + ok.stderr
+    again = subprocess.run([sys.executable, script, "--pool", str(first), str(first)], capture_output=True, text=True)
+    assert again.returncode == 2 and "profile 100 is in both" in again.stdout and "Traceback" not in again.stderr
