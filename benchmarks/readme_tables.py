@@ -299,22 +299,36 @@ masked its beams in the fitted room."""
 COVERAGE_EXCITATION_FINE_REFINED = "calibration_coverage/excitation_fine_refined"
 """Those recordings calibrated again after the drive chain's lags were read between the transients' grid values and
 the dropout interval took the spans' design effect."""
+COVERAGE_EXCITATION_FINE_MORE = "calibration_coverage/excitation_fine_120"
+"""20 more realities under the calibration drive, with the command path's realized latency in the delay's truth."""
+COVERAGE_EXCITATION_FINE_40 = "calibration_coverage/excitation_fine_40"
+"""The refined run's 20 robots and those 20 pooled (``--pool``): 40 drawn robots."""
 
 
 def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """A coverage run's record and rows; a pooled folder (``--pool``) holds its runs' folders under ``pooled``."""
     import csv
 
     folder = RESULTS / name
-    with (folder / "coverage.csv").open(newline="", encoding="utf-8") as f:
-        rows = list(csv.DictReader(f))
-    return run_of(folder), rows
+    run = run_of(folder)
+    rows: list[dict[str, Any]] = []
+    for source in [folder / part for part in run.get("pooled", [])] or [folder]:
+        with (source / "coverage.csv").open(newline="", encoding="utf-8") as f:
+            rows += list(csv.DictReader(f))
+    return run, rows
 
 
 def _coverage_table(name: str = COVERAGE) -> list[tuple[str, int, int, float, float]]:
-    """Per key: (key, identified, profiles, coverage, median relative error)."""
+    """Per key: (key, identified, profiles, coverage, median relative error); a key that pooled runs scored against
+    different truths is one line per truth, as the benchmark's summary has it."""
     _, rows = _coverage_rows(name)
+    truths: dict[str, set[str]] = {}
+    for r in rows:
+        truths.setdefault(r["key"], set()).add(r["truth_of"])
+    keys = [f"{key} ({t})" if len(truths[key]) > 1 else key for key in truths for t in sorted(truths[key])]
+    rows = [{**r, "key": f"{r['key']} ({r['truth_of']})"} if len(truths[r["key"]]) > 1 else r for r in rows]
     out = []
-    for key in dict.fromkeys(r["key"] for r in rows):
+    for key in keys:
         mine = [r for r in rows if r["key"] == key]
         ok = [r for r in mine if r["covered"] != ""]
         if not ok:
@@ -337,8 +351,9 @@ def coverage_docs(name: str = COVERAGE) -> str:
     link = f"../benchmarks/results/{name}"
     counts = _coverage_counts(name)
     lines = [
-        f"Measured with `{run['command']}` ([run.json]({link}/run.json), [coverage.csv]({link}/coverage.csv)); "
-        f"keys at >= 90 %: {counts['keys_at_target']}, identifiable keys within 15 %: "
+        f"Measured with `{run['command']}` ([run.json]({link}/run.json), "
+        + (f"[summary.txt]({link}/summary.txt)); " if run.get("pooled") else f"[coverage.csv]({link}/coverage.csv)); ")
+        + f"keys at >= 90 %: {counts['keys_at_target']}, identifiable keys within 15 %: "
         f"{counts['identifiable_within_15pct']}:",
         "",
         "| key | identified | coverage of the 95 % interval | median relative error |",
@@ -380,6 +395,14 @@ def coverage_excitation_fine_refined_docs() -> str:
     return coverage_docs(COVERAGE_EXCITATION_FINE_REFINED)
 
 
+def coverage_excitation_fine_more_docs() -> str:
+    return coverage_docs(COVERAGE_EXCITATION_FINE_MORE)
+
+
+def coverage_excitation_fine_40_docs() -> str:
+    return coverage_docs(COVERAGE_EXCITATION_FINE_40)
+
+
 def _coverage_line(name: str) -> str:
     """How many keys are at target, the least covered, identifiable keys within 15 %."""
     table = [t for t in _coverage_table(name) if t[1]]
@@ -402,11 +425,12 @@ def coverage() -> str:
         f"`{rescored['command']}`; [docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)). "
         "Driven by the policy: "
         + _coverage_line(COVERAGE_RESCORED)
-        + ". Driven by the calibration drive with turns of every size (recorded at "
-        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE)['commit']}, calibrated again at "
-        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE_REFINED)['commit']}): "
-        + _coverage_line(COVERAGE_EXCITATION_FINE_REFINED)
-        + "."
+        + ". Driven by the calibration drive with turns of every size, 40 realities (20 recorded at "
+        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE)['commit']} and calibrated again at "
+        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE_REFINED)['commit']}, 20 more with `--seed 120` at "
+        + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE_MORE)['commit']}, pooled with `--pool`; the driver's delay "
+        "scored against the profile's in the first 20 and with the command path the twin realized in the second, two "
+        "lines): " + _coverage_line(COVERAGE_EXCITATION_FINE_40) + "."
     )
 
 
@@ -749,6 +773,8 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage-excitation-fine-rescored-docs": coverage_excitation_fine_rescored_docs,
     "coverage-excitation-fine-arc-docs": coverage_excitation_fine_arc_docs,
     "coverage-excitation-fine-refined-docs": coverage_excitation_fine_refined_docs,
+    "coverage-excitation-fine-more-docs": coverage_excitation_fine_more_docs,
+    "coverage-excitation-fine-40-docs": coverage_excitation_fine_40_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
