@@ -145,3 +145,16 @@ def test_pooling_refuses_a_profile_counted_twice(tmp_path: Path) -> None:
     assert ok.returncode == 0 and "2 profiles from 2 runs" in ok.stdout, ok.stdout + ok.stderr
     again = subprocess.run([sys.executable, script, "--pool", str(first), str(first)], capture_output=True, text=True)
     assert again.returncode == 2 and "profile 100 is in both" in again.stdout and "Traceback" not in again.stderr
+
+
+def test_pooling_names_a_missing_file_and_a_csv_that_is_not_a_coverage_run(tmp_path: Path) -> None:
+    script = str(ROOT / "benchmarks" / "calibration_coverage.py")
+    absent = subprocess.run(
+        [sys.executable, script, "--pool", str(tmp_path / "none.csv")], capture_output=True, text=True
+    )
+    assert absent.returncode == 2 and "none.csv does not exist" in absent.stdout and "Traceback" not in absent.stderr
+    other = tmp_path / "other.csv"
+    other.write_text("profile,key\n100,lidar.bias_m\n")
+    wrong = subprocess.run([sys.executable, script, "--pool", str(other)], capture_output=True, text=True)
+    assert wrong.returncode == 2 and "other.csv is not a coverage CSV" in wrong.stdout, wrong.stdout + wrong.stderr
+    assert "Traceback" not in wrong.stderr
