@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from coverage_keys import split_by_truth
 from drive_replay import ReplayedDrive, replay_drive, replayed_tracks
 
 from pipeline.calibration import calibrate
@@ -462,14 +463,7 @@ def _pool(files: list[Path]) -> int:
 def summary(rows: list[dict[str, object]]) -> None:
     """Per key: how often it was identified, its interval's coverage of the truth and its median relative error;
     the verdict against the targets (every key >= 90 % covered; identifiable keys within 15 % in the median)."""
-    keys = list(dict.fromkeys(str(r["key"]) for r in rows))
-    truths = {key: {str(r.get("truth_of", "profile")) for r in rows if r["key"] == key} for key in keys}
-    if any(len(t) > 1 for t in truths.values()):  # pooled runs that scored a key against different truths
-        keys = [f"{key} ({t})" if len(truths[key]) > 1 else key for key in keys for t in sorted(truths[key])]
-        rows = [
-            {**r, "key": f"{r['key']} ({r.get('truth_of', 'profile')})"} if len(truths[str(r["key"])]) > 1 else r
-            for r in rows
-        ]
+    keys, rows = split_by_truth(rows)  # pooled runs that scored a key against different truths: one line per truth
     print(f"{'key':34s} {'kind':10s} {'identified':>10s} {'coverage':>8s} {'med rel err':>11s} {'med half-width':>14s}")
     worst, at_target, counted, close, identifiable = 1.0, 0, 0, 0, 0
     for key in keys:

@@ -29,6 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from coverage_keys import split_by_truth  # noqa: E402
+
 from pipeline.core.stats import newcombe_interval  # noqa: E402
 from pipeline.params import read_calibration_file  # noqa: E402
 from pipeline.record.results import SessionMetrics, read_session_metrics  # noqa: E402
@@ -322,11 +324,7 @@ def _coverage_table(name: str = COVERAGE) -> list[tuple[str, int, int, float, fl
     """Per key: (key, identified, profiles, coverage, median relative error); a key that pooled runs scored against
     different truths is one line per truth, as the benchmark's summary has it."""
     _, rows = _coverage_rows(name)
-    truths: dict[str, set[str]] = {}
-    for r in rows:
-        truths.setdefault(r["key"], set()).add(r["truth_of"])
-    keys = [f"{key} ({t})" if len(truths[key]) > 1 else key for key in truths for t in sorted(truths[key])]
-    rows = [{**r, "key": f"{r['key']} ({r['truth_of']})"} if len(truths[r["key"]]) > 1 else r for r in rows]
+    keys, rows = split_by_truth(rows)
     out = []
     for key in keys:
         mine = [r for r in rows if r["key"] == key]
