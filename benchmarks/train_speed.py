@@ -24,6 +24,7 @@ import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -58,20 +59,45 @@ def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: 
         return rounds * n_envs / (time.perf_counter() - t0)
 
 
-def sac_gradient_step_ms(update: str, k: int, steps: int = 200) -> float:
+def _timed_steps_ms(run: Callable[[int], None], steps: int, device: str) -> float:
+    """Milliseconds per call of ``run(1)`` over `steps` calls after 10 warm-up calls (the device's queue drained
+    before each clock reading)."""
+    import torch as th
+
+    def drained() -> float:
+        if device != "cpu":
+            th.cuda.synchronize()
+        return time.perf_counter()
+
+    run(10)
+    t0 = drained()
+    run(steps)
+    return 1e3 * (drained() - t0) / steps
+
+
+def _device_ready(device: str) -> None:
+    import torch as th
+
+    if device != "cpu" and not th.cuda.is_available():
+        raise SystemExit(f"train_speed: --gradient-devices {device}: torch {th.__version__} sees no CUDA GPU here")
+
+
+def sac_gradient_step_ms(update: str, k: int, steps: int = 200, device: str = "cpu") -> float:
     """Milliseconds per SAC gradient step of `k` learners together (params.yaml's network and batch, one torch
-    thread, a replay of random transitions): SB3's ``SAC.train`` per learner (`library`) or one batched pass."""
+    thread, a replay of random transitions, the networks on `device`): SB3's ``SAC.train`` per learner (`library`)
+    or one batched pass."""
     import dataclasses
 
     import gymnasium
     import torch as th
 
+    _device_ready(device)
     th.set_num_threads(1)
     cfg = load_params().train
     cfg = dataclasses.replace(cfg, algorithm="sac", sac=dataclasses.replace(cfg.sac, update=update))
     obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (21,), np.float32)
     act_space = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
-    group = learners.build_learners(cfg, obs_space, act_space, 8, k)
+    group = learners.build_learners(cfg, obs_space, act_space, 8, k, device=device)
     rng = np.random.default_rng(0)
     n = 2 * cfg.batch_size
     if update == "batched":
@@ -97,10 +123,53 @@ def sac_gradient_step_ms(update: str, k: int, steps: int = 200) -> float:
             for learner in group:
                 learner.model.train(gradient_steps=m, batch_size=cfg.batch_size)  # type: ignore[union-attr]
 
-    run(10)
-    t0 = time.perf_counter()
-    run(steps)
-    return 1e3 * (time.perf_counter() - t0) / steps
+    return _timed_steps_ms(run, steps, device)
+
+
+def dqn_gradient_step_ms(k: int, steps: int = 200, device: str = "cpu") -> float:
+    """Milliseconds per DQN gradient step of `k` learners, one after another (params.yaml's network, batch, dueling
+    heads and prioritized replay, one torch thread, a replay of random transitions, the networks on `device`)."""
+    import gymnasium
+    import torch as th
+
+    _device_ready(device)
+    th.set_num_threads(1)
+    params = load_params()
+    cfg = replace(params.train, algorithm="dqn")
+    obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (21,), np.float32)
+    act_space = gymnasium.spaces.Discrete(len(params.world.actions.discrete_set))
+    group = learners.build_learners(cfg, obs_space, act_space, 8, k, device=device)
+    rng = np.random.default_rng(0)
+    for learner in group:
+        for _ in range(2 * cfg.batch_size):
+            learner.model.store(  # type: ignore[union-attr]
+                rng.normal(size=21).astype(np.float32), rng.normal(size=21).astype(np.float32),
+                np.array(rng.integers(0, act_space.n)), float(rng.normal()), False, False,
+            )  # fmt: skip
+
+    def run(m: int) -> None:
+        for learner in group:
+            learner.model.train(gradient_steps=m, batch_size=cfg.batch_size)  # type: ignore[union-attr]
+
+    return _timed_steps_ms(run, steps, device)
+
+
+def gradient_bounds(device: str, updates_per_transition: float, n_robots: int) -> list[str]:
+    """Per algorithm and mode, the gradient step on `device` and the updates-only bound it sets: the world steps
+    per second (summed over the worlds) if nothing but the gradient steps took time. Per world step, independent
+    mode's every learner takes `updates_per_transition` steps (SAC's in one batched pass of all of them), shared
+    mode's one learner `n_robots` times as many (its transitions are every robot's)."""
+    rows = []
+    u = updates_per_transition
+    for label, ms, per_world_step in (
+        ("sac[batched]/independent", sac_gradient_step_ms("batched", n_robots, device=device), u),
+        ("sac[batched]/shared", sac_gradient_step_ms("batched", 1, device=device), n_robots * u),
+        ("dqn/independent or shared", dqn_gradient_step_ms(1, device=device), n_robots * u),
+    ):
+        bound = 1e3 / (ms * per_world_step)
+        rows.append(f"{device:<5} {label:<26} {ms:>7.2f} ms per step, {per_world_step:g} per world step: "
+                    f"updates-only bound {bound:.0f} steps/s")  # fmt: skip
+    return rows
 
 
 SPENT: dict[str, float] = defaultdict(float)
@@ -196,11 +265,30 @@ def main() -> None:
         help="a sweep's settings file (benchmarks/sweeps/paper.yaml): its world and train keys for every trial and "
         "per algorithm, but the budget, evaluations and workers, which this script sets",
     )
+    parser.add_argument(
+        "--gradient-devices",
+        nargs="+",
+        default=["cpu"],
+        choices=["cpu", "cuda"],
+        help="where to time the gradient steps alone and the updates-only bound they set (cuda: a CUDA GPU)",
+    )
+    parser.add_argument(
+        "--gradient-only", action="store_true", help="only the gradient steps' rows, no worlds and no training runs"
+    )
     args = parser.parse_args()
     common: list[tuple[str, Any]] = []
     scoped: list[tuple[str, str, Any]] = []
     if args.settings:
         common, scoped = read_settings_file(args.settings)
+    u = load_params().train.updates_per_transition
+    for key, value in [*common, *[(k, v) for a, k, v in scoped if a in ("sac", "dqn")]]:
+        if key == "train.updates_per_transition":
+            u = float(value)  # the paper's settings give both algorithms the same ratio
+    for device in args.gradient_devices:
+        for row in gradient_bounds(device, u, 3):
+            print(row, flush=True)
+    if args.gradient_only:
+        return
     n_envs = load_params().train.n_envs
     workers = args.world_workers or load_params().train.world_workers
     single = env_only_rate(args.scenario, "continuous", n_envs, args.steps, 0)

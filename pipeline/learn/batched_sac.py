@@ -24,7 +24,8 @@ them, here both losses see the critics of the start of the step (as most SAC imp
 The update schedule: `updates_per_transition` gradient steps per stored transition averaged over the
 learners (a learner's transitions count from its `learning_starts`-th on), every learner taking each
 step, once every learner has a batch. Same seed, same weights, to the bit (the batch indices and
-action noise come from a generator seeded by the training seed).
+action noise come from a generator seeded by the training seed). Replay, sampling and the steps run on the SB3
+models' device (training builds them on the CPU; a benchmark can build them on a CUDA GPU), to the bit on the CPU.
 """
 
 from __future__ import annotations
@@ -128,11 +129,14 @@ class BatchedSAC:
         self.critic = critic_stacks("critic")
         self.target = critic_stacks("critic_target")
         self.obs_dim = hidden[0][0].in_features
+        self.device = self.actor_hidden[0].weight.device
+        """Where the SB3 models live (their `device`); replay, sampling and the gradient steps run there too."""
+        device = self.device
 
         dims = self.act_dim
         self.learn_alpha = cfg.sac.ent_coef == 0.0
-        self.log_alpha = th.full((k,), math.log(cfg.sac.ent_coef_init), requires_grad=self.learn_alpha)
-        self.fixed_alpha = th.full((k,), float(cfg.sac.ent_coef))
+        self.log_alpha = th.full((k,), math.log(cfg.sac.ent_coef_init), device=device, requires_grad=self.learn_alpha)
+        self.fixed_alpha = th.full((k,), float(cfg.sac.ent_coef), device=device)
         self.target_entropy = -cfg.sac.target_entropy_scale * dims
         params = [t for s in (*self.actor_hidden, self.actor_head, *self.critic) for t in (s.weight, s.bias)]
         if self.learn_alpha:
@@ -145,15 +149,15 @@ class BatchedSAC:
 
         cap = max(int(cfg.buffer_size), cfg.batch_size)
         self.capacity = cap
-        self.obs = th.zeros(k, cap, self.obs_dim)
-        self.next_obs = th.zeros(k, cap, self.obs_dim)
-        self.actions = th.zeros(k, cap, dims)
-        self.rewards = th.zeros(k, cap)
-        self.terminated = th.zeros(k, cap)
+        self.obs = th.zeros(k, cap, self.obs_dim, device=device)
+        self.next_obs = th.zeros(k, cap, self.obs_dim, device=device)
+        self.actions = th.zeros(k, cap, dims, device=device)
+        self.rewards = th.zeros(k, cap, device=device)
+        self.terminated = th.zeros(k, cap, device=device)
         self.pos = np.zeros(k, dtype=np.int64)
         self.size = np.zeros(k, dtype=np.int64)
-        self.generator = th.Generator().manual_seed(int(seed))
-        self._rows = th.arange(k).unsqueeze(1)
+        self.generator = th.Generator(device=device).manual_seed(int(seed))
+        self._rows = th.arange(k, device=device).unsqueeze(1)
         self.gradient_steps = 0
         self.credit = 0.0
         """Gradient steps owed (updates_per_transition per counted transition, averaged over learners)."""
@@ -172,12 +176,13 @@ class BatchedSAC:
         n = len(obs)
         if n == 0:
             return
-        idx = th.from_numpy((self.pos[member] + np.arange(n)) % self.capacity)
-        self.obs[member, idx] = th.as_tensor(np.asarray(obs, dtype=np.float32))
-        self.next_obs[member, idx] = th.as_tensor(np.asarray(next_obs, dtype=np.float32))
-        self.actions[member, idx] = th.as_tensor(np.asarray(actions, dtype=np.float32).reshape(n, -1))
-        self.rewards[member, idx] = th.as_tensor(np.asarray(rewards, dtype=np.float32))
-        self.terminated[member, idx] = th.as_tensor(np.asarray(terminated, dtype=np.float32))
+        device = self.device
+        idx = th.from_numpy((self.pos[member] + np.arange(n)) % self.capacity).to(device)
+        self.obs[member, idx] = th.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
+        self.next_obs[member, idx] = th.as_tensor(np.asarray(next_obs, dtype=np.float32), device=device)
+        self.actions[member, idx] = th.as_tensor(np.asarray(actions, dtype=np.float32).reshape(n, -1), device=device)
+        self.rewards[member, idx] = th.as_tensor(np.asarray(rewards, dtype=np.float32), device=device)
+        self.terminated[member, idx] = th.as_tensor(np.asarray(terminated, dtype=np.float32), device=device)
         self.pos[member] = (self.pos[member] + n) % self.capacity
         self.size[member] = min(self.size[member] + n, self.capacity)
 
@@ -186,8 +191,8 @@ class BatchedSAC:
 
     def _sample(self) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
         b = self.cfg.batch_size
-        sizes = th.from_numpy(self.size).to(th.float64).unsqueeze(1)
-        idx = (th.rand((self.k, b), generator=self.generator, dtype=th.float64) * sizes).long()
+        sizes = th.from_numpy(self.size).to(self.device, th.float64).unsqueeze(1)
+        idx = (th.rand((self.k, b), generator=self.generator, dtype=th.float64, device=self.device) * sizes).long()
         rows = self._rows
         return (
             self.obs[rows, idx],
@@ -203,7 +208,7 @@ class BatchedSAC:
         (standard normal `noise` drawn from the generator unless given)."""
         mean, log_std = self._mean_log_std(obs)
         if noise is None:
-            noise = th.randn(mean.shape, generator=self.generator)
+            noise = th.randn(mean.shape, generator=self.generator, device=mean.device)
         action = th.tanh(mean + log_std.exp() * noise)
         log_prob = (-0.5 * noise.square() - log_std - _HALF_LOG_2PI).sum(-1)
         log_prob = log_prob - th.log(1.0 - action.square() + 1e-6).sum(-1)

@@ -344,8 +344,10 @@ def build_learner(
     action_space: gymnasium.Space[Any],
     n_streams: int,
     seed: int,
+    device: str = "cpu",
 ) -> OffPolicyLearner | OnPolicyLearner:
-    """A learner of `cfg.algorithm` for streams with these spaces."""
+    """A learner of `cfg.algorithm` for streams with these spaces, its networks on `device` (training uses the CPU;
+    ``benchmarks/train_speed.py --gradient-devices`` times gradient steps on a CUDA GPU too)."""
     if cfg.algorithm == "ppo":
         ppo = cfg.ppo
         env = SpacesVecEnv(observation_space, action_space, n_streams)
@@ -367,7 +369,7 @@ def build_learner(
                 **({"features_extractor_class": BoundsScaling} if cfg.observation_scaling == "bounds" else {}),
             },
             seed=seed,
-            device="cpu",
+            device=device,
             verbose=0,
         )
         model.begin(cfg.total_steps)
@@ -382,7 +384,7 @@ def build_learner(
         "train_freq": 1,
         "gradient_steps": 1,
         "seed": seed,
-        "device": "cpu",
+        "device": device,
         "verbose": 0,
     }
     off: LoopSAC | LoopDQN
@@ -427,11 +429,12 @@ def build_learners(
     action_space: gymnasium.Space[Any],
     n_streams: int,
     n_learners: int,
+    device: str = "cpu",
 ) -> list[OffPolicyLearner | OnPolicyLearner]:
     """The `n_learners` learners of a training run (seeds ``cfg.seed + 7919 i``); SAC with
     ``sac.update: batched`` as members of one :class:`BatchedSAC` group."""
     seeds = [cfg.seed + 7919 * i for i in range(n_learners)]
-    learners = [build_learner(cfg, observation_space, action_space, n_streams, s) for s in seeds]
+    learners = [build_learner(cfg, observation_space, action_space, n_streams, s, device) for s in seeds]
     if cfg.algorithm != "sac" or cfg.sac.update != "batched":
         return learners
     models = [learner.model for learner in learners]

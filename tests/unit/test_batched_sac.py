@@ -16,6 +16,10 @@ from pipeline.learn.learners import BatchedSACMember, OffPolicyLearner, build_le
 from pipeline.params import TrainConfig
 
 OBS, ACT = 6, 2
+DEVICES = [
+    "cpu",
+    pytest.param("cuda", marks=pytest.mark.skipif(not th.cuda.is_available(), reason="torch sees no CUDA GPU here")),
+]
 
 
 def _config(**changes: object) -> TrainConfig:
@@ -23,10 +27,10 @@ def _config(**changes: object) -> TrainConfig:
     return dataclasses.replace(cfg, **changes)  # type: ignore[arg-type]
 
 
-def _group(k: int, cfg: TrainConfig | None = None) -> list[BatchedSACMember]:
+def _group(k: int, cfg: TrainConfig | None = None, device: str = "cpu") -> list[BatchedSACMember]:
     obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (OBS,), np.float32)
     act_space = gymnasium.spaces.Box(-1.0, 1.0, (ACT,), np.float32)
-    learners = build_learners(cfg or _config(), obs_space, act_space, n_streams=4, n_learners=k)
+    learners = build_learners(cfg or _config(), obs_space, act_space, n_streams=4, n_learners=k, device=device)
     assert all(isinstance(learner, BatchedSACMember) for learner in learners)
     return learners  # type: ignore[return-value]
 
@@ -54,14 +58,16 @@ def test_library_update_builds_plain_learners():
     assert [type(x) for x in learners] == [OffPolicyLearner] * 3
 
 
-def test_sb3_modules_see_every_update_and_compute_the_same_networks():
-    members = _group(3)
+@pytest.mark.parametrize("device", DEVICES)
+def test_sb3_modules_see_every_update_and_compute_the_same_networks(device: str):
+    members = _group(3, device=device)
     group = members[0].group
+    assert group.device.type == device and group.obs.device.type == device
     before = [{k: v.clone() for k, v in m.model.policy.state_dict().items()} for m in members]
     _fill(group, 300, seed=1)
     group.train(5)
-    obs = th.as_tensor(np.random.default_rng(2).normal(size=(3, 10, OBS)), dtype=th.float32)
-    act = th.as_tensor(np.random.default_rng(3).uniform(-1, 1, (3, 10, ACT)), dtype=th.float32)
+    obs = th.as_tensor(np.random.default_rng(2).normal(size=(3, 10, OBS)), dtype=th.float32, device=device)
+    act = th.as_tensor(np.random.default_rng(3).uniform(-1, 1, (3, 10, ACT)), dtype=th.float32, device=device)
     q = group.q_values(obs, act)
     mean = group.actor_mean(obs)
     for k, member in enumerate(members):
@@ -119,10 +125,11 @@ def test_same_seed_same_weights_to_the_bit():
         assert all(th.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("k", [1, 3])
-def test_the_losses_learn_the_best_action_of_a_contextual_bandit(k: int):
+def test_the_losses_learn_the_best_action_of_a_contextual_bandit(k: int, device: str):
     """Reward -(a - t(s))^2 with every step terminal: each learner's mean action moves to t(s)."""
-    members = _group(k)
+    members = _group(k, device=device)
     group = members[0].group
     rng = np.random.default_rng(8)
     targets = np.array([[0.6, -0.4], [-0.5, 0.3], [0.2, 0.7]])[:k]
@@ -134,7 +141,7 @@ def test_the_losses_learn_the_best_action_of_a_contextual_bandit(k: int):
         group.add(member, obs, obs, actions, reward, np.ones(2000))
     group.train(1500)
     test_obs = rng.normal(size=(k, 200, OBS))
-    mean = group.actor_mean(th.as_tensor(test_obs, dtype=th.float32)).numpy()
+    mean = group.actor_mean(th.as_tensor(test_obs, dtype=th.float32, device=device)).cpu().numpy()
     for member in range(k):
         want = np.where(test_obs[member, :, :1] > 0, targets[member], -targets[member])
         error = np.abs(mean[member] - want).mean()
