@@ -13,7 +13,11 @@ trainer's wait for them). The worlds are stepped by `--world-workers` processes 
 and their ratio is the workers' speed-up. Each row also gives the updates-only bound: the rate if nothing but
 the gradient updates took time (rate / their share), the most a faster simulator or inference could give.
 `--settings benchmarks/sweeps/paper.yaml` trains with a sweep's keys (the paper cells' update ratio and SAC's
-changes). Last line:
+changes). `--gradient-devices cpu cuda` first times one gradient step of each row's learner alone
+(params.yaml's networks and batch, a replay of random transitions) on the CPU (one torch thread) and on a CUDA GPU,
+and then prints under each training row the updates-only bound with its gradient steps at the GPU's time (the
+bound times the steps' CPU/GPU ratio): what moving the learner to the GPU would give at most; `--gradient-only`
+stops after those step times. Last line:
 ``env_only=<steps/s> env_only_1=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
 """
 
@@ -154,22 +158,17 @@ def dqn_gradient_step_ms(k: int, steps: int = 200, device: str = "cpu") -> float
     return _timed_steps_ms(run, steps, device)
 
 
-def gradient_bounds(device: str, updates_per_transition: float, n_robots: int) -> list[str]:
-    """Per algorithm and mode, the gradient step on `device` and the updates-only bound it sets: the world steps
-    per second (summed over the worlds) if nothing but the gradient steps took time. Per world step, independent
-    mode's every learner takes `updates_per_transition` steps (SAC's in one batched pass of all of them), shared
-    mode's one learner `n_robots` times as many (its transitions are every robot's)."""
-    rows = []
-    u = updates_per_transition
-    for label, ms, per_world_step in (
-        ("sac[batched]/independent", sac_gradient_step_ms("batched", n_robots, device=device), u),
-        ("sac[batched]/shared", sac_gradient_step_ms("batched", 1, device=device), n_robots * u),
-        ("dqn/independent or shared", dqn_gradient_step_ms(1, device=device), n_robots * u),
-    ):
-        bound = 1e3 / (ms * per_world_step)
-        rows.append(f"{device:<5} {label:<26} {ms:>7.2f} ms per step, {per_world_step:g} per world step: "
-                    f"updates-only bound {bound:.0f} steps/s")  # fmt: skip
-    return rows
+def gradient_step_times(device: str, n_robots: int) -> dict[str, float]:
+    """Milliseconds per gradient step on `device` of each training row's learner: independent SAC's batched pass
+    of `n_robots` learners, shared SAC's one learner, one DQN learner (independent mode takes `n_robots` of those
+    per step of the robots, shared mode one with `n_robots` times the transitions)."""
+    dqn = dqn_gradient_step_ms(1, device=device)
+    return {
+        "sac[batched]/independent": sac_gradient_step_ms("batched", n_robots, device=device),
+        "sac[batched]/shared": sac_gradient_step_ms("batched", 1, device=device),
+        "dqn/independent": dqn,
+        "dqn/shared": dqn,
+    }
 
 
 SPENT: dict[str, float] = defaultdict(float)
@@ -280,13 +279,13 @@ def main() -> None:
     scoped: list[tuple[str, str, Any]] = []
     if args.settings:
         common, scoped = read_settings_file(args.settings)
-    u = load_params().train.updates_per_transition
-    for key, value in [*common, *[(k, v) for a, k, v in scoped if a in ("sac", "dqn")]]:
-        if key == "train.updates_per_transition":
-            u = float(value)  # the paper's settings give both algorithms the same ratio
+    steps_ms: dict[str, dict[str, float]] = {}
     for device in args.gradient_devices:
-        for row in gradient_bounds(device, u, 3):
-            print(row, flush=True)
+        steps_ms[device] = gradient_step_times(device, 3)
+        for label, ms in steps_ms[device].items():
+            if label != "dqn/shared":
+                name = "dqn" if label.startswith("dqn") else label
+                print(f"gradient step on {device:<4} {name:<26} {ms:>7.2f} ms, {1e3 / ms:>5.0f} steps/s", flush=True)
     if args.gradient_only:
         return
     n_envs = load_params().train.n_envs
@@ -339,6 +338,15 @@ def main() -> None:
                         flush=True,
                     )
                     figures.append(f"{name}={rate:.0f} (ratio {rate / limit:.2f}, updates bound {bound:.0f})")
+                    if "cpu" in steps_ms and "cuda" in steps_ms and name in steps_ms["cpu"]:
+                        # the same gradient steps, each at the GPU's time: the bound scales by the steps' ratio
+                        gpu_bound = bound * steps_ms["cpu"][name] / steps_ms["cuda"][name]
+                        print(
+                            f"{'':<28} with its gradient steps on cuda: updates-only bound {gpu_bound:.0f} steps/s "
+                            f"({gpu_bound / limit:.2f} of the worlds' rate)",
+                            flush=True,
+                        )
+                        figures.append(f"{name}@cuda_bound={gpu_bound:.0f}")
     print(" ".join(figures))
 
 
