@@ -30,7 +30,7 @@ from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -63,10 +63,18 @@ def env_only_rate(scenario_name: str, kind: str, n_envs: int, steps: int, seed: 
         return rounds * n_envs / (time.perf_counter() - t0)
 
 
-def _timed_steps_ms(run: Callable[[int], None], steps: int, device: str) -> float:
-    """Milliseconds per call of ``run(1)`` over `steps` calls after 10 warm-up calls (the device's queue drained
-    before each clock reading)."""
+class StepTime(NamedTuple):
+    ms: float
+    """Milliseconds per gradient step."""
+    gflop: float
+    """Floating-point operations of one step's matrix products (forward and backward), as torch counts them."""
+
+
+def _timed_steps(run: Callable[[int], None], steps: int, device: str) -> StepTime:
+    """The time of one call of ``run(1)`` over `steps` calls after 10 warm-up calls (the device's queue drained
+    before each clock reading), and the matrix products' operations of one call (torch's FlopCounterMode)."""
     import torch as th
+    from torch.utils.flop_counter import FlopCounterMode
 
     def drained() -> float:
         if device != "cpu":
@@ -74,9 +82,32 @@ def _timed_steps_ms(run: Callable[[int], None], steps: int, device: str) -> floa
         return time.perf_counter()
 
     run(10)
+    with FlopCounterMode(display=False) as counter:
+        run(1)
     t0 = drained()
     run(steps)
-    return 1e3 * (drained() - t0) / steps
+    return StepTime(1e3 * (drained() - t0) / steps, counter.get_total_flops() / 1e9)
+
+
+def dense_gflops(device: str, n: int = 1024, reps: int = 10) -> float:
+    """The rate of an (n x n) @ (n x n) float32 matrix product on `device` (one torch thread on the CPU): the
+    attainable arithmetic rate the gradient steps are set against."""
+    import torch as th
+
+    _device_ready(device)
+    th.set_num_threads(1)
+    a = th.randn(n, n, device=device)
+    b = th.randn(n, n, device=device)
+    for _ in range(3):
+        a @ b
+    if device != "cpu":
+        th.cuda.synchronize()
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        a @ b
+    if device != "cpu":
+        th.cuda.synchronize()
+    return 2 * n**3 * reps / (time.perf_counter() - t0) / 1e9
 
 
 def _device_ready(device: str) -> None:
@@ -86,7 +117,7 @@ def _device_ready(device: str) -> None:
         raise SystemExit(f"train_speed: --gradient-devices {device}: torch {th.__version__} sees no CUDA GPU here")
 
 
-def sac_gradient_step_ms(update: str, k: int, steps: int = 200, device: str = "cpu") -> float:
+def sac_gradient_step(update: str, k: int, steps: int = 200, device: str = "cpu") -> StepTime:
     """Milliseconds per SAC gradient step of `k` learners together (params.yaml's network and batch, one torch
     thread, a replay of random transitions, the networks on `device`): SB3's ``SAC.train`` per learner (`library`)
     or one batched pass."""
@@ -127,10 +158,10 @@ def sac_gradient_step_ms(update: str, k: int, steps: int = 200, device: str = "c
             for learner in group:
                 learner.model.train(gradient_steps=m, batch_size=cfg.batch_size)  # type: ignore[union-attr]
 
-    return _timed_steps_ms(run, steps, device)
+    return _timed_steps(run, steps, device)
 
 
-def dqn_gradient_step_ms(k: int, steps: int = 200, device: str = "cpu") -> float:
+def dqn_gradient_step(k: int, steps: int = 200, device: str = "cpu") -> StepTime:
     """Milliseconds per DQN gradient step of `k` learners, one after another (params.yaml's network, batch, dueling
     heads and prioritized replay, one torch thread, a replay of random transitions, the networks on `device`)."""
     import gymnasium
@@ -155,17 +186,17 @@ def dqn_gradient_step_ms(k: int, steps: int = 200, device: str = "cpu") -> float
         for learner in group:
             learner.model.train(gradient_steps=m, batch_size=cfg.batch_size)  # type: ignore[union-attr]
 
-    return _timed_steps_ms(run, steps, device)
+    return _timed_steps(run, steps, device)
 
 
-def gradient_step_times(device: str, n_robots: int) -> dict[str, float]:
-    """Milliseconds per gradient step on `device` of each training row's learner: independent SAC's batched pass
-    of `n_robots` learners, shared SAC's one learner, one DQN learner (independent mode takes `n_robots` of those
-    per step of the robots, shared mode one with `n_robots` times the transitions)."""
-    dqn = dqn_gradient_step_ms(1, device=device)
+def gradient_step_times(device: str, n_robots: int) -> dict[str, StepTime]:
+    """The gradient step on `device` of each training row's learner: independent SAC's batched pass of `n_robots`
+    learners, shared SAC's one learner, one DQN learner (independent mode takes `n_robots` of those per step of
+    the robots, shared mode one with `n_robots` times the transitions)."""
+    dqn = dqn_gradient_step(1, device=device)
     return {
-        "sac[batched]/independent": sac_gradient_step_ms("batched", n_robots, device=device),
-        "sac[batched]/shared": sac_gradient_step_ms("batched", 1, device=device),
+        "sac[batched]/independent": sac_gradient_step("batched", n_robots, device=device),
+        "sac[batched]/shared": sac_gradient_step("batched", 1, device=device),
         "dqn/independent": dqn,
         "dqn/shared": dqn,
     }
@@ -281,11 +312,19 @@ def main() -> None:
         common, scoped = read_settings_file(args.settings)
     steps_ms: dict[str, dict[str, float]] = {}
     for device in args.gradient_devices:
-        steps_ms[device] = gradient_step_times(device, 3)
-        for label, ms in steps_ms[device].items():
+        dense = dense_gflops(device)
+        print(f"dense float32 matrix product on {device}: {dense:.0f} GFLOP/s (one thread on the cpu)", flush=True)
+        times = gradient_step_times(device, 3)
+        steps_ms[device] = {label: t.ms for label, t in times.items()}
+        for label, t in times.items():
             if label != "dqn/shared":
                 name = "dqn" if label.startswith("dqn") else label
-                print(f"gradient step on {device:<4} {name:<26} {ms:>7.2f} ms, {1e3 / ms:>5.0f} steps/s", flush=True)
+                rate = t.gflop / (t.ms / 1e3)
+                print(
+                    f"gradient step on {device:<4} {name:<26} {t.ms:>7.2f} ms, {1e3 / t.ms:>5.0f} steps/s, "
+                    f"{t.gflop:.3f} GFLOP in matrix products: {rate:.1f} GFLOP/s, {rate / dense:.2f} of the dense rate",
+                    flush=True,
+                )
     if args.gradient_only:
         return
     n_envs = load_params().train.n_envs
@@ -304,7 +343,7 @@ def main() -> None:
     figures = [f"env_only={limits['continuous']:.0f}", f"env_only_1={single:.0f}"]
     if "sac" in args.algorithms and len(args.sac_updates) == 2:
         for k in (1, 3):
-            times = {u: sac_gradient_step_ms(u, k) for u in ("library", "batched")}
+            times = {u: sac_gradient_step(u, k).ms for u in ("library", "batched")}
             print(
                 f"SAC gradient step of {k} learner(s) together: library {times['library']:.2f} ms, "
                 f"batched {times['batched']:.2f} ms, speed-up {times['library'] / times['batched']:.2f}"
