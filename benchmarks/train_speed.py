@@ -313,7 +313,8 @@ def main() -> None:
     steps_ms: dict[str, dict[str, float]] = {}
     for device in args.gradient_devices:
         dense = dense_gflops(device)
-        print(f"dense float32 matrix product on {device}: {dense:.0f} GFLOP/s (one thread on the cpu)", flush=True)
+        threads = " (one thread)" if device == "cpu" else ""
+        print(f"dense float32 matrix product on {device}{threads}: {dense:.0f} GFLOP/s", flush=True)
         times = gradient_step_times(device, 3)
         steps_ms[device] = {label: t.ms for label, t in times.items()}
         for label, t in times.items():
@@ -322,7 +323,8 @@ def main() -> None:
                 rate = t.gflop / (t.ms / 1e3)
                 print(
                     f"gradient step on {device:<4} {name:<26} {t.ms:>7.2f} ms, {1e3 / t.ms:>5.0f} steps/s, "
-                    f"{t.gflop:.3f} GFLOP in matrix products: {rate:.1f} GFLOP/s, {rate / dense:.2f} of the dense rate",
+                    f"{t.gflop:.3f} GFLOP in matrix products: {rate:.1f} GFLOP/s, "
+                    f"{100 * rate / dense:.2g} % of the dense rate",
                     flush=True,
                 )
     if args.gradient_only:
