@@ -99,3 +99,18 @@ def test_a_damaged_record_of_runs_is_refused_by_name_before_anything_runs(tmp_pa
         with pytest.raises(SweepError, match=f"sweep.json: {says}"):
             run_sweep(expand(["sac"], ["independent"], ["empty"], [0]), base, tmp_path)
         assert not (tmp_path / "trials").exists() and (tmp_path / "sweep.json").read_text() == text
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "benchmarks" / "sweeps").glob("*.yaml")), ids=lambda p: p.name)
+def test_every_committed_settings_file_gives_valid_params_for_the_algorithms_it_names(path):
+    every, scoped = read_settings_file(path)
+    base = with_settings(base_mapping(load_params(ROOT / "params.yaml")), every)
+    named = sorted({algorithm for algorithm, _, _ in scoped}) or ["ppo"]
+    mode = "independent" if any(k == "train.share_experience" for _, k, _ in scoped) else "shared"
+    for trial in scoped_keys(expand(named, [mode], ["obstacles"], [0]), scoped):
+        params = trial.params(base, str(path))
+        for _, key, value in (s for s in scoped if s[0] == trial.algorithm):
+            node: object = params
+            for part in key.split("."):
+                node = getattr(node, part)
+            assert node == value, (trial.name, key)
