@@ -13,11 +13,12 @@ trainer's wait for them). The worlds are stepped by `--world-workers` processes 
 and their ratio is the workers' speed-up. Each row also gives the updates-only bound: the rate if nothing but
 the gradient updates took time (rate / their share), the most a faster simulator or inference could give.
 `--settings benchmarks/sweeps/paper.yaml` trains with a sweep's keys (the paper cells' update ratio and SAC's
-changes). `--gradient-devices cpu cuda` first times one gradient step of each row's learner alone
-(params.yaml's networks and batch, a replay of random transitions) on the CPU (one torch thread) and on a CUDA GPU,
-and then prints under each training row the updates-only bound with its gradient steps at the GPU's time (the
-bound times the steps' CPU/GPU ratio): what moving the learner to the GPU would give at most; `--gradient-only`
-stops after those step times. Last line:
+changes). `--gradient-devices cpu cuda` first times one gradient step of each row's learner alone (params.yaml's
+networks and batch, a replay of random transitions) on the CPU (one torch thread) and on a CUDA GPU, with its matrix
+products' operations (torch's FlopCounterMode) and their rate against a dense float32 matrix product's on the same
+device, the arithmetic limit measured in the same run; then it prints under each training row the updates-only bound
+with its gradient steps at the GPU's time (the bound times the steps' CPU/GPU ratio): what moving the learner to the
+GPU would give at most; `--gradient-only` stops after those step times. Last line:
 ``env_only=<steps/s> env_only_1=<steps/s> <algorithm>/<mode>=<steps/s> (ratio <r>) ...``.
 """
 
@@ -118,7 +119,7 @@ def _device_ready(device: str) -> None:
 
 
 def sac_gradient_step(update: str, k: int, steps: int = 200, device: str = "cpu") -> StepTime:
-    """Milliseconds per SAC gradient step of `k` learners together (params.yaml's network and batch, one torch
+    """One SAC gradient step of `k` learners together, timed and counted (params.yaml's network and batch, one torch
     thread, a replay of random transitions, the networks on `device`): SB3's ``SAC.train`` per learner (`library`)
     or one batched pass."""
     import dataclasses
@@ -162,8 +163,9 @@ def sac_gradient_step(update: str, k: int, steps: int = 200, device: str = "cpu"
 
 
 def dqn_gradient_step(k: int, steps: int = 200, device: str = "cpu") -> StepTime:
-    """Milliseconds per DQN gradient step of `k` learners, one after another (params.yaml's network, batch, dueling
-    heads and prioritized replay, one torch thread, a replay of random transitions, the networks on `device`)."""
+    """One DQN gradient step of `k` learners, one after another, timed and counted (params.yaml's network, batch,
+    dueling heads and prioritized replay, one torch thread, a replay of random transitions, the networks on
+    `device`)."""
     import gymnasium
     import torch as th
 
