@@ -426,6 +426,9 @@ class TrainConfig:
     """independent mode, sac and dqn: every robot's network also stores the other robots' transitions in its replay
     (its own network and its own gradient steps: as many as without them, one per own transition times
     `updates_per_transition`)."""
+    n_step: int = setting(1, ge=1, le=20, optional=True)
+    """sac and dqn: each stored transition spans this many steps of its robot (the discounted rewards summed, the
+    bootstrap at gamma^n_step, a window that reaches a terminal step ending there); 1: one-step transitions."""
     checkpoint_every_episodes: int = setting(100, ge=1)
     torch_threads: int = setting(1, ge=1, le=64)
     sac: SacConfig = setting(SacConfig())
@@ -447,6 +450,8 @@ class TrainConfig:
         if self.share_experience and (self.mode != "independent" or self.algorithm == "ppo"):
             bad.append(("share_experience", True, f"false with mode {self.mode} and algorithm {self.algorithm} "
                         "(independent sac or dqn only)"))  # fmt: skip
+        if self.n_step > 1 and self.algorithm == "ppo":
+            bad.append(("n_step", self.n_step, "1 with algorithm ppo (n-step transitions are for sac and dqn)"))
         if self.total_steps == 0 and self.imitation.steps == 0:
             bad.append(("total_steps", 0, ">= 1, or 0 with imitation.steps > 0 (the imitated policy alone)"))
         return bad

@@ -49,6 +49,7 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.teacher": "scripted",
     "train.imitation.memory_dropout": 0.0,
     "train.share_experience": False,
+    "train.n_step": 1,
     **{f"world.network.{k}": v for k, v in to_mapping(NetworkConfig()).items()},
     **{f"world.randomize.network.{k}": v for k, v in to_mapping(NetworkRanges()).items()},
 }

@@ -246,7 +246,7 @@ class BatchedSAC:
         lr = self._lr()
         for group in self.optimizer.param_groups:
             group["lr"] = lr
-        gamma, tau = self.cfg.gamma, self.cfg.sac.tau
+        gamma, tau = self.cfg.gamma**self.cfg.n_step, self.cfg.sac.tau  # a stored transition spans n_step steps
         for _ in range(gradient_steps):
             obs, actions, rewards, next_obs, terminated = self._sample()
             alpha = self.log_alpha.detach().exp() if self.learn_alpha else self.fixed_alpha

@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepRetu
 from pipeline.learn.batched_sac import BatchedSAC
 from pipeline.learn.dqn import PerDQN
 from pipeline.learn.modes import StreamBatch
+from pipeline.learn.nstep import NStepReturns
 from pipeline.learn.per import PrioritizedReplayBuffer
 from pipeline.learn.scaling import BoundsScaling
 from pipeline.params import TrainConfig
@@ -156,6 +157,8 @@ class OffPolicyLearner:
         self._credit = 0.0
         self._steps = 0
         self.discrete = isinstance(model.action_space, gymnasium.spaces.Discrete)
+        self.n_step = NStepReturns(cfg.n_step, cfg.gamma) if cfg.n_step > 1 else None
+        """With ``n_step`` > 1 the streams' windows (the model bootstraps with gamma^n)."""
 
     def _random(self, n: int) -> np.ndarray:
         space = self.model.action_space
@@ -180,14 +183,30 @@ class OffPolicyLearner:
         with buffer.batch() if isinstance(buffer, PrioritizedReplayBuffer) else contextlib.nullcontext():
             self._observe(obs, actions, batch)
 
-    def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
-        """Store another robot's transitions (``share_experience``): they fill the replay and count toward
+    def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch, source: int) -> None:
+        """Store robot `source`'s transitions (``share_experience``): they fill the replay and count toward
         ``learning_starts``, but earn no gradient steps, so the learner takes as many as without them."""
         buffer = self.model.replay_buffer
         with buffer.batch() if isinstance(buffer, PrioritizedReplayBuffer) else contextlib.nullcontext():
-            self._observe(obs, actions, batch, credit=False)
+            self._observe(obs, actions, batch, credit=False, source=source)
 
-    def _observe(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch, credit: bool = True) -> None:
+    def _observe(
+        self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch, credit: bool = True, source: int = -1
+    ) -> None:
+        if self.n_step is not None:
+            ready = self.n_step.push(source, obs, actions, batch)
+            for j in range(len(ready)):
+                self.model.store(
+                    ready.obs[j],
+                    ready.next_obs[j],
+                    ready.actions[j],
+                    float(ready.rewards[j]),
+                    bool(ready.terminated[j]),
+                    False,
+                )
+                if credit and self.model.num_timesteps > self.cfg.learning_starts:
+                    self._credit += self.cfg.updates_per_transition
+            return
         for i in np.flatnonzero(batch.active):
             self.model.store(
                 obs[i],
@@ -232,12 +251,19 @@ class BatchedSACMember(OffPolicyLearner):
         counted = max(0, self.model.num_timesteps - max(before, self.cfg.learning_starts))
         self.group.credit += self.cfg.updates_per_transition * counted / self.group.k
 
-    def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
-        """Another robot's transitions into this learner's buffer, without gradient steps of their own."""
-        self._store(obs, actions, batch)
+    def observe_other(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch, source: int) -> None:
+        """Robot `source`'s transitions into this learner's buffer, without gradient steps of their own."""
+        self._store(obs, actions, batch, source)
 
-    def _store(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch) -> None:
-        """The batch's active transitions into this learner's buffer of the group, counted as its timesteps."""
+    def _store(self, obs: np.ndarray, actions: np.ndarray, batch: StreamBatch, source: int = -1) -> None:
+        """The batch's active transitions (n-step ones with ``n_step`` > 1, from `source`'s streams) into this
+        learner's buffer of the group, counted as its timesteps."""
+        if self.n_step is not None:
+            ready = self.n_step.push(source, obs, actions, batch)
+            if len(ready):
+                self.group.add(self.index, ready.obs, ready.next_obs, ready.actions, ready.rewards, ready.terminated)
+                self.model.num_timesteps += len(ready)
+            return
         active = np.flatnonzero(batch.active)
         if not len(active):
             return
@@ -380,7 +406,7 @@ def build_learner(
         "buffer_size": cfg.buffer_size,
         "learning_starts": 0,
         "batch_size": cfg.batch_size,
-        "gamma": cfg.gamma,
+        "gamma": cfg.gamma**cfg.n_step,  # a stored transition spans n_step steps
         "train_freq": 1,
         "gradient_steps": 1,
         "seed": seed,

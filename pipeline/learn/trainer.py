@@ -260,7 +260,7 @@ class _TrainingRun:
             if share:  # independent off-policy learners: the other robots' transitions too, in robot order
                 for j in range(len(self.learners)):
                     if j != i:
-                        learner.observe_other(per_learner[j], actions[j], batches[j])  # type: ignore[union-attr]
+                        learner.observe_other(per_learner[j], actions[j], batches[j], j)  # type: ignore[union-attr]
             learner.set_progress(self.steps / self.cfg.total_steps)
             learner.update()
         return result

@@ -134,6 +134,18 @@ def test_same_seed_same_weights_to_the_bit(tmp_path: Path) -> None:
     assert c.digest != a.digest
 
 
+@pytest.mark.parametrize(("algorithm", "share"), [("dqn", True), ("sac", False)])
+def test_n_step_transitions_train_to_the_bit_and_differ_from_one_step(tmp_path: Path, algorithm, share) -> None:
+    scenario, world = world_for(algorithm)
+    cfg = tiny_config(algorithm=algorithm, mode="independent", n_step=3, share_experience=share)
+    a = train(scenario, world, cfg, tmp_path / "a", progress=False)
+    b = train(scenario, world, cfg, tmp_path / "b", progress=False)
+    one = train(scenario, world, tiny_config(algorithm=algorithm, mode="independent", share_experience=share),
+                tmp_path / "one", progress=False)  # fmt: skip
+    assert a.digest == b.digest != one.digest
+    assert json.loads((a.checkpoint / "train.json").read_text())["train"]["n_step"] == 3
+
+
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object, object]:
     root = tmp_path_factory.mktemp("exported")
