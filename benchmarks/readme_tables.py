@@ -305,6 +305,8 @@ COVERAGE_EXCITATION_FINE_MORE = "calibration_coverage/excitation_fine_120"
 """20 more realities under the calibration drive, with the command path's realized latency in the delay's truth."""
 COVERAGE_EXCITATION_FINE_40 = "calibration_coverage/excitation_fine_40"
 """The refined run's 20 robots and those 20 pooled (``--pool``): 40 drawn robots."""
+COVERAGE_POLICY_20 = "calibration_coverage/policy_20"
+"""20 robots under the nominal policy's own drive after the drive chain's refinement (8 and 12, pooled)."""
 
 
 def _coverage_rows(name: str = COVERAGE) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -401,6 +403,10 @@ def coverage_excitation_fine_40_docs() -> str:
     return coverage_docs(COVERAGE_EXCITATION_FINE_40)
 
 
+def coverage_policy_20_docs() -> str:
+    return coverage_docs(COVERAGE_POLICY_20)
+
+
 def _coverage_line(name: str) -> str:
     """How many keys are at target, the least covered, identifiable keys within 15 %."""
     table = [t for t in _coverage_table(name) if t[1]]
@@ -423,6 +429,10 @@ def coverage() -> str:
         f"`{rescored['command']}`; [docs/calibration.md](docs/calibration.md#coverage-of-the-intervals)). "
         "Driven by the policy: "
         + _coverage_line(COVERAGE_RESCORED)
+        + "; after the drive chain's refinement, 20 realities (8 at "
+        + f"{run_of(RESULTS / 'calibration_coverage/policy_140')['commit']}, 12 with `--seed 148` at "
+        + f"{run_of(RESULTS / 'calibration_coverage/policy_148')['commit']}, pooled): "
+        + _coverage_line(COVERAGE_POLICY_20)
         + ". Driven by the calibration drive with turns of every size, 40 realities (20 recorded at "
         + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE)['commit']} and calibrated again at "
         + f"{run_of(RESULTS / COVERAGE_EXCITATION_FINE_REFINED)['commit']}, 20 more with `--seed 120` at "
@@ -773,6 +783,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage-excitation-fine-refined-docs": coverage_excitation_fine_refined_docs,
     "coverage-excitation-fine-more-docs": coverage_excitation_fine_more_docs,
     "coverage-excitation-fine-40-docs": coverage_excitation_fine_40_docs,
+    "coverage-policy-20-docs": coverage_policy_20_docs,
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,
