@@ -26,8 +26,9 @@ from typing import Any
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _path in (ROOT, ROOT / "benchmarks"):  # the package, and coverage_keys beside this file however it is loaded
+    if str(_path) not in sys.path:
+        sys.path.insert(0, str(_path))
 
 from coverage_keys import split_by_truth  # noqa: E402
 
