@@ -603,16 +603,17 @@ def speedup() -> str:
     )
 
 
-SWEEPS = ("paper", "share", "dqn_nstep", "shared", "ppo", "centralized_300k")
+SWEEPS = ("paper", "sac_nstep", "share", "dqn_nstep", "shared", "ppo", "centralized_300k")
 """The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
 MODE_WORDS = {
     "share": "independent, experience shared",
     "dqn_nstep": "independent, experience shared, 3-step transitions",
+    "sac_nstep": "independent, 3-step transitions",
     "centralized_300k": "centralized, 300 000 steps",
 }
 """How the README's table names the mode of a sweep whose settings change it (`share`: `train.share_experience`, one
 network per robot with every robot's transitions in every network's replay; `centralized_300k`: three times the
-budget; `dqn_nstep`: `share` with `train.n_step: 3`)."""
+budget; `dqn_nstep`: `share` with `train.n_step: 3`; `sac_nstep`: `paper` with it)."""
 
 
 def _sweep_rows(folder: Path) -> Any:
@@ -631,8 +632,10 @@ def sweeps() -> str:
             "**The paper's cells, swept on Ray** (100 000 world steps per trial, the settings of "
             "[benchmarks/sweeps/paper.yaml](benchmarks/sweeps/paper.yaml), for `share` of "
             "[share.yaml](benchmarks/sweeps/share.yaml): the same with each robot's network also learning from the "
-            "other robots' transitions, for `dqn_nstep` of [dqn_nstep.yaml](benchmarks/sweeps/dqn_nstep.yaml): that "
-            "DQN with 3-step transitions; rows, curves and full tables in "
+            "other robots' transitions, for `sac_nstep` and `dqn_nstep` of "
+            "[sac_nstep.yaml](benchmarks/sweeps/sac_nstep.yaml) and "
+            "[dqn_nstep.yaml](benchmarks/sweeps/dqn_nstep.yaml): "
+            "paper's SAC and share's DQN with 3-step transitions (`train.n_step: 3`); rows, curves and full tables in "
             "[benchmarks/results/sweeps/](docs/benchmarks.md#sweep-results)):"
         ),
         "",
