@@ -20,6 +20,7 @@ import statistics
 import sys
 import textwrap
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -366,46 +367,6 @@ def coverage_docs(name: str = COVERAGE) -> str:
             continue
         lines.append(f"| `{key}` | {ok} of {total} | {100 * cov:.0f} % | {100 * med:.1f} % |")
     return "\n".join(lines)
-
-
-def coverage_excitation_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION)
-
-
-def coverage_rescored_docs() -> str:
-    return coverage_docs(COVERAGE_RESCORED)
-
-
-def coverage_excitation_rescored_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_RESCORED)
-
-
-def coverage_excitation_fine_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_FINE)
-
-
-def coverage_excitation_fine_rescored_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_FINE_RESCORED)
-
-
-def coverage_excitation_fine_arc_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_FINE_ARC)
-
-
-def coverage_excitation_fine_refined_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_FINE_REFINED)
-
-
-def coverage_excitation_fine_more_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_FINE_MORE)
-
-
-def coverage_excitation_fine_40_docs() -> str:
-    return coverage_docs(COVERAGE_EXCITATION_FINE_40)
-
-
-def coverage_policy_20_docs() -> str:
-    return coverage_docs(COVERAGE_POLICY_20)
 
 
 def _coverage_line(name: str) -> str:
@@ -782,17 +743,17 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "recount": recount,
     "scale": scale,
     "coverage": coverage,
-    "coverage-docs": coverage_docs,
-    "coverage-excitation-docs": coverage_excitation_docs,
-    "coverage-rescored-docs": coverage_rescored_docs,
-    "coverage-excitation-rescored-docs": coverage_excitation_rescored_docs,
-    "coverage-excitation-fine-docs": coverage_excitation_fine_docs,
-    "coverage-excitation-fine-rescored-docs": coverage_excitation_fine_rescored_docs,
-    "coverage-excitation-fine-arc-docs": coverage_excitation_fine_arc_docs,
-    "coverage-excitation-fine-refined-docs": coverage_excitation_fine_refined_docs,
-    "coverage-excitation-fine-more-docs": coverage_excitation_fine_more_docs,
-    "coverage-excitation-fine-40-docs": coverage_excitation_fine_40_docs,
-    "coverage-policy-20-docs": coverage_policy_20_docs,
+    "coverage-docs": partial(coverage_docs, COVERAGE),
+    "coverage-excitation-docs": partial(coverage_docs, COVERAGE_EXCITATION),
+    "coverage-rescored-docs": partial(coverage_docs, COVERAGE_RESCORED),
+    "coverage-excitation-rescored-docs": partial(coverage_docs, COVERAGE_EXCITATION_RESCORED),
+    "coverage-excitation-fine-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE),
+    "coverage-excitation-fine-rescored-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE_RESCORED),
+    "coverage-excitation-fine-arc-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE_ARC),
+    "coverage-excitation-fine-refined-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE_REFINED),
+    "coverage-excitation-fine-more-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE_MORE),
+    "coverage-excitation-fine-40-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE_40),
+    "coverage-policy-20-docs": partial(coverage_docs, COVERAGE_POLICY_20),
     "layouts": layouts,
     "scenarios": scenarios,
     "peers": peers,

@@ -74,20 +74,23 @@ class StepTime(NamedTuple):
 def _timed_steps(run: Callable[[int], None], steps: int, device: str) -> StepTime:
     """The time of one call of ``run(1)`` over `steps` calls after 10 warm-up calls (the device's queue drained
     before each clock reading), and the matrix products' operations of one call (torch's FlopCounterMode)."""
-    import torch as th
     from torch.utils.flop_counter import FlopCounterMode
-
-    def drained() -> float:
-        if device != "cpu":
-            th.cuda.synchronize()
-        return time.perf_counter()
 
     run(10)
     with FlopCounterMode(display=False) as counter:
         run(1)
-    t0 = drained()
+    t0 = _drained(device)
     run(steps)
-    return StepTime(1e3 * (drained() - t0) / steps, counter.get_total_flops() / 1e9)
+    return StepTime(1e3 * (_drained(device) - t0) / steps, counter.get_total_flops() / 1e9)
+
+
+def _drained(device: str) -> float:
+    """The clock once `device`'s queue of work has run (a CUDA GPU runs it asynchronously)."""
+    import torch as th
+
+    if device != "cpu":
+        th.cuda.synchronize()
+    return time.perf_counter()
 
 
 def dense_gflops(device: str, n: int = 1024, reps: int = 10) -> float:
@@ -101,14 +104,10 @@ def dense_gflops(device: str, n: int = 1024, reps: int = 10) -> float:
     b = th.randn(n, n, device=device)
     for _ in range(3):
         a @ b
-    if device != "cpu":
-        th.cuda.synchronize()
-    t0 = time.perf_counter()
+    t0 = _drained(device)
     for _ in range(reps):
         a @ b
-    if device != "cpu":
-        th.cuda.synchronize()
-    return 2 * n**3 * reps / (time.perf_counter() - t0) / 1e9
+    return 2 * n**3 * reps / (_drained(device) - t0) / 1e9
 
 
 def _device_ready(device: str) -> None:
