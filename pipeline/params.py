@@ -356,12 +356,18 @@ class SelectionConfig:
     seed: int = setting(5_000, ge=0)
     stop_at_success: float | None = setting(None, gt=0.0, le=1.0, optional=True)
     """Stop training once an evaluation reaches this robot success (None: train the whole budget)."""
+    stop_after_convergence: bool = setting(False)
+    """With `stop_at_success`: stop only at an evaluation after the convergence criterion has held on the training
+    episodes. A greedy policy can be perfect while the exploring robots still miss; stopping there leaves the
+    criterion unmeasured and the run counts as not converged."""
 
     def check(self) -> list[tuple[str, object, str]]:
         if self.keep == "best" and self.every_steps == 0:
             return [("every_steps", 0, "> 0 with keep 'best' (the best needs evaluations)")]
         if self.stop_at_success is not None and self.every_steps == 0:
             return [("every_steps", 0, "> 0 with stop_at_success (stopping needs evaluations)")]
+        if self.stop_after_convergence and self.stop_at_success is None:
+            return [("stop_after_convergence", True, "false without stop_at_success (it qualifies that stop)")]
         return []
 
 

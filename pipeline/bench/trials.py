@@ -50,6 +50,7 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.memory_dropout": 0.0,
     "train.share_experience": False,
     "train.n_step": 1,
+    "train.selection.stop_after_convergence": False,
     **{f"world.network.{k}": v for k, v in to_mapping(NetworkConfig()).items()},
     **{f"world.randomize.network.{k}": v for k, v in to_mapping(NetworkRanges()).items()},
 }

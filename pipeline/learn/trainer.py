@@ -237,6 +237,8 @@ class _TrainingRun:
                 ev = selector.offer(self.steps, self.greedy, self.models)
                 stop_at = cfg.selection.stop_at_success
                 good_enough = stop_at is not None and ev.robot_success >= stop_at - 1e-12
+                if cfg.selection.stop_after_convergence and self.tracker.converged_at is None:
+                    good_enough = False
             if result.finished or evaluated:
                 self.show(bar)
             bar.update(self.worlds.n_worlds)

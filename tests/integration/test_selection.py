@@ -92,13 +92,13 @@ def test_evaluations_do_not_change_training_and_best_weights_are_exported(tmp_pa
 
 
 def test_keep_best_needs_evaluations(params_data, write_params):
-    params_data["train"]["selection"] = {"keep": "best", "every_steps": 0, "episodes": 5, "seed": 1}
+    params_data["train"]["selection"].update({"keep": "best", "every_steps": 0, "episodes": 5, "seed": 1})
     with pytest.raises(ConfigError, match=r"train\.selection\.every_steps = 0.*keep 'best'"):
         load_params(write_params(params_data))
 
 
-def test_training_stops_at_the_first_evaluation_that_reaches_stop_at_success(tmp_path):
-    # robots that start on their goals succeed at once: the first evaluation scores 1.0 and training stops there
+def at_goal_world(tmp_path: Path):  # type: ignore[no-untyped-def]
+    """A room whose robots start on their goals: every evaluation and every training episode succeeds at once."""
     room = tmp_path / "at_goal.yaml"
     room.write_text(
         "name: at_goal\n"
@@ -111,7 +111,12 @@ def test_training_stops_at_the_first_evaluation_that_reaches_stop_at_success(tmp
         "obstacles: []\n",
         encoding="utf-8",
     )
-    scenario, world = make_world(world=world_config({**WORLD, "scenario": str(room), "max_steps": 30}))
+    return make_world(world=world_config({**WORLD, "scenario": str(room), "max_steps": 30}))
+
+
+def test_training_stops_at_the_first_evaluation_that_reaches_stop_at_success(tmp_path):
+    # the first evaluation scores 1.0 and training stops there
+    scenario, world = at_goal_world(tmp_path)
     stopped = train(
         scenario, world, tiny_cfg(keep="best", every_steps=60, episodes=2, stop_at_success=1.0), tmp_path / "stop"
     )
@@ -127,8 +132,36 @@ def test_training_stops_at_the_first_evaluation_that_reaches_stop_at_success(tmp
     assert whole.world_steps == 240 and len(rows(tmp_path / "whole" / SELECTION_FILE)) == 4
 
 
+def test_stop_after_convergence_waits_for_the_training_criterion(tmp_path):
+    scenario, world = at_goal_world(tmp_path)
+    selection = {"keep": "best", "every_steps": 60, "episodes": 2, "stop_at_success": 1.0}
+    selection["stop_after_convergence"] = True
+
+    def run(window: int, name: str):  # type: ignore[no-untyped-def]
+        cfg = from_mapping(
+            TrainConfig,
+            merge(to_mapping(tiny_cfg(**selection)), {"convergence": {"window_episodes": window}}),
+            "<test>",
+        )
+        return train(scenario, world, cfg, tmp_path / name, progress=False)
+
+    # a window the training episodes fill before the first evaluation: the criterion holds, the first evaluation stops
+    early = run(2, "early")
+    assert early.converged_at_episode is not None and early.world_steps == 60
+    # a window longer than the budget's episodes: the criterion never holds, so perfect evaluations do not stop it
+    whole = run(10_000, "whole")
+    assert whole.converged_at_episode is None and whole.world_steps == 240
+    assert [float(r["robot_success"]) for r in rows(tmp_path / "whole" / SELECTION_FILE)] == [1.0] * 4
+
+
+def test_stop_after_convergence_needs_stop_at_success(params_data, write_params):
+    params_data["train"]["selection"].update({"keep": "last", "every_steps": 10, "stop_after_convergence": True})
+    with pytest.raises(ConfigError, match=r"train\.selection\.stop_after_convergence = True.*stop_at_success"):
+        load_params(write_params(params_data))
+
+
 def test_stop_at_success_needs_evaluations(params_data, write_params):
     selection = {"keep": "last", "every_steps": 0, "episodes": 5, "seed": 1, "stop_at_success": 0.9}
-    params_data["train"]["selection"] = selection
+    params_data["train"]["selection"].update(selection)
     with pytest.raises(ConfigError, match=r"train\.selection\.every_steps = 0.*stop_at_success"):
         load_params(write_params(params_data))
