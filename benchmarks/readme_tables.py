@@ -564,24 +564,43 @@ def speedup() -> str:
     )
 
 
-SWEEPS = ("paper", "sac_nstep", "share", "dqn_nstep", "shared", "ppo", "centralized_300k")
+SWEEPS = (
+    "paper",
+    "sac_nstep",
+    "share",
+    "dqn_nstep",
+    "dqn_nstep_converge",
+    "shared",
+    "ppo",
+    "centralized_300k",
+)
 """The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
 MODE_WORDS = {
-    "share": "independent, experience shared",
-    "dqn_nstep": "independent, experience shared, 3-step transitions",
-    "sac_nstep": "independent, 3-step transitions",
-    "centralized_300k": "centralized, 300 000 steps",
+    "share": "{mode}, experience shared",
+    "dqn_nstep": "{mode}, experience shared, 3-step transitions",
+    "sac_nstep": "{mode}, 3-step transitions",
+    "dqn_nstep_converge": "{mode}, 3-step transitions",
+    "centralized_300k": "{mode}, 300 000 steps",
 }
 """How the README's table names the mode of a sweep whose settings change it (`share`: `train.share_experience`, one
 network per robot with every robot's transitions in every network's replay; `centralized_300k`: three times the
-budget; `dqn_nstep`: `share` with `train.n_step: 3`; `sac_nstep`: `paper` with it)."""
+budget; `dqn_nstep`: `share` with `train.n_step: 3`; `sac_nstep`: `paper` with it; `dqn_nstep_converge`: `paper`'s DQN
+with it, its stop on a perfect evaluation waiting for convergence)."""
 
 
 def _sweep_rows(folder: Path) -> Any:
     import polars as pl
 
     rows = [json.loads(p.read_text(encoding="utf-8")) for p in sorted(folder.glob("trials/*/row.json"))]
-    return pl.DataFrame(rows, infer_schema_length=None) if rows else None
+    return pl.DataFrame(rows) if rows else None
+
+
+def _settings_file(command: str, record: Path) -> str:
+    """The settings file a sweep's command names (`--settings PATH`)."""
+    words = command.split()
+    if "--settings" not in words or words.index("--settings") + 1 >= len(words):
+        raise SystemExit(f"{record}: the first run's command names no --settings file: {command!r}")
+    return words[words.index("--settings") + 1]
 
 
 def sweeps() -> str:
@@ -590,40 +609,39 @@ def sweeps() -> str:
 
     lines = [
         prose(
-            "**The paper's cells, swept on Ray** (100 000 world steps per trial, the settings of "
-            "[benchmarks/sweeps/paper.yaml](benchmarks/sweeps/paper.yaml), for `share` of "
-            "[share.yaml](benchmarks/sweeps/share.yaml): the same with each robot's network also learning from the "
-            "other robots' transitions, for `sac_nstep` and `dqn_nstep` of "
-            "[sac_nstep.yaml](benchmarks/sweeps/sac_nstep.yaml) and "
-            "[dqn_nstep.yaml](benchmarks/sweeps/dqn_nstep.yaml): "
-            "paper's SAC and share's DQN with 3-step transitions (`train.n_step: 3`); rows, curves and full tables in "
-            "[benchmarks/results/sweeps/](docs/benchmarks.md#sweep-results)):"
+            "**The paper's cells, swept on Ray** (100 000 world steps per trial unless the mode says otherwise; each "
+            "sweep's settings that differ from params.yaml are the file in its row, `paper.yaml` the paper's; rows, "
+            "curves and full tables in [benchmarks/results/sweeps/](docs/benchmarks.md#sweep-results), what each "
+            "change does in [docs/experiments/sweeps.md](docs/experiments/sweeps.md)):"
         ),
         "",
-        f"| sweep | algorithm | mode | room | seeds | robot success IQM, % [95 % CI] | converged (within "
+        f"| sweep | settings | algorithm | mode | room | seeds | robot success IQM, % [95 % CI] | converged (within "
         f"{TARGET_EPISODES} episodes) | target |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    made = []
+    made: list[str] = []
+    machines: set[str] = set()
     for name in SWEEPS:
         folder = RESULTS / "sweeps" / name
         rows = _sweep_rows(folder)
         if rows is None:
             continue
-        for s in cell_stats(rows):
-            lines.append(
-                f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | {s.algorithm} | "
-                f"{MODE_WORDS.get(name, s.mode)} | {s.scenario} | "
-                f"{s.seeds} | {100 * s.robot_iqm:.1f} [{100 * s.robot_ci[0]:.1f}, {100 * s.robot_ci[1]:.1f}] | "
-                f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
-            )
         record = folder / "sweep.json"
         if not record.is_file():
             raise SystemExit(f"{record}: missing: a committed sweep's rows need the record of the runs that made them")
         runs = json.loads(record.read_text(encoding="utf-8"))
+        settings = _settings_file(runs[0]["command"], record)
+        for s in cell_stats(rows):
+            lines.append(
+                f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | "
+                f"[{Path(settings).name}]({settings}) | {s.algorithm} | "
+                f"{MODE_WORDS.get(name, '{mode}').format(mode=s.mode)} | {s.scenario} | "
+                f"{s.seeds} | {100 * s.robot_iqm:.1f} [{100 * s.robot_ci[0]:.1f}, {100 * s.robot_ci[1]:.1f}] | "
+                f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
+            )
         commits = sorted({run["commit"][:7] + run["commit"][40:] for run in runs})  # "+local changes" kept
-        machines = sorted({run["machine"] for run in runs})
-        made.append(f"{name}: `{runs[0]['command']}` at {', '.join(commits)} on {'; '.join(machines)}")
+        machines.update(run["machine"] for run in runs)
+        made.append(f"{name} at {', '.join(commits)}")
     return (
         "\n".join(lines)
         + "\n\n"
@@ -631,9 +649,12 @@ def sweeps() -> str:
         + prose(
             "The target: a robot success IQM of at least 95 % over at least 5 seeds, at least 4 in 5 of them converged "
             f"within {TARGET_EPISODES} training episodes (every robot over 80 % in 20 consecutive episodes); 200 "
-            "evaluation episodes per seed from the exact starts, every episode counted. Made with ",
+            "evaluation episodes per seed from the exact starts, every episode counted. Each folder's sweep.json "
+            "names every run's command, commit, machine and dates; the paper's: `",
+            json.loads((RESULTS / "sweeps" / SWEEPS[0] / "sweep.json").read_text(encoding="utf-8"))[0]["command"],
+            "`. Made: ",
             "; ".join(made),
-            " (each folder's sweep.json has every run, its dates and its trials).",
+            f", on {'; '.join(sorted(machines))}.",
         )
     )
 
