@@ -592,7 +592,7 @@ def _sweep_rows(folder: Path) -> Any:
     import polars as pl
 
     rows = [json.loads(p.read_text(encoding="utf-8")) for p in sorted(folder.glob("trials/*/row.json"))]
-    return pl.DataFrame(rows) if rows else None
+    return pl.DataFrame(rows, infer_schema_length=None) if rows else None
 
 
 def _settings_file(command: str, record: Path) -> str:
