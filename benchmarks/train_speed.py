@@ -264,7 +264,7 @@ def train_rate(
         "torch_threads": 1,
         "world_workers": workers,
         "checkpoint_every_episodes": 1_000_000,
-        "selection": {"keep": "last", "every_steps": 0, "stop_at_success": None},
+        "selection": {"keep": "last", "every_steps": 0, "stop_at_success": None, "stop_after_convergence": False},
         "convergence": {"stop": False},
         "sac": {"update": sac_update},
     }
