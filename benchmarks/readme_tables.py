@@ -726,27 +726,29 @@ def centralized() -> str:
     )
 
 
-def train_speed() -> str:
-    """The learners' rate at the paper cells' settings against the worlds' own and the updates-only bound."""
-    folder = RESULTS / "train_speed"
+def train_speed(folder: Path, summaries: tuple[str, ...], what: str) -> str:
+    """The learners' rate against the worlds' own and the updates-only bound, from `folder`'s summaries (one
+    `train_speed.py` run each) and its run.json (`what`: how the machine was used)."""
     run = run_of(folder)
-    text = (folder / "summary.txt").read_text(encoding="utf-8")
-    rows = []
-    for line in text.splitlines():
-        cells = line.split()
-        if len(cells) > 8 and "/" in cells[0] and cells[0][0] in "sdp" and cells[1].isdigit():
-            name = cells[0].replace("[batched]", "")
-            bound = line.split("updates-only bound ")[1].split()[0]
-            share = line.split("(rate ")[1].split()[0]
-            rows.append(f"| {name} | {cells[1]} | {cells[3]} | {cells[7]} | {bound} | {share} |")
-    limit = re.search(r"env_only=(\d+)", text.strip().splitlines()[-1])
-    f = {"env_only": limit.group(1) if limit else "?"}
+    rows, limits, links = [], [], []
+    for name in summaries:
+        text = (folder / name).read_text(encoding="utf-8")
+        links.append(f"[{name}](../benchmarks/results/{folder.name}/{name})")
+        for line in text.splitlines():
+            cells = line.split()
+            if len(cells) > 8 and "/" in cells[0] and cells[0][0] in "sdp" and cells[1].isdigit():
+                label = cells[0].replace("[batched]", "")
+                bound = line.split("updates-only bound ")[1].split()[0]
+                share = line.split("(rate ")[1].split()[0]
+                rows.append(f"| {label} | {cells[1]} | {cells[3]} | {cells[7]} | {bound} | {share} |")
+        limit = re.search(r"env_only=(\d+)", text.strip().splitlines()[-1])
+        limits.append(limit.group(1) if limit else "?")
+    commands = run["command"] if isinstance(run["command"], str) else "` and `".join(run["command"])
     return "\n".join(
         [
             prose(
-                f"Measured with `{run['command']}` at {run['commit']} "
-                "([summary](../benchmarks/results/train_speed/summary.txt); beside a sweep at low priority): the "
-                f"worlds alone step {f['env_only']} steps/s.",
+                f"Measured with `{commands}` at {run['commit']} ({', '.join(links)}; {what}): the worlds alone step "
+                f"{' and '.join(limits)} steps/s.",
             ),
             "",
             "| algorithm/mode | steps/s | of the worlds' rate | time in gradient updates | updates-only bound, "
@@ -781,7 +783,13 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "speedup": speedup,
     "sweeps": sweeps,
     "centralized": centralized,
-    "train-speed": train_speed,
+    "train-speed": partial(train_speed, RESULTS / "train_speed", ("summary.txt",), "beside a sweep at low priority"),
+    "train-speed-met": partial(
+        train_speed,
+        RESULTS / "train_speed_met",
+        ("summary_sac.txt", "summary_dqn.txt"),
+        "SAC with nothing else running, DQN beside 15 s of report generation at low priority",
+    ),
 }
 FILES = (
     ROOT / "README.md",
