@@ -571,6 +571,7 @@ SWEEPS = (
     "dqn_nstep",
     "dqn_nstep_converge",
     "shared",
+    "centralized_100k",
     "ppo",
     "centralized_300k",
 )
