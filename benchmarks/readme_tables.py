@@ -606,7 +606,7 @@ def _settings_file(command: str, record: Path) -> str:
 
 def sweeps() -> str:
     """The committed sweeps' cells: robot success IQM with its interval, convergence in time, the target."""
-    from pipeline.bench.stats import TARGET_EPISODES, cell_stats
+    from pipeline.bench.stats import TARGET_EPISODES, cell_stats, interval_text
 
     lines = [
         prose(
@@ -637,7 +637,7 @@ def sweeps() -> str:
                 f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | "
                 f"[{Path(settings).name}]({settings}) | {s.algorithm} | "
                 f"{MODE_WORDS.get(name, '{mode}').format(mode=s.mode)} | {s.scenario} | "
-                f"{s.seeds} | {100 * s.robot_iqm:.1f} [{100 * s.robot_ci[0]:.1f}, {100 * s.robot_ci[1]:.1f}] | "
+                f"{s.seeds} | {100 * s.robot_iqm:.1f} {interval_text(s.robot_ci, s.seeds)} | "
                 f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
             )
         commits = sorted({run["commit"][:7] + run["commit"][40:] for run in runs})  # "+local changes" kept

@@ -187,6 +187,11 @@ def cell_settings(cell: str) -> str:
     return parts[3] if len(parts) == 4 else ""
 
 
+def interval_text(ci: tuple[float, float], seeds: int) -> str:
+    """`[low, high]` in percent; a cell of one seed has no interval across seeds, and says so."""
+    return "(one seed: no interval)" if seeds < 2 else f"[{_pct(ci[0])}, {_pct(ci[1])}]"
+
+
 def markdown_table(stats: Sequence[CellStats]) -> str:
     """The results table: one line per cell (generated, not typed); a column of the cells' own params keys
     when any cell has some."""
@@ -207,8 +212,8 @@ def markdown_table(stats: Sequence[CellStats]) -> str:
         settings = f" {cell_settings(s.cell).replace(',', ', ') or '-'} |" if keyed else ""
         lines.append(
             f"| {s.algorithm} | {s.mode} | {s.scenario} |{settings} {s.seeds} | {_pct(s.robot_iqm)} "
-            f"[{_pct(s.robot_ci[0])}, {_pct(s.robot_ci[1])}] | {_pct(s.team_iqm)} "
-            f"[{_pct(s.team_ci[0])}, {_pct(s.team_ci[1])}] | {robots} | {s.converged_seeds}/{s.seeds} "
+            f"{interval_text(s.robot_ci, s.seeds)} | {_pct(s.team_iqm)} "
+            f"{interval_text(s.team_ci, s.seeds)} | {robots} | {s.converged_seeds}/{s.seeds} "
             f"({s.converged_in_time} within {TARGET_EPISODES}) | "
             f"{episodes} | {wall} | {s.train_steps / 1000:.0f}k, {s.train_wall_s / 60:.0f} min | "
             f"{s.env_steps_per_s:.0f} | {target} |"

@@ -239,3 +239,12 @@ def test_every_setting_is_either_digested_or_added_with_its_former_behaviour():
     new = sorted(settings - digested - set(DIGEST_KEYS_ADDED))
     assert not new, f"settings {new} are in neither {listed.name} nor trials.DIGEST_KEYS_ADDED: say which"
     assert set(DIGEST_KEYS_ADDED) <= settings and not digested & set(DIGEST_KEYS_ADDED)
+
+
+def test_a_cell_of_one_seed_shows_no_interval():
+    rows = rows_of({"sac/independent/empty": np.full((1, 3), 0.9), "dqn/independent/empty": np.full((2, 3), 0.8)})
+    table = markdown_table(cell_stats(rows, reps=50))
+    sac = next(line for line in table.splitlines() if line.startswith("| sac |"))
+    dqn = next(line for line in table.splitlines() if line.startswith("| dqn |"))
+    assert sac.count("(one seed: no interval)") == 2 and "[" not in sac
+    assert "(one seed" not in dqn and dqn.count("[") == 2
