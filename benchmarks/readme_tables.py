@@ -621,6 +621,7 @@ def sweeps() -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     made: list[str] = []
+    commands: dict[str, str] = {}
     machines: set[str] = set()
     for name in SWEEPS:
         folder = RESULTS / "sweeps" / name
@@ -631,6 +632,7 @@ def sweeps() -> str:
         if not record.is_file():
             raise SystemExit(f"{record}: missing: a committed sweep's rows need the record of the runs that made them")
         runs = json.loads(record.read_text(encoding="utf-8"))
+        commands[name] = runs[0]["command"]
         settings = _settings_file(runs[0]["command"], record)
         for s in cell_stats(rows):
             lines.append(
@@ -652,7 +654,7 @@ def sweeps() -> str:
             f"within {TARGET_EPISODES} training episodes (every robot over 80 % in 20 consecutive episodes); 200 "
             "evaluation episodes per seed from the exact starts, every episode counted. Each folder's sweep.json "
             "names every run's command, commit, machine and dates; the paper's: `",
-            json.loads((RESULTS / "sweeps" / SWEEPS[0] / "sweep.json").read_text(encoding="utf-8"))[0]["command"],
+            commands[SWEEPS[0]],
             "`. Made: ",
             "; ".join(made),
             f", on {'; '.join(sorted(machines))}.",
