@@ -31,6 +31,8 @@ already knows under another type is refused with the topic and both types named.
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.machinery
 import itertools
 import logging
 import os
@@ -48,6 +50,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 from urllib.parse import urlparse
 
@@ -86,17 +89,86 @@ def ros1_missing() -> str | None:
 
 
 def _import_rospy() -> Any:
+    loaded = sys.modules.get("rospy")
+    if loaded is not None:
+        return loaded
     folder = os.environ.get(PATH_VARIABLE, DEBIAN_PYTHON_PACKAGES)
     if folder and folder not in sys.path and os.path.isdir(folder):
         sys.path.append(folder)
     try:
-        return importlib.import_module("rospy")
+        with _ros1_message_packages(folder):
+            return importlib.import_module("rospy")
     except ImportError as exc:
         raise BackendUnavailableError(
             "transport 'ros1'",
             f"rospy is not importable ({exc}); install Debian's ROS 1 (apt-get install ros-core python3-rospy) or "
             f"set {PATH_VARIABLE} to the directory holding rospy (a ROS 1 of this Python's version)",
         ) from exc
+
+
+def ros1_message_module(package: str) -> ModuleType:
+    """ROS 1's ``<package>.msg`` (genpy classes from the ROS 1 installation), whatever ROS 2 holds under that name."""
+    _import_rospy()
+    folder = os.environ.get(PATH_VARIABLE, DEBIAN_PYTHON_PACKAGES)
+    with _ros1_message_packages(folder):
+        return importlib.import_module(f"{package}.msg")
+
+
+def shared_package_names(folder: str) -> frozenset[str]:
+    """The ROS 1 message packages in `folder` (``std_msgs``, ``rosgraph_msgs``, ...): names ROS 2 uses too."""
+    try:
+        entries = list(Path(folder).iterdir())
+    except OSError:
+        return frozenset()
+    return frozenset(p.name for p in entries if p.name.endswith("_msgs") and (p / "msg" / "__init__.py").is_file())
+
+
+class _FolderFirst(importlib.abc.MetaPathFinder):
+    """Finds the top-level packages `names` in `folder` only, ahead of every other path entry."""
+
+    def __init__(self, folder: str, names: frozenset[str]) -> None:
+        self.folder = folder
+        self.names = names
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
+        if fullname not in self.names:
+            return None  # submodules follow their package's own __path__
+        return importlib.machinery.PathFinder.find_spec(fullname, [self.folder])
+
+
+_ros1_modules: dict[str, ModuleType] = {}
+"""ROS 1's message modules that rospy imported, held here instead of in ``sys.modules``."""
+
+
+@contextmanager
+def _ros1_message_packages(folder: str) -> Iterator[None]:
+    """Imports inside the block see ROS 1's message packages of `folder`; afterwards ``sys.modules`` holds what it
+    held before under those names (ROS 2's, where rclpy or the ROS 2 wheels put them there).
+
+    ROS 1 and ROS 2 name their Python message packages alike (``std_msgs``, ``rosgraph_msgs``, ...). rospy binds the
+    classes it needs (``rosgraph_msgs.msg.Log``, ``std_msgs.msg.Header``) when it is imported and never imports a
+    message package later (this transport sends ready bytes), so one process can hold rospy and rclpy."""
+    names = shared_package_names(folder) if folder else frozenset()
+    if not names:
+        yield
+        return
+
+    def shared(name: str) -> bool:
+        return name.partition(".")[0] in names
+
+    saved = {name: module for name, module in sys.modules.items() if shared(name)}
+    for name in saved:
+        del sys.modules[name]
+    sys.modules.update(_ros1_modules)
+    finder = _FolderFirst(folder, names)
+    sys.meta_path.insert(0, finder)
+    try:
+        yield
+    finally:
+        sys.meta_path.remove(finder)
+        for name in [name for name in sys.modules if shared(name)]:
+            _ros1_modules[name] = sys.modules.pop(name)
+        sys.modules.update(saved)
 
 
 def ros1_typename(typename: str) -> str:

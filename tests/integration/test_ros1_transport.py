@@ -20,7 +20,7 @@ from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
 from pipeline.ros import NetworkSettings, open_transport
 from pipeline.ros.errors import TransportError
-from pipeline.ros.ros1 import decode, encode, free_port, wire_type
+from pipeline.ros.ros1 import decode, encode, free_port, ros1_message_module, wire_type
 from tests.integration.test_transport_loopback import (
     Inbox,
     assert_stream_is_exact,
@@ -43,20 +43,20 @@ def ns() -> str:
 def test_wire_types_are_ros1_noeticss_own(ros1_master: str) -> None:
     """Name, md5sum and definition as Debian's ROS 1 message packages have them, so roscpp and rospy nodes connect."""
     debian = {
-        T.LASER_SCAN: "sensor_msgs.msg:LaserScan",
-        T.ODOMETRY: "nav_msgs.msg:Odometry",
-        T.POSE_STAMPED: "geometry_msgs.msg:PoseStamped",
-        T.TWIST: "geometry_msgs.msg:Twist",
-        T.CLOCK: "rosgraph_msgs.msg:Clock",
+        T.LASER_SCAN: "sensor_msgs:LaserScan",
+        T.ODOMETRY: "nav_msgs:Odometry",
+        T.POSE_STAMPED: "geometry_msgs:PoseStamped",
+        T.TWIST: "geometry_msgs:Twist",
+        T.CLOCK: "rosgraph_msgs:Clock",
     }
     for typename, where in debian.items():
-        module, _, name = where.partition(":")
-        cls = getattr(importlib.import_module(module), name)
+        package, _, name = where.partition(":")
+        cls = getattr(ros1_message_module(package), name)
         wire = wire_type(typename)
         assert (wire.ros1_name, wire.md5sum) == (cls._type, cls._md5sum), typename
     # the bytes are ROS 1's: Debian's genpy class reads what the transport sends, and the other way round
     scan = expected_scan("robot_1", 7)
-    theirs = importlib.import_module("sensor_msgs.msg").LaserScan().deserialize(encode(scan, T.LASER_SCAN))
+    theirs = ros1_message_module("sensor_msgs").LaserScan().deserialize(encode(scan, T.LASER_SCAN))
     assert theirs.header.frame_id == "robot_1/laser" and theirs.header.seq == 0
     np.testing.assert_array_equal(np.asarray(theirs.ranges, dtype=np.float32), scan.ranges)
     buff = io.BytesIO()
