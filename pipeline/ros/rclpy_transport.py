@@ -1,13 +1,16 @@
-"""The rclpy transport: the same interface over a ROS 2 installation (any RMW it is set up with).
+"""The rclpy transport: the same interface over ROS 2's own client library (Jazzy or Kilted, any RMW it is set up with).
 
-Importing this module never needs ROS 2; constructing :class:`RclpyTransport` where rclpy is not
-importable raises :class:`~pipeline.ros.transport.BackendUnavailableError`.
+Importing this module never needs ROS 2; constructing :class:`RclpyTransport` where rclpy is not importable raises
+:class:`~pipeline.ros.transport.BackendUnavailableError` with the install command. ROS 2 comes from the PyPI wheels
+of the ``ros2`` extra (``pip install -e '.[ros2]'``: Jazzy's rclpy with Fast DDS) or from a sourced
+``/opt/ros/<distro>``; a mix of distributions, a missing RMW library and a type without its type support are named
+before anything is sent.
 
-Messages cross as CDR: a publisher sends ``message_store().serialize(msg)`` as a serialized
-message and a raw subscription hands its bytes to ``message_store().deserialize``, so no
-conversion to rclpy message objects happens; rclpy's message classes only supply the type
-support. ``mrl_msgs`` types therefore need the ``mrl_msgs`` package (the ``.msg`` files of
-``schemas/``) built in the sourced ROS 2 workspace.
+Messages cross as CDR: a publisher sends ``message_store().serialize(msg)`` as a serialized message and a raw
+subscription hands its bytes to ``message_store().deserialize``, so no conversion to rclpy message objects happens;
+rclpy's message classes only supply the type support (type name, hash and the RMW's serializer for matching). The
+pipeline's own types (``mrl_msgs``) and ``tf2_msgs``, which the wheels lack, are built from ``schemas/`` at their
+first use (:mod:`pipeline.ros.ros2_interfaces`).
 
 Discovery settings reach the RMW through the variables ROS 2 Jazzy reads when a context starts:
 ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (``LOCALHOST`` for ``loopback_only``, else ``SUBNET``) and
@@ -22,16 +25,28 @@ import importlib
 import itertools
 import logging
 import os
+import re
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
+from pipeline.messages.errors import MessageError
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import QosProfile, TopicSpec
+from pipeline.ros import ros2_interfaces
 from pipeline.ros.errors import BackendUnavailableError, TransportError
-from pipeline.ros.transport import MessageCallback, NetworkSettings, Publisher, Subscription, Transport, check_topic
+from pipeline.ros.transport import (
+    MessageCallback,
+    NetworkSettings,
+    Publisher,
+    Subscription,
+    Transport,
+    check_topic,
+    field_complaint,
+)
 
 log = logging.getLogger(__name__)
 
@@ -39,25 +54,53 @@ _SPIN_S = 0.1  # the executor thread re-checks for shutdown at least this often
 _node_ids = itertools.count()
 
 
+RMW_VARIABLE = "RMW_IMPLEMENTATION"
+DEFAULT_RMW = "rmw_fastrtps_cpp"
+
+
 def rclpy_available() -> bool:
     """True when rclpy can be imported in this Python."""
+    return rclpy_missing() is None
+
+
+def rclpy_missing() -> str | None:
+    """Why the rclpy transport cannot start here (None: it can): no ROS 2, mixed distributions, no RMW library."""
     try:
-        importlib.import_module("rclpy")
-    except ImportError:
-        return False
-    return True
+        _import_rclpy()
+        _check_rmw()
+    except BackendUnavailableError as exc:
+        return str(exc)
+    return None
 
 
 def _import_rclpy() -> Any:
+    installation = ros2_interfaces.check_distribution()
     try:
         return importlib.import_module("rclpy")
     except ImportError as exc:
         raise BackendUnavailableError(
             "transport 'rclpy'",
-            f"rclpy is not importable in this Python ({exc}); source a ROS 2 Jazzy installation "
-            "(e.g. /opt/ros/jazzy/setup.bash) and run with its Python, or use the 'dds' transport, "
-            "which needs no ROS 2 installation",
+            f"rclpy is not importable in this Python ({exc}): {ros2_interfaces.INSTALL_HINT}"
+            + ("" if installation.source == "wheels" else f" (ROS 2 {installation.distribution} is sourced)"),
         ) from exc
+
+
+def _check_rmw() -> None:
+    """BackendUnavailableError unless the RMW implementation rclpy will load has its library here."""
+    rmw = os.environ.get(RMW_VARIABLE) or DEFAULT_RMW
+    library = f"lib{rmw}.so"
+    folders = [p for p in os.environ.get("LD_LIBRARY_PATH", "").split(os.pathsep) if p]
+    folders += [str(Path(p) / "lib") for p in ros2_interfaces.check_distribution().prefixes]
+    if not re.fullmatch(r"rmw_[a-z0-9_]+", rmw) or not any((Path(f) / library).is_file() for f in folders):
+        hint = (
+            "pip install ros-rmw-fastrtps-cpp (the ros2 extra pins it)"
+            if rmw == DEFAULT_RMW
+            else (f"install {rmw}, or unset {RMW_VARIABLE} to use {DEFAULT_RMW}")
+        )
+        raise BackendUnavailableError(
+            "transport 'rclpy'",
+            f"the RMW implementation {rmw!r} ({RMW_VARIABLE}) has no library {library} here: {hint}",
+        )
 
 
 @contextmanager
@@ -93,17 +136,26 @@ def _ros_qos(qos: QosProfile) -> Any:
 
 
 def _message_class(spec: TopicSpec) -> Any:
-    from rosidl_runtime_py.utilities import get_message
-
+    """The rclpy message class of `spec`'s type, its type support loaded; TransportError naming what is missing."""
+    package, _, name = spec.typename.partition("/msg/")
+    if package in ros2_interfaces.BUILT_PACKAGES:
+        try:
+            ros2_interfaces.ensure_interfaces()
+        except BackendUnavailableError as exc:
+            raise TransportError(f"topic {spec.name}", f"message type {spec.typename}: {exc}") from exc
     try:
-        return get_message(spec.typename)
-    except (AttributeError, ModuleNotFoundError, ValueError) as exc:
-        package = spec.typename.split("/")[0]
+        cls = getattr(importlib.import_module(f"{package}.msg"), name)
+        cls.__class__.__import_type_support__()
+        if cls.__class__._TYPE_SUPPORT is None:
+            raise ImportError("its type support library did not load")
+    except (AttributeError, ImportError) as exc:
         raise TransportError(
             f"topic {spec.name}",
-            f"message type {spec.typename} is not available in this ROS 2 environment ({exc}); "
-            f"build and source the {package} package (its .msg files are in schemas/{package}/msg)",
+            f"message type {spec.typename} has no ROS 2 type support here ({exc}); "
+            f"install the ros-{package.replace('_', '-')} wheel of your distribution or source a workspace that "
+            f"builds {package}",
         ) from exc
+    return cls
 
 
 class RclpyPublisher(Publisher):
@@ -127,7 +179,10 @@ class RclpyPublisher(Publisher):
             raise TransportError(
                 f"topic {self.spec.name}", f"expected a {self.spec.typename} message, got {type(msg).__name__}"
             )
-        data = message_store().serialize(msg, self.spec.typename)
+        try:
+            data = message_store().serialize(msg, self.spec.typename)
+        except MessageError as exc:
+            raise TransportError(f"topic {self.spec.name}", field_complaint(msg, self.spec.typename, exc)) from exc
         try:
             publisher.publish(data)
         except Exception as exc:  # rclpy raises RCLError and assorted runtime errors
@@ -178,6 +233,7 @@ class RclpyTransport(Transport):
     def __init__(self, settings: NetworkSettings) -> None:
         super().__init__(settings)
         rclpy = _import_rclpy()
+        _check_rmw()
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions

@@ -61,7 +61,15 @@ from pipeline.messages.errors import MessageError
 from pipeline.messages.store import message_store, schema_files
 from pipeline.messages.topics import TopicSpec
 from pipeline.ros.errors import BackendUnavailableError, TransportError
-from pipeline.ros.transport import MessageCallback, NetworkSettings, Publisher, Subscription, Transport, check_topic
+from pipeline.ros.transport import (
+    MessageCallback,
+    NetworkSettings,
+    Publisher,
+    Subscription,
+    Transport,
+    check_topic,
+    field_complaint,
+)
 
 log = logging.getLogger(__name__)
 
@@ -303,17 +311,6 @@ def private_master(home: Path | None = None, timeout_s: float = 15.0) -> Iterato
                     proc.wait()
 
 
-def _which_field(msg: Any, typename: str, exc: MessageError) -> str:
-    """The serializer's complaint, with the member it is about where the DDS type's checks name it."""
-    from pipeline.ros.idl import dds_type
-
-    try:
-        dds_type(typename).to_dds(msg)
-    except Exception as found:  # the converters raise ValueError/TypeError naming the member
-        return f"{exc}: {found}"
-    return str(exc)
-
-
 def _writer_id(caller_id: str) -> int:
     return zlib.crc32(caller_id.encode()) & 0x7FFFFFFF
 
@@ -341,7 +338,7 @@ class Ros1Publisher(Publisher):
         try:
             raw._buff = encode(msg, self.spec.typename)
         except MessageError as exc:
-            raise TransportError(f"topic {self.spec.name}", _which_field(msg, self.spec.typename, exc)) from exc
+            raise TransportError(f"topic {self.spec.name}", field_complaint(msg, self.spec.typename, exc)) from exc
         return raw
 
     def publish(self, msg: Any) -> None:

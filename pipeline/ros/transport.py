@@ -160,6 +160,17 @@ def check_topic(spec: TopicSpec) -> None:
         raise TransportError(f"topic {spec.name}", f"history depth {spec.qos.depth!r}: must be an integer >= 1")
 
 
+def field_complaint(msg: Any, typename: str, exc: Exception) -> str:
+    """The serializer's complaint `exc` about `msg`, with the member it is about where the DDS type's checks name it."""
+    from pipeline.ros.idl import dds_type
+
+    try:
+        dds_type(typename).to_dds(msg)
+    except Exception as found:  # the converters raise ValueError/TypeError naming the member
+        return f"{exc}: {found}"
+    return str(exc)
+
+
 class Publisher(ABC):
     """Sends messages of one topic. Obtained from :meth:`Transport.publisher`."""
 
