@@ -508,7 +508,7 @@ class DeployConfig:
     """The `deploy` stage: episodes of the round's exported policy on the fleet, recorded to MCAP."""
 
     fleet: str = setting("twin")
-    """A bundled fleet (twin, twin_ros1, spark_lab) or the path of a fleet YAML file."""
+    """A bundled fleet (twin, twin_ros1, twin_rclpy, spark_lab) or the path of a fleet YAML file."""
     episodes: int = setting(50, ge=1, le=100_000)
     seed: int = setting(20_000, ge=0)
     time_scale: float = setting(0.0, ge=0.0, le=20.0)

@@ -62,9 +62,19 @@ class DeployRequest:
 class TwinProcess:
     """The hardware twin as a child process; its output is kept for error messages."""
 
-    def __init__(self, fleet_source: str, profile: str, time_scale: float, seed: int, extra: list[str] | None = None):
+    def __init__(
+        self,
+        fleet_source: str,
+        profile: str,
+        time_scale: float,
+        seed: int,
+        extra: list[str] | None = None,
+        domain_id: int | None = None,
+    ):
         cmd = [sys.executable, "-m", "pipeline.twin", "--fleet", fleet_source, "--profile", profile]
         cmd += ["--time-scale", repr(time_scale), "--seed", str(seed), "--exit-with-parent", *(extra or [])]
+        if domain_id is not None:  # the deployment's domain where it is not the fleet file's (mrl deploy --domain-id)
+            cmd += ["--domain-id", str(domain_id)]
         # its own session keeps a terminal's Ctrl-C for the runner, which stops the robots first; the
         # lifeline (its stdin, whose other end only this process holds) stops it when this process dies
         self.proc = subprocess.Popen(
@@ -305,7 +315,7 @@ def _deploy(
             check_domain_is_free(transport, fleet)
             profile = request.profile or fleet.twin.profile
             scale = request.time_scale or fleet.twin.time_scale
-            twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, twin_extra_args)
+            twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, twin_extra_args, fleet.network.domain_id)
             profile = Path(profile).stem
             twin.wait_ready(TWIN_START_TIMEOUT_S)
         clock: Clock = ScaledClock(scale) if scale != 1.0 else WallClock()

@@ -67,7 +67,6 @@ def rclpy_missing() -> str | None:
     """Why the rclpy transport cannot start here (None: it can): no ROS 2, mixed distributions, no RMW library."""
     try:
         _import_rclpy()
-        _check_rmw()
     except BackendUnavailableError as exc:
         return str(exc)
     return None
@@ -75,6 +74,7 @@ def rclpy_missing() -> str | None:
 
 def _import_rclpy() -> Any:
     installation = ros2_interfaces.check_distribution()
+    _check_rmw()  # before the import: rcl ends the process (exit 102) when it loads beside another RMW than named
     try:
         return importlib.import_module("rclpy")
     except ImportError as exc:
@@ -233,7 +233,6 @@ class RclpyTransport(Transport):
     def __init__(self, settings: NetworkSettings) -> None:
         super().__init__(settings)
         rclpy = _import_rclpy()
-        _check_rmw()
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions

@@ -18,6 +18,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from types import FrameType
 
 from pipeline.core.scenario import load_scenario
@@ -37,6 +38,9 @@ def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> 
         "--time-scale", type=float, default=None, help="twin seconds per wall second (default: the fleet's)"
     )
     parser.add_argument("--seed", type=int, default=None, help="noise seed (default: the fleet's)")
+    parser.add_argument(
+        "--domain-id", type=int, default=None, help="the DDS domain id (0-232) instead of the fleet file's"
+    )
     parser.add_argument(
         "--silence",
         default=None,
@@ -100,6 +104,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         watch_lifeline(stop)
     try:
         fleet = load_fleet(args.fleet)
+        if args.domain_id is not None:
+            fleet = replace(fleet, network=replace(fleet.network, domain_id=args.domain_id))
         scenario = load_scenario(fleet.scenario)
         name, profile = load_profile_for(args.profile or fleet.twin.profile, scenario)
         scale = fleet.twin.time_scale if args.time_scale is None else args.time_scale
