@@ -209,7 +209,7 @@ def _build_tools() -> tuple[str, str]:
     return cmake, compiler
 
 
-def _package_sources(package: str, into: Path) -> Path:
+def package_sources(package: str, into: Path) -> Path:
     """The package folder to build: schemas/<package> as it is where it has a CMakeLists.txt, else one written."""
     source = SCHEMA_ROOT / package
     if (source / "CMakeLists.txt").is_file():
@@ -260,7 +260,7 @@ def build(installation: Installation, prefix: Path, packages: tuple[str, ...], l
         fix = Path(scratch) / "fix.cmake"
         fix.write_text(_CMAKE_FIX, encoding="utf-8")
         for package in packages:
-            source = _package_sources(package, Path(scratch))
+            source = package_sources(package, Path(scratch))
             build_dir = Path(scratch) / f"build-{package}"
             steps = [
                 [

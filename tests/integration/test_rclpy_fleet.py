@@ -18,7 +18,11 @@ from pipeline.ros.rclpy_transport import rclpy_missing
 from tests.integration.conftest import free_domain_id, write_fleet
 from tests.integration.test_mrl_command import MRL
 
-pytestmark = [pytest.mark.integration, pytest.mark.skipif(rclpy_missing() is not None, reason=str(rclpy_missing()))]
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.ros2,
+    pytest.mark.skipif(rclpy_missing() is not None, reason=str(rclpy_missing())),
+]
 
 RECORDED = {"/tf", "/clock", "/mrl/reset", "/mrl/observation", "/mrl/action", "/mrl/episode", "/mrl/timing"} | {
     f"/robot_{i}/{t}" for i in (1, 2, 3) for t in ("scan", "odom", "ground_truth", "cmd_vel")

@@ -24,7 +24,11 @@ from pipeline.ros import NetworkSettings, Transport, open_transport, ros2_interf
 from pipeline.ros.rclpy_transport import rclpy_missing
 from tests.integration.conftest import free_domain_id
 
-pytestmark = [pytest.mark.integration, pytest.mark.skipif(rclpy_missing() is not None, reason=str(rclpy_missing()))]
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.ros2,
+    pytest.mark.skipif(rclpy_missing() is not None, reason=str(rclpy_missing())),
+]
 
 ROOT = Path(__file__).resolve().parents[2]
 GOLDEN = ROOT / "tests" / "golden" / "session.mcap"
@@ -133,3 +137,39 @@ def test_a_type_without_its_type_support_is_named_with_the_topic():
     assert done.returncode == 0, done.stderr
     line = done.stdout.strip()
     assert "/mrl/map" in line and "visualization_msgs/msg/MarkerArray" in line and "ros-visualization-msgs" in line
+
+
+@pytest.mark.parametrize("first", ["rospy", "rclpy"])
+def test_one_process_holds_rospy_and_rclpy_with_their_own_message_packages(first):
+    """ROS 1's rospy and ROS 2's rclpy in one interpreter, in either order: rospy keeps Debian's genpy classes,
+    ``sys.modules`` keeps ROS 2's packages, and both transports send."""
+    from pipeline.ros.ros1 import ros1_missing
+
+    if ros1_missing() is not None:
+        pytest.skip(str(ros1_missing()))
+    code = f"""
+import sys
+from pipeline.ros import NetworkSettings, open_transport
+from pipeline.ros.ros1 import _import_rospy, free_port, ros1_message_module
+from pipeline.messages import convert, topics as T
+
+def ros2_side():
+    with open_transport("rclpy", NetworkSettings(domain_id={free_domain_id()})) as t:
+        t.publisher(T.FLEET_TOPICS["clock"]).publish(convert.clock(5))
+    import rosgraph_msgs.msg
+    return hasattr(rosgraph_msgs.msg.Clock, "_TYPE_SUPPORT") or hasattr(type(rosgraph_msgs.msg.Clock), "_TYPE_SUPPORT")
+
+def ros1_side():
+    rospy = _import_rospy()
+    log_class = sys.modules["rospy.impl.rosout"].Log
+    return log_class._md5sum == ros1_message_module("rosgraph_msgs").Log._md5sum and hasattr(log_class, "_full_text")
+
+order = [ros1_side, ros2_side] if "{first}" == "rospy" else [ros2_side, ros1_side]
+print([f() for f in order])
+import rosgraph_msgs.msg, std_msgs.msg
+print("ros2" if hasattr(type(std_msgs.msg.Header), "_TYPE_SUPPORT") else "ros1", hasattr(rosgraph_msgs.msg, "Log"))
+"""
+    done = _run(code)
+    assert done.returncode == 0, done.stderr
+    both, after = done.stdout.splitlines()[-2:]
+    assert both == "[True, True]" and after == "ros2 False", done.stdout

@@ -135,10 +135,13 @@ def echo_peer(
                 proc.wait(timeout=5.0)
 
 
-@pytest.fixture(params=["dds", "rclpy"])
+@pytest.fixture(params=["dds", pytest.param("rclpy", marks=pytest.mark.ros2)])
 def backend(request: pytest.FixtureRequest) -> str:
     if request.param == "rclpy":
-        pytest.importorskip("rclpy", reason="rclpy (a ROS 2 installation) is not available in this environment")
+        from pipeline.ros.rclpy_transport import rclpy_missing
+
+        if rclpy_missing() is not None:
+            pytest.skip(str(rclpy_missing()))
     return str(request.param)
 
 

@@ -25,10 +25,13 @@ from tests.domains import domain_id as run_domain_id
 _domains = itertools.count()
 
 
-@pytest.fixture(params=["dds", "ros1", "rclpy"])
+@pytest.fixture(params=["dds", "ros1", pytest.param("rclpy", marks=pytest.mark.ros2)])
 def transport(request: pytest.FixtureRequest) -> Iterator[Transport]:
     if request.param == "rclpy":
-        pytest.importorskip("rclpy", reason="rclpy (a ROS 2 installation) is not available in this environment")
+        from pipeline.ros.rclpy_transport import rclpy_missing
+
+        if rclpy_missing() is not None:
+            pytest.skip(str(rclpy_missing()))
     master = request.getfixturevalue("ros1_master") if request.param == "ros1" else ""
     domain_id = run_domain_id("contract", os.getpid() + next(_domains))
     with open_transport(request.param, NetworkSettings(domain_id=domain_id, master_uri=master)) as t:
