@@ -103,13 +103,34 @@ def _check_rmw() -> None:
         )
 
 
-@contextmanager
-def _discovery_environment(settings: NetworkSettings) -> Iterator[None]:
-    """Sets the ROS 2 discovery variables of `settings` for the duration of the block."""
+FASTDDS_PROFILES_VARIABLE = "FASTDDS_DEFAULT_PROFILES_FILE"
+NO_TYPE_PROPAGATION = Path(__file__).resolve().parent / "profiles" / "fastdds_no_type_propagation.xml"
+"""Fast DDS 3's participant profile without type propagation, so Cyclone DDS endpoints match (see the file)."""
+_FAST_DDS_2_DISTRIBUTIONS = ("humble", "iron", "jazzy")
+
+
+def middleware_environment(settings: NetworkSettings) -> dict[str, str]:
+    """The variables the RMW reads when a participant starts: discovery of `settings` and, on Fast DDS 3 (Kilted and
+    later) where the user set no profile of their own, the profile that lets Cyclone DDS peers match."""
     wanted = {
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST" if settings.loopback_only else "SUBNET",
         "ROS_STATIC_PEERS": ";".join(settings.peers),
     }
+    rmw = os.environ.get(RMW_VARIABLE) or DEFAULT_RMW
+    distribution = ros2_interfaces.check_distribution().distribution
+    if (
+        rmw == DEFAULT_RMW
+        and distribution not in _FAST_DDS_2_DISTRIBUTIONS
+        and not os.environ.get(FASTDDS_PROFILES_VARIABLE)
+    ):
+        wanted[FASTDDS_PROFILES_VARIABLE] = str(NO_TYPE_PROPAGATION)
+    return wanted
+
+
+@contextmanager
+def _discovery_environment(settings: NetworkSettings) -> Iterator[None]:
+    """Sets the variables of :func:`middleware_environment` for the duration of the block."""
+    wanted = middleware_environment(settings)
     saved = {key: os.environ.get(key) for key in wanted}
     os.environ.update(wanted)
     try:
@@ -250,7 +271,7 @@ class RclpyTransport(Transport):
                     domain_id=settings.domain_id,
                     signal_handler_options=SignalHandlerOptions.NO,
                 )
-            self._node = rclpy.create_node(f"mrl_transport_{os.getpid()}_{next(_node_ids)}", context=self._context)
+                self._node = rclpy.create_node(f"mrl_transport_{os.getpid()}_{next(_node_ids)}", context=self._context)
             self._executor = SingleThreadedExecutor(context=self._context)
             self._executor.add_node(self._node)
         except Exception as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,9 @@ def cache_root() -> Path:
 def build(root: Path | None = None) -> Path:
     """The driver's executable, built on first use for this IDL and these sources."""
     idl = idl_document(TYPES)
-    out = (root or cache_root()) / drivers.source_digest(SOURCE, drivers.COMMON, extra=idl.encode())
+    # Debian's Fast DDS 2.9, not the ROS 2 wheels' (fastcdr 2) that CMake would find through the venv's bin/ on PATH
+    ignore = f"-DCMAKE_IGNORE_PREFIX_PATH={sys.prefix}"
+    out = (root or cache_root()) / drivers.source_digest(SOURCE, drivers.COMMON, extra=idl.encode() + ignore.encode())
     binary = out / "build" / "mrl_fastdds_robot"
     if binary.exists():
         return binary
@@ -57,7 +60,7 @@ def build(root: Path | None = None) -> Path:
     gen.mkdir(parents=True, exist_ok=True)
     (gen / "ros2_types.idl").write_text(idl, encoding="utf-8")
     drivers.run(["fastddsgen", "-replace", "-d", str(gen), str(gen / "ros2_types.idl")], out)
-    drivers.run(["cmake", "-S", str(SOURCE), "-B", str(out / "build"), f"-DGENERATED_DIR={gen}"], out)
+    drivers.run(["cmake", "-S", str(SOURCE), "-B", str(out / "build"), f"-DGENERATED_DIR={gen}", ignore], out)
     drivers.run(["cmake", "--build", str(out / "build"), "-j", "2"], out)
     return binary
 
