@@ -1,7 +1,8 @@
 """The whole loop as `dvc repro` on a tiny budget, in a fresh copy of the repository, then `dvc exp run -S`.
 
-The twin's fleet is a ROS 1 fleet where Debian's ROS 1 is installed (each deploy stage brings its own rosmaster),
-else a DDS one: the loop runs over a middleware no one here wrote wherever it can."""
+The loop runs twice, over middleware no one here wrote wherever it can: the twin's fleet is a ROS 1 fleet where
+Debian's ROS 1 is installed (each deploy stage brings its own rosmaster), else a DDS one; and an rclpy fleet (ROS 2's
+client library, Fast DDS) where the ros2 extra's wheels are installed."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import pytest
 import yaml
 
 from pipeline.record import McapLog
+from pipeline.ros.rclpy_transport import rclpy_missing
 from pipeline.ros.ros1 import ros1_missing
 from tests.integration.conftest import write_fleet
 
@@ -46,10 +48,20 @@ def run(cmd: list[str], cwd: Path, env: dict[str, str], timeout: int = 900) -> s
     return done
 
 
-@pytest.fixture(scope="module")
-def repo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
+def fleet_transport(middleware: str) -> str:
+    """The fleet's transport for the loop run `middleware` ('ros1': ROS 1, else dds; 'rclpy')."""
+    if middleware == "rclpy":
+        if rclpy_missing() is not None:
+            pytest.skip(str(rclpy_missing()))
+        return "rclpy"
+    return "ros1" if ros1_missing() is None else "dds"
+
+
+@pytest.fixture(scope="module", params=["ros1", pytest.param("rclpy", marks=pytest.mark.ros2)])
+def repo(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str], str]:
     if shutil.which("git") is None:
         pytest.skip("git is not installed")
+    transport = fleet_transport(str(request.param))
     dest = tmp_path_factory.mktemp("repo")
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
     for name in files:
@@ -64,7 +76,6 @@ def repo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]
                 params[section][key].update(value)
             else:
                 params[section][key] = value
-    transport = "ros1" if ros1_missing() is None else "dds"
     fleet = write_fleet(dest / "fleet.yaml", transport=transport, twin={"profile": "harsh", "time_scale": 4.0})
     params["deploy"]["fleet"] = fleet.name
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
@@ -80,18 +91,18 @@ def repo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]
     run(["git", "add", "-A"], dest, env)
     run(["git", "commit", "-qm", "tiny"], dest, env)
     run([sys.executable, "-m", "dvc", "repro"], dest, env, timeout=1500)
-    return dest, env
+    return dest, env, transport
 
 
 def test_repro_runs_the_closed_loop_and_reports_the_gap(repo):
-    dest, env = repo
+    dest, env, transport = repo
     metrics = json.loads((dest / "logs" / "report" / "metrics.json").read_text())
     for label in ("nominal", "calibrated"):
         assert f"sim/{label}/robot_success" in metrics and f"real/{label}/robot_success" in metrics
         assert f"gap/{label}/robot_success" in metrics
     for label in ("nominal", "calibrated"):  # the twin's sessions went over the fleet's middleware
         session = McapLog(dest / "logs" / "real" / label / "session.mcap").metadata()["session"]
-        assert session["transport"] == ("ros1" if ros1_missing() is None else "dds")
+        assert session["transport"] == transport
     calibration = yaml.safe_load((dest / "logs" / "calibration" / "calibration.yaml").read_text())
     assert calibration["profile"]["lidar"]["beams"] == 360
     # the default reality is the lab's; the fit report ends with what the calibrated simulator leaves
@@ -111,8 +122,9 @@ def test_repro_runs_the_closed_loop_and_reports_the_gap(repo):
     assert (dest / "plots" / "index.html").exists()
 
 
+@pytest.mark.parametrize("repo", ["ros1"], indirect=True)  # dvc exp run does not depend on the middleware
 def test_exp_run_with_a_set_parameter(repo):
-    dest, env = repo
+    dest, env, _ = repo
     run([sys.executable, "-m", "dvc", "exp", "run", "-S", "report.trajectory_episodes=1"], dest, env, timeout=600)
     params = yaml.safe_load((dest / "params.yaml").read_text())
     assert params["report"]["trajectory_episodes"] == 1
