@@ -44,7 +44,8 @@ CACHE_VARIABLE = "MRL_ROS2_INTERFACES"
 """Environment variable naming the folder that holds the built prefixes (default ``~/.cache/multirobot-sim2real``)."""
 
 INSTALL_HINT = (
-    "pip install -e '.[ros2]' (ROS 2 Jazzy from PyPI; '.[ros2-kilted]' for Kilted) or source /opt/ros/jazzy/setup.bash"
+    "pip install -e '.[ros2]' (ROS 2 Jazzy from PyPI; '.[ros2-kilted]' for Kilted) or "
+    "source /opt/ros/jazzy/setup.bash; or use the 'dds' transport, which needs no ROS 2"
 )
 
 # distribution -> the wheels that tell it, with the major.minor their versions start with

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import sys
 
 import pytest
 
@@ -127,9 +128,11 @@ def test_unknown_backend_lists_the_known_ones() -> None:
         open_transport("zenoh", NetworkSettings())  # type: ignore[arg-type]
 
 
-@pytest.mark.skipif(HAS_RCLPY, reason="rclpy is installed here, so the rclpy backend is available")
-def test_rclpy_backend_without_rclpy_says_so() -> None:
-    with pytest.raises(BackendUnavailableError, match=r"rclpy is not importable.*'dds' transport"):
+def test_rclpy_backend_without_rclpy_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # not importable, installed here or not
+    with pytest.raises(
+        BackendUnavailableError, match=r"transport 'rclpy'.*pip install -e '\.\[ros2\]'.*'dds' transport"
+    ):
         open_transport("rclpy", NetworkSettings())
 
 
