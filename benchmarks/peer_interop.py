@@ -1,11 +1,13 @@
-"""Interoperability with peers we did not write: the deploy runner and three robot drivers in C++.
+"""Interoperability with peers we did not write: the deploy runner and three robot drivers, in C++ or as ROS 2 nodes.
 
 --peer fastdds: the runner on Cyclone DDS and drivers on Debian's Fast DDS (``tests/peers/fastdds_robot``,
 from the pipeline's IDL with fastddsgen), over DDS discovery on loopback. --peer roscpp: the runner on
 rospy and drivers on Debian's roscpp (``tests/peers/roscpp_robot``), through a private rosmaster on a
-free loopback port. The benchmark builds the driver, trains and exports a tiny shared policy for the
-obstacles room, and deploys it for `--episodes` episodes on three drivers (1x, target ``robots``, the
-benchmark playing the operator who puts the robots back).
+free loopback port. --peer rclpy: drivers written as ordinary ROS 2 nodes in rclpy (``tests/peers/rclpy_robot``,
+Fast DDS from the ros2 extra's wheels, domain and loopback discovery from the environment as for any ROS 2 node),
+the runner on Cyclone DDS or, with ``--transport rclpy``, on rclpy itself. The benchmark builds the driver (the C++
+peers), trains and exports a tiny shared policy for the obstacles room, and deploys it for `--episodes` episodes on
+three drivers (1x, target ``robots``, the benchmark playing the operator who puts the robots back).
 
 Printed: the jitter of a bare 20 ms timer loop on this machine (the limit the emitter can reach), the
 runner's emitter tick jitter p99 and cross-robot send skew p99 from the recorded /mrl/timing (targets
@@ -14,8 +16,9 @@ commands the driver never received (lost), one-way delay p50/p99 (driver receive
 recorded send time, one host clock); command round trip p50/p99: from sending a new command value
 to receiving the first odometry whose twist reports it (the driver applies the command and
 publishes it back at 50 Hz); scans recorded vs published.
-Last line: ``peer=<peer> episodes=<done>/<asked> lost=<n> jitter_p99_ms=<..> jitter_ratio=<jitter p99 / bare timer
-p99> skew_p99_ms=<..> delay_p50_ms=<..> delay_p99_ms=<..> rtt_p50_ms=<..> rtt_p99_ms=<..>``.
+Last line: ``peer=<peer> transport=<the runner's> episodes=<done>/<asked> lost=<n> jitter_p99_ms=<..>
+jitter_ratio=<jitter p99 / bare timer p99> skew_p99_ms=<..> delay_p50_ms=<..> delay_p99_ms=<..> rtt_p50_ms=<..>
+rtt_p99_ms=<..>``.
 """
 
 from __future__ import annotations
@@ -38,6 +41,12 @@ from deploy_timing import bare_timer_jitter_ms, tiny_policy  # noqa: E402
 from pipeline.analysis.timing import timing_figures  # noqa: E402
 from pipeline.record import McapLog  # noqa: E402
 from tests.peers import drivers, fastdds, ros1, roscpp  # noqa: E402
+from tests.peers import rclpy as rclpy_peer  # noqa: E402
+
+DOMAINS = {"fastdds": 173, "rclpy": 174}
+"""The DDS domain of each DDS peer's run (its own: two benchmarks at once never share one)."""
+TRANSPORTS = {"fastdds": "dds", "roscpp": "ros1", "rclpy": "dds"}
+"""The runner's transport for each peer (rclpy: the default of --transport)."""
 
 
 def round_trips_s(sent: list[tuple[int, float, float]], odom: list[tuple[int, float, float]]) -> list[float]:
@@ -60,11 +69,19 @@ def round_trips_s(sent: list[tuple[int, float, float]], odom: list[tuple[int, fl
 
 
 @contextmanager
-def deployer(peer: str, folder: Path) -> Iterator[Any]:
-    """``deploy(policy, folder, episodes)`` on three drivers of `peer` (with its master, for roscpp)."""
+def deployer(peer: str, folder: Path, transport: str) -> Iterator[Any]:
+    """``deploy(policy, folder, episodes)`` on three drivers of `peer` (with its master, for roscpp), the runner on
+    `transport` (rclpy peer only)."""
     if peer == "fastdds":
         binary = fastdds.build()
-        yield lambda policy, out, episodes: fastdds.deploy_on_drivers(binary, policy, out, episodes, domain=173)
+        yield lambda policy, out, episodes: fastdds.deploy_on_drivers(
+            binary, policy, out, episodes, domain=DOMAINS[peer]
+        )
+        return
+    if peer == "rclpy":
+        yield lambda policy, out, episodes: rclpy_peer.deploy_on_drivers(
+            policy, out, episodes, domain=DOMAINS[peer], transport=transport
+        )
         return
     binary = roscpp.build()
     with ros1.master(folder / "ros_home") as uri:
@@ -73,16 +90,25 @@ def deployer(peer: str, folder: Path) -> Iterator[Any]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--peer", choices=("fastdds", "roscpp"), default="fastdds")
+    parser.add_argument("--peer", choices=("fastdds", "roscpp", "rclpy"), default="fastdds")
     parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument(
+        "--transport",
+        choices=("dds", "rclpy"),
+        default=None,
+        help="the runner's transport with --peer rclpy: dds (Cyclone DDS, the default) or rclpy",
+    )
     args = parser.parse_args()
-    reason = fastdds.missing() if args.peer == "fastdds" else roscpp.missing()
+    if args.transport is not None and args.peer != "rclpy":
+        parser.error(f"--transport is for --peer rclpy; the {args.peer} peer's runner is on {TRANSPORTS[args.peer]}")
+    transport = args.transport or TRANSPORTS[args.peer]
+    reason = {"fastdds": fastdds.missing, "roscpp": roscpp.missing, "rclpy": rclpy_peer.missing}[args.peer]()
     if reason:
         print(f"peer_interop: skipped: {reason}")
         return 1
     bare = bare_timer_jitter_ms(10.0)
     print(f"bare 20 ms timer loop: jitter p99 {bare:.3f} ms (the limit on this machine)")
-    with tempfile.TemporaryDirectory() as tmp, deployer(args.peer, Path(tmp)) as deploy:
+    with tempfile.TemporaryDirectory() as tmp, deployer(args.peer, Path(tmp), transport) as deploy:
         folder = Path(tmp)
         policy = tiny_policy(folder / "p", Path("obstacles"), 100)
         recording, logs, results = deploy(policy, folder, args.episodes)
@@ -126,7 +152,8 @@ def main() -> int:
         f"({timing.ticks} ticks), send skew p99 {timing.skew_p99_ms:.3f} ms"
     )
     print(
-        f"peer={args.peer} episodes={done}/{args.episodes} lost={lost} jitter_p99_ms={timing.tick_jitter_p99_ms:.3f} "
+        f"peer={args.peer} transport={transport} episodes={done}/{args.episodes} lost={lost} "
+        f"jitter_p99_ms={timing.tick_jitter_p99_ms:.3f} "
         f"jitter_ratio={timing.tick_jitter_p99_ms / max(bare, 1e-6):.2f} skew_p99_ms={timing.skew_p99_ms:.3f} "
         f"delay_p50_ms={np.median(delays):.2f} "
         f"delay_p99_ms={np.percentile(delays, 99):.2f} rtt_p50_ms={np.median(rtts):.1f} "

@@ -18,7 +18,8 @@ from typing import Any, Literal
 
 from pipeline.core.scenario import Scenario
 from pipeline.ros import ros2_interfaces
-from pipeline.ros.rclpy_transport import rclpy_missing
+from pipeline.ros.rclpy_transport import middleware_environment, rclpy_missing
+from pipeline.ros.transport import NetworkSettings
 from tests.peers import drivers
 from tests.peers.drivers import DriverProcess
 
@@ -35,20 +36,16 @@ def missing() -> str | None:
 
 
 def environment(domain: int, log_dir: Path) -> dict[str, str]:
-    """What a ROS 2 node of this host on `domain` runs with: the domain, loopback discovery, the interface packages
+    """What a ROS 2 node of this host on `domain` runs with: the domain, loopback discovery (and what else the RMW
+    needs to match Cyclone DDS, :func:`~pipeline.ros.rclpy_transport.middleware_environment`), the interface packages
     built from ``schemas/`` (``tf2_msgs``) where the installation lacks them, its logs under `log_dir`."""
     env = dict(os.environ)
-    for key in ("ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY"):  # discovery is the domain's, on loopback
-        env.pop(key, None)
+    env.pop("ROS_LOCALHOST_ONLY", None)  # Jazzy's older switch; the discovery range says it
     prefix = ros2_interfaces.ensure_interfaces()
     if prefix is not None:
         env.update(ros2_interfaces.environment(prefix))
-    env.update(
-        ROS_DOMAIN_ID=str(domain),
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        ROS_LOG_DIR=str(log_dir),
-        PYTHONUNBUFFERED="1",
-    )
+    env.update(middleware_environment(NetworkSettings(domain, loopback_only=True)))
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1")
     return env
 
 
@@ -83,9 +80,7 @@ def deploy_on_drivers(
     """Deploy `policy` on three rclpy robot nodes (target ``robots``, loopback, `domain`), the runner on `transport`."""
     from tests.integration.conftest import write_fleet
 
-    fleet_file = write_fleet(
-        folder / "fleet.yaml", target="robots", transport=transport, network={"domain_id": domain}
-    )
+    fleet_file = write_fleet(folder / "fleet.yaml", target="robots", transport=transport, network={"domain_id": domain})
     return drivers.deploy_on_drivers(
         lambda scenario, i, ns, log: driver(domain, scenario, i, ns, log, naming),
         fleet_file,

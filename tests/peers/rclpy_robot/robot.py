@@ -14,8 +14,9 @@ The namespace is ``--ns NAME`` or ROS 2's own remapping ``--ros-args -r __ns:=/N
 the environment's (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RANGE``), as for any ROS 2 node. The other flags,
 stdout and the log are those of the C++ stand-ins (``tests/peers/common/robot_world.hpp``, ported in
 ``robot_world.py``): stdout announces ``ready <ns>`` once the endpoints exist; stdin takes the operator's
-``reset`` (answered ``reset <n>``) and ``quit``; ``--log FILE`` gets one line per command received and per scan
-published. A bad flag or a namespace that is not a ROS name is refused in one line on stderr, exit code 2.
+``reset`` (answered ``reset <n>``) and ``quit``; ``--log FILE`` gets one line per command received (at the time the
+RMW received it, from the message info) and per scan published. A bad flag or a namespace that is not a ROS name is
+refused in one line on stderr, exit code 2.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ reader (pipeline.messages.topics.QOS_SENSOR)."""
 TF_STATIC_QOS = QosProfile("reliable", "transient_local", 1)
 """/tf_static as tf2_ros' StaticTransformBroadcaster offers it."""
 CMD_VEL_TIMEOUT_S = 0.5
+CMD_VEL_DEPTH = 100
+"""The node's queue of commands not yet taken (2 s at the runner's 50 Hz; the contract's reliable QoS): on a loaded
+host a Python executor can stall for hundreds of ms, and a queue of 10 would drop commands the log must show."""
 
 
 def refuse(why: str) -> NoReturn:
@@ -157,15 +161,18 @@ class RobotDriver(Node):
         timeout_s = self.declare_parameter("cmd_vel_timeout", CMD_VEL_TIMEOUT_S).value
         self.cmd_timeout_ns = round(float(timeout_s) * 1e9)
 
-        contract = T.robot_topics(self.namespace or "_")
-        for key in contract:  # the relative names resolve to the contract's topics in this namespace
+        # the contract's types and QoS (the same in every namespace); its relative names resolve to the contract's
+        contract = T.robot_topics(self.namespace or "root")
+        for key, cls in (("scan", LaserScan), ("odom", Odometry), ("ground_truth", PoseStamped), ("cmd_vel", Twist)):
+            assert f"{cls.__module__.partition('.')[0]}/msg/{cls.__name__}" == contract[key].typename, key
             assert not self.namespace or self.resolve_topic_name(key) == contract[key].name, key
         self.scan_pub = self.create_publisher(LaserScan, "scan", ros_qos(contract["scan"].qos))
         self.odom_pub = self.create_publisher(Odometry, "odom", ros_qos(ODOM_QOS))
         self.truth_pub = self.create_publisher(PoseStamped, "ground_truth", ros_qos(contract["ground_truth"].qos))
         self.tf_pub = self.create_publisher(TFMessage, T.FLEET_TOPICS["tf"].name, ros_qos(T.FLEET_TOPICS["tf"].qos))
         self.tf_static_pub = self.create_publisher(TFMessage, "/tf_static", ros_qos(TF_STATIC_QOS))
-        self.create_subscription(Twist, "cmd_vel", self.on_cmd_vel, ros_qos(contract["cmd_vel"].qos))
+        cmd_qos = replace(contract["cmd_vel"].qos, depth=CMD_VEL_DEPTH)
+        self.create_subscription(Twist, "cmd_vel", self.on_cmd_vel, ros_qos(cmd_qos))
 
         self.body = Unicycle(world.x_m, world.y_m, world.yaw_rad)
         self.command = (0.0, 0.0)
@@ -209,8 +216,9 @@ class RobotDriver(Node):
     def in_force(self, now_ns: int) -> tuple[float, float]:
         return self.command if now_ns < self.expires_ns else (0.0, 0.0)
 
-    def on_cmd_vel(self, msg: Twist) -> None:
-        received_ns = time.time_ns()
+    def on_cmd_vel(self, msg: Twist, info: dict[str, int]) -> None:
+        """A command (with its message info): it moves the body from now on, until it times out."""
+        received_ns = int(info.get("received_timestamp", 0)) or time.time_ns()  # when the RMW took it in
         now = self.now_ns()
         self.advance(now)
         self.command = (msg.linear.x, msg.angular.z)
