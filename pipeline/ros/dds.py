@@ -21,6 +21,12 @@ with ``ROS_STATIC_PEERS``, so ROS 2 nodes started that way on this host see the 
 are added. ``CYCLONEDDS_URI``, when set, is appended like rmw_cyclonedds_cpp does, so site
 settings (interface, socket buffers) apply on top.
 
+The participant also announces itself the way every ROS 2 RMW does: one node (``mrl_transport_<pid>_<n>`` in
+``/``) on the DDS topic ``ros_discovery_info`` (``rmw_dds_common/msg/ParticipantEntitiesInfo``, reliable, transient
+local, depth 1), listing the GUIDs of its readers and writers, rewritten whenever an endpoint comes or goes. So the
+ROS 2 graph (``ros2 node list``, ``ros2 topic info -v``, ``get_publishers_info_by_topic``) ties the pipeline's
+endpoints to a named node instead of a bare DDS participant.
+
 Samples are delivered by one receive thread per transport that waits on the readers' read
 conditions; samples without valid data (the notice DDS sends when a writer disappears) are
 dropped and counted, never handed to a callback.
@@ -29,6 +35,7 @@ dropped and counted, never handed to a callback.
 from __future__ import annotations
 
 import atexit
+import itertools
 import logging
 import os
 import threading
@@ -37,6 +44,7 @@ import weakref
 from typing import Any
 from xml.sax.saxutils import quoteattr
 
+import numpy as np
 from cyclonedds._clayer import ddspy_write  # the C write of serialized bytes that DataWriter.write ends in
 from cyclonedds.core import (
     DDSException,
@@ -356,6 +364,13 @@ class DdsSubscription(Subscription):
         self._hand_on(msg, receive_time_ns)
 
 
+PARTICIPANT_INFO = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+DISCOVERY_INFO = TopicSpec("/ros_discovery_info", PARTICIPANT_INFO, QosProfile("reliable", "transient_local", 1))
+"""The graph topic of ROS 2's RMWs (its DDS name has no ``rt`` prefix: ``ros_discovery_info``)."""
+DISCOVERY_INFO_DDS_NAME = "ros_discovery_info"
+_node_ids = itertools.count()
+
+
 class DdsTransport(Transport):
     """A Cyclone DDS participant speaking the ROS 2 contract (see the module notes)."""
 
@@ -377,6 +392,21 @@ class DdsTransport(Transport):
             self._participant = self._waitset = self._wakeup = None
             _domains.release(settings.domain_id)
             raise TransportError(f"DDS domain {settings.domain_id}", f"cannot create a participant: {exc}") from exc
+        self.node_name = f"mrl_transport_{os.getpid()}_{next(_node_ids)}"
+        """The ROS 2 node this participant announces (in the namespace ``/``)."""
+        self._graph: DdsPublisher | None = None
+        try:
+            dtype = dds_type(PARTICIPANT_INFO)
+            topic = Topic(self._participant, DISCOVERY_INFO_DDS_NAME, dtype.idl_class)
+            writer: DataWriter[Any] = DataWriter(
+                self._participant, topic, qos=endpoint_qos(DISCOVERY_INFO, writer=True)
+            )
+            self._graph = DdsPublisher(self, DISCOVERY_INFO, writer, dtype)
+            self._announce()
+        except DDSException as exc:
+            self._participant = self._waitset = self._wakeup = None
+            _domains.release(settings.domain_id)
+            raise TransportError(f"DDS domain {settings.domain_id}", f"cannot announce the node: {exc}") from exc
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._receive, name=f"dds-receive-{settings.domain_id}", daemon=True)
         self._thread.start()
@@ -403,6 +433,7 @@ class DdsTransport(Transport):
                 raise TransportError(f"topic {spec.name}", f"cannot create a DDS writer: {exc}") from exc
             pub = DdsPublisher(self, spec, writer, dtype)
             self._publishers.append(pub)
+            self._announce()
             return pub
 
     def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> DdsSubscription:
@@ -421,6 +452,7 @@ class DdsTransport(Transport):
             assert self._waitset is not None
             self._waitset.attach(condition)
             self._wake()
+            self._announce()
             return sub
 
     def identity(self) -> str:
@@ -465,6 +497,9 @@ class DdsTransport(Transport):
         for pub in list(self._publishers):
             pub.close()
         with self._lock:
+            if self._graph is not None:
+                self._graph.close()
+                self._graph = None
             if self._waitset is not None and self._wakeup is not None:
                 self._waitset.detach(self._wakeup)
             self._topics.clear()
@@ -498,11 +533,39 @@ class DdsTransport(Transport):
             if isinstance(endpoint, DdsPublisher):
                 if endpoint in self._publishers:
                     self._publishers.remove(endpoint)
+                    self._announce()
                 return
             if endpoint in self._subscriptions:
                 self._subscriptions.remove(endpoint)
+                self._announce()
             if self._waitset is not None and endpoint._condition is not None:
                 self._waitset.detach(endpoint._condition)
+
+    def participant_info(self) -> Any:
+        """This participant's ``rmw_dds_common/msg/ParticipantEntitiesInfo``: its node and the node's endpoints."""
+        store = message_store()
+        gid = store.cls("rmw_dds_common/msg/Gid")
+
+        def gid_of(guid: Any) -> Any:
+            return gid(data=np.frombuffer(guid.bytes, dtype=np.uint8).copy())
+
+        with self._lock:
+            readers = [gid_of(s.reader.guid) for s in self._subscriptions if not s.closed]
+            writers = [gid_of(p.writer.guid) for p in self._publishers if not p.closed]
+            node = store.cls("rmw_dds_common/msg/NodeEntitiesInfo")(
+                node_namespace="/", node_name=self.node_name, reader_gid_seq=readers, writer_gid_seq=writers
+            )
+            return store.cls(PARTICIPANT_INFO)(gid=gid_of(self.participant.guid), node_entities_info_seq=[node])
+
+    def _announce(self) -> None:
+        """Writes :meth:`participant_info` on ``ros_discovery_info`` (a writer keeps the last one for late joiners)."""
+        with self._lock:
+            if self._graph is None or self._graph.closed or self._participant is None:
+                return
+            try:
+                self._graph.publish_prepared(self._graph.prepare(self.participant_info()))
+            except TransportError as exc:  # the graph is a courtesy to ROS 2 tools: data still flows without it
+                log.warning("DDS domain %d: cannot announce the node: %s", self.settings.domain_id, exc)
 
     def _wake(self) -> None:
         if self._wakeup is not None:

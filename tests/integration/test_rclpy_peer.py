@@ -127,8 +127,7 @@ def test_ros2_graph_shows_the_runner_endpoints_with_their_types_and_qos(transpor
             runner, robots, _ = found
             # an endpoint is tied to its node once that node's participant has announced it (ros_discovery_info)
             named = [e.node_name for subs in robots.values() for e in subs]
-            if transport == "rclpy":
-                named += [e.node_name for ends in runner.values() for e in ends]
+            named += [e.node_name for ends in runner.values() for e in ends]
             return all(runner.values()) and all(robots.values()) and not any(n.startswith("_") for n in named)
 
         seen, robots, nodes = poll(graph, complete, 60.0)
@@ -157,12 +156,10 @@ def test_ros2_graph_shows_the_runner_endpoints_with_their_types_and_qos(transpor
         assert [(s.node_name, s.node_namespace) for s in subs] == [("robot_driver", f"/{ns}")]
         assert subs[0].qos_profile.reliability == ReliabilityPolicy.RELIABLE
     assert {(n, ns) for n, ns in nodes} >= {("robot_driver", f"/{ns}") for ns in NAMESPACES}
-    if transport == "rclpy":  # the runner is a ROS 2 node of this process, named as the rclpy transport names it
-        assert runner[0].startswith(f"mrl_transport_{os.getpid()}_") and runner[1] == "/"
-        assert runner in nodes
-    else:  # Cyclone DDS from Python announces endpoints, not ROS 2 nodes
-        assert runner[0] == "_CREATED_BY_BARE_DDS_APP_"
-        assert not any(n.startswith("mrl_transport_") for n, _ in nodes)
+    # the runner is a ROS 2 node of this process on either transport: rclpy's own, or the node the Cyclone DDS
+    # participant announces on ros_discovery_info as every RMW does
+    assert runner[0].startswith(f"mrl_transport_{os.getpid()}_") and runner[1] == "/"
+    assert runner in nodes
 
 
 # -- the node as a ROS 2 driver --------------------------------------------------------------------------------------
