@@ -542,6 +542,8 @@ def peers() -> str:
     for name, label in (
         ("roscpp", "roscpp 1.15 (rospy runner, rosmaster)"),
         ("fastdds", "Fast DDS 2.9 (Cyclone runner)"),
+        ("rclpy", "rclpy nodes, Jazzy wheels (Cyclone runner)"),
+        ("rclpy_rclpy", "rclpy nodes, Jazzy wheels (rclpy runner)"),
     ):
         f = last_figures((folder / f"{name}.txt").read_text(encoding="utf-8"))
         lines.append(

@@ -128,7 +128,7 @@ def middleware_environment(settings: NetworkSettings) -> dict[str, str]:
 
 
 @contextmanager
-def _discovery_environment(settings: NetworkSettings) -> Iterator[None]:
+def middleware_variables(settings: NetworkSettings) -> Iterator[None]:
     """Sets the variables of :func:`middleware_environment` for the duration of the block."""
     wanted = middleware_environment(settings)
     saved = {key: os.environ.get(key) for key in wanted}
@@ -265,7 +265,7 @@ class RclpyTransport(Transport):
         self._subscriptions: list[RclpySubscription] = []
         self._context = Context()
         try:
-            with _discovery_environment(settings):
+            with middleware_variables(settings):
                 rclpy.init(
                     context=self._context,
                     domain_id=settings.domain_id,

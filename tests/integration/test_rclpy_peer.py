@@ -28,7 +28,7 @@ from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import QosProfile, TopicSpec
 from pipeline.record import McapLog
-from pipeline.ros.rclpy_transport import middleware_environment
+from pipeline.ros.rclpy_transport import middleware_variables
 from pipeline.ros.transport import NetworkSettings, open_transport
 from tests.integration.conftest import free_domain_id
 from tests.peers import drivers
@@ -67,18 +67,9 @@ def observer(domain: int) -> Iterator[Any]:
     from rclpy.signals import SignalHandlerOptions
 
     context = Context()
-    wanted = middleware_environment(NetworkSettings(domain, loopback_only=True))
-    saved = {key: os.environ.get(key) for key in wanted}
-    os.environ.update(wanted)
-    try:
+    with middleware_variables(NetworkSettings(domain, loopback_only=True)):
         rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-    node = rclpy.create_node("graph_observer", context=context)
+        node = rclpy.create_node("graph_observer", context=context)
     try:
         yield node
     finally:
