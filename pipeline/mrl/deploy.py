@@ -26,7 +26,10 @@ def add_parser(subparsers: Any) -> None:
     )
     deploy.add_argument("--policy", required=True, metavar="DIR", help="the exported policy folder (policy.json)")
     deploy.add_argument(
-        "--fleet", required=True, metavar="FLEET", help="a bundled fleet (twin, twin_ros1, twin_rclpy, spark_lab) or a YAML file"
+        "--fleet",
+        required=True,
+        metavar="FLEET",
+        help="a bundled fleet (twin, twin_ros1, twin_rclpy, spark_lab) or a YAML file",
     )
     deploy.add_argument(
         "--episodes",
