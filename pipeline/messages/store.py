@@ -6,8 +6,10 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import TypesysError
+from rosbags.typesys.store import Typestore
 
 from pipeline.messages.errors import MessageError, SchemaError
 
@@ -80,9 +82,31 @@ class MessageStore:
         return str(self._ts.generate_msgdef(typename, ros_version=2)[0])
 
     def rihs01(self, typename: str) -> str:
-        """The ROS 2 type hash (``RIHS01_<sha256 hex>``) that Jazzy announces for `typename`."""
+        """The ROS 2 type hash (``RIHS01_<sha256 hex>``) that Jazzy announces for `typename`.
+
+        rosidl describes a ``char`` field as ``uint8`` (the IDL mapping of msg ``char``), where rosbags' hash keeps a
+        char: the hash is computed over the definitions with that mapping (``rmw_dds_common/msg/Gid`` has one)."""
         self.cls(typename)
-        return str(self._ts.hash_rihs01(typename))
+        return str(self._hash_store().hash_rihs01(typename))
+
+    @cache  # noqa: B019 - one store per process (message_store), kept for its lifetime
+    def _hash_store(self) -> Typestore:
+        def as_rosidl(node: Any) -> Any:
+            kind, payload = node
+            if kind == Nodetype.BASE and payload[0] == "char":
+                return (kind, ("uint8", payload[1]))
+            if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+                return (kind, (as_rosidl(payload[0]), payload[1]))
+            return node
+
+        store = get_typestore(Stores.EMPTY)
+        store.register(
+            {
+                name: (consts, [(field, as_rosidl(node)) for field, node in fields])
+                for name, (consts, fields) in self._ts.fielddefs.items()
+            }
+        )
+        return store
 
     @staticmethod
     def dds_type_name(typename: str) -> str:

@@ -173,3 +173,27 @@ print("ros2" if hasattr(type(std_msgs.msg.Header), "_TYPE_SUPPORT") else "ros1",
     assert done.returncode == 0, done.stderr
     both, after = done.stdout.splitlines()[-2:]
     assert both == "[True, True]" and after == "ros2 False", done.stdout
+
+
+def test_the_stores_type_hashes_are_the_ones_this_ros2_installation_describes():
+    """Every type of schemas/ and the graph's ParticipantEntitiesInfo: the RIHS01 hash the dds transport announces
+    equals the one rosidl wrote into the installation's type description (a ``char`` field counts as uint8 there)."""
+    prefix = ros2_interfaces.ensure_interfaces()
+    folders = [Path(p) / "share" for p in ros2_interfaces.check_distribution().prefixes]
+    folders += [prefix / "share"] if prefix is not None else []
+    store = message_store()
+    compared = []
+    for typename in (*store.typenames, "rmw_dds_common/msg/ParticipantEntitiesInfo"):
+        package, _, name = typename.partition("/msg/")
+        found = [
+            f / package / "msg" / f"{name}.json" for f in folders if (f / package / "msg" / f"{name}.json").is_file()
+        ]
+        if not found:
+            continue  # a type this installation does not have (tf2_msgs' own are built: they are found)
+        described = json.loads(found[0].read_text())
+        hashes = {h["type_name"]: h["hash_string"] for h in described["type_hashes"]}
+        assert hashes[typename] == store.rihs01(typename), typename
+        compared.append(typename)
+    assert {T.LASER_SCAN, T.ODOMETRY, T.TWIST, T.EPISODE_EVENT, "rmw_dds_common/msg/ParticipantEntitiesInfo"} <= set(
+        compared
+    )
