@@ -74,7 +74,8 @@ def rclpy_missing() -> str | None:
 
 def _import_rclpy() -> Any:
     installation = ros2_interfaces.check_distribution()
-    _check_rmw()  # before the import: rcl ends the process (exit 102) when it loads beside another RMW than named
+    # before the import: rcl ends the process (exit 102) when it loads beside another RMW than the one named
+    _check_rmw(installation)
     try:
         return importlib.import_module("rclpy")
     except ImportError as exc:
@@ -85,12 +86,17 @@ def _import_rclpy() -> Any:
         ) from exc
 
 
-def _check_rmw() -> None:
+def _rmw() -> str:
+    """The RMW implementation rclpy will load."""
+    return os.environ.get(RMW_VARIABLE) or DEFAULT_RMW
+
+
+def _check_rmw(installation: ros2_interfaces.Installation) -> None:
     """BackendUnavailableError unless the RMW implementation rclpy will load has its library here."""
-    rmw = os.environ.get(RMW_VARIABLE) or DEFAULT_RMW
+    rmw = _rmw()
     library = f"lib{rmw}.so"
     folders = [p for p in os.environ.get("LD_LIBRARY_PATH", "").split(os.pathsep) if p]
-    folders += [str(Path(p) / "lib") for p in ros2_interfaces.check_distribution().prefixes]
+    folders += [str(Path(p) / "lib") for p in installation.prefixes]
     if not re.fullmatch(r"rmw_[a-z0-9_]+", rmw) or not any((Path(f) / library).is_file() for f in folders):
         hint = (
             "pip install ros-rmw-fastrtps-cpp (the ros2 extra pins it)"
@@ -116,10 +122,9 @@ def middleware_environment(settings: NetworkSettings) -> dict[str, str]:
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST" if settings.loopback_only else "SUBNET",
         "ROS_STATIC_PEERS": ";".join(settings.peers),
     }
-    rmw = os.environ.get(RMW_VARIABLE) or DEFAULT_RMW
     distribution = ros2_interfaces.check_distribution().distribution
     if (
-        rmw == DEFAULT_RMW
+        _rmw() == DEFAULT_RMW
         and distribution not in _FAST_DDS_2_DISTRIBUTIONS
         and not os.environ.get(FASTDDS_PROFILES_VARIABLE)
     ):

@@ -254,7 +254,7 @@ def build(installation: Installation, prefix: Path, packages: tuple[str, ...], l
     cmake, _ = _build_tools()
     env = dict(os.environ)
     search = os.pathsep.join([str(prefix), *installation.prefixes])
-    env.update(AMENT_PREFIX_PATH=search, CMAKE_PREFIX_PATH=search, PYTHONPATH=str(_site_packages(prefix)))
+    env.update(AMENT_PREFIX_PATH=search, CMAKE_PREFIX_PATH=search)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_site_packages(prefix)), os.environ.get("PYTHONPATH", "")) if p)
     libraries = [str(prefix / "lib"), *(str(Path(p) / "lib") for p in installation.prefixes)]
     with tempfile.TemporaryDirectory(prefix="mrl-ros2-build-") as scratch, open(log, "a") as out:

@@ -127,3 +127,32 @@ def twin_session(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Pa
         return made[profile]
 
     return session
+
+
+TWIN_SESSION_TOPICS = {"/tf", "/clock", "/mrl/reset", "/mrl/observation", "/mrl/action", "/mrl/episode"} | {
+    f"/robot_{i}/{t}" for i in (1, 2, 3) for t in ("scan", "odom", "ground_truth", "cmd_vel")
+}
+
+
+def check_twin_fleet_plays_two_episodes(policy: Path, fleet_file: Path, folder: Path, transport: str) -> None:
+    """Deploys `policy` on the twin fleet of `fleet_file` for two episodes and checks the whole session's recording:
+    every topic, both episodes, one observation and one action per robot and step, the twin's 360-beam scans."""
+    from pipeline.messages.convert import EVENT_NAMES
+    from pipeline.policy.runtime import PolicyRuntime
+    from pipeline.record import McapLog
+    from pipeline.rollout.deployment import DeployRequest, deploy_policy
+    from pipeline.ros.fleet import load_fleet
+
+    request = DeployRequest(episodes=2, seed=5, recording=folder / "session.mcap", progress=False)
+    results, profile = deploy_policy(PolicyRuntime(policy), load_fleet(fleet_file), str(fleet_file), request)
+    assert profile == "mild" and len(results) == 2
+    assert all(r.steps >= 1 and not r.aborted for r in results)
+    log = McapLog(folder / "session.mcap")
+    counts = log.message_counts()
+    assert set(counts) >= TWIN_SESSION_TOPICS and counts["/mrl/reset"] == 2 and counts["/clock"] > 0
+    session = log.metadata()["session"]
+    assert session["target"] == "twin" and session["transport"] == transport
+    names = [EVENT_NAMES[m.msg.event] for m in log.messages(["/mrl/episode"])]
+    assert names.count("start") == 2 and names.count("end") == 2
+    assert counts["/mrl/observation"] == counts["/mrl/action"] == 3 * sum(r.steps for r in results)
+    assert len(next(iter(log.messages(["/robot_1/scan"]))).msg.ranges) == 360

@@ -10,12 +10,9 @@ import sys
 import pytest
 
 from pipeline.messages.convert import EVENT_NAMES
-from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
-from pipeline.rollout.deployment import DeployRequest, deploy_policy
-from pipeline.ros.fleet import load_fleet
 from pipeline.ros.rclpy_transport import rclpy_missing
-from tests.integration.conftest import free_domain_id, write_fleet
+from tests.integration.conftest import check_twin_fleet_plays_two_episodes, free_domain_id, write_fleet
 from tests.integration.test_mrl_command import MRL
 
 pytestmark = [
@@ -24,26 +21,10 @@ pytestmark = [
     pytest.mark.skipif(rclpy_missing() is not None, reason=str(rclpy_missing())),
 ]
 
-RECORDED = {"/tf", "/clock", "/mrl/reset", "/mrl/observation", "/mrl/action", "/mrl/episode", "/mrl/timing"} | {
-    f"/robot_{i}/{t}" for i in (1, 2, 3) for t in ("scan", "odom", "ground_truth", "cmd_vel")
-}
-
 
 def test_the_twin_plays_an_rclpy_fleet_through_whole_episodes(tiny_policy, tmp_path):
     fleet_file = write_fleet(tmp_path / "fleet.yaml", transport="rclpy", network={"domain_id": free_domain_id()})
-    request = DeployRequest(episodes=2, seed=5, recording=tmp_path / "session.mcap", progress=False)
-    results, profile = deploy_policy(PolicyRuntime(tiny_policy), load_fleet(fleet_file), str(fleet_file), request)
-    assert profile == "mild" and len(results) == 2
-    assert all(r.steps >= 1 and not r.aborted for r in results)
-    log = McapLog(tmp_path / "session.mcap")
-    counts = log.message_counts()
-    assert set(counts) >= RECORDED and counts["/mrl/reset"] == 2 and counts["/clock"] > 0
-    session = log.metadata()["session"]
-    assert session["target"] == "twin" and session["transport"] == "rclpy"
-    names = [EVENT_NAMES[m.msg.event] for m in log.messages(["/mrl/episode"])]
-    assert names.count("start") == 2 and names.count("end") == 2
-    assert counts["/mrl/observation"] == counts["/mrl/action"] == 3 * sum(r.steps for r in results)
-    assert len(next(iter(log.messages(["/robot_1/scan"]))).msg.ranges) == 360
+    check_twin_fleet_plays_two_episodes(tiny_policy, fleet_file, tmp_path, "rclpy")
 
 
 def test_mrl_deploy_on_the_bundled_rclpy_twin_fleet(tiny_policy, tmp_path):

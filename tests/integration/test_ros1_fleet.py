@@ -17,15 +17,11 @@ from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
-from tests.integration.conftest import write_fleet
+from tests.integration.conftest import check_twin_fleet_plays_two_episodes, write_fleet
 from tests.integration.test_mrl_command import MRL, mrl
 from tests.peers import ros1
 
 pytestmark = pytest.mark.integration
-
-SIM_LAYOUT = {"/tf", "/mrl/observation", "/mrl/action", "/mrl/episode"} | {
-    f"/robot_{i}/{t}" for i in (1, 2, 3) for t in ("scan", "odom", "ground_truth", "cmd_vel")
-}
 
 
 def ros1_fleet(path: Path, master_uri: str, **changes: object) -> Path:
@@ -34,19 +30,7 @@ def ros1_fleet(path: Path, master_uri: str, **changes: object) -> Path:
 
 def test_the_twin_plays_a_ros1_fleet_through_whole_episodes(ros1_master, tiny_policy, tmp_path):
     fleet_file = ros1_fleet(tmp_path / "fleet.yaml", ros1_master)
-    request = DeployRequest(episodes=2, seed=5, recording=tmp_path / "session.mcap", progress=False)
-    results, profile = deploy_policy(PolicyRuntime(tiny_policy), load_fleet(fleet_file), str(fleet_file), request)
-    assert profile == "mild" and len(results) == 2
-    assert all(r.steps >= 1 and not r.aborted for r in results)
-    log = McapLog(tmp_path / "session.mcap")
-    counts = log.message_counts()
-    assert set(counts) >= SIM_LAYOUT and counts["/mrl/reset"] == 2 and counts["/clock"] > 0
-    session = log.metadata()["session"]
-    assert session["target"] == "twin" and session["transport"] == "ros1"
-    names = [EVENT_NAMES[m.msg.event] for m in log.messages(["/mrl/episode"])]
-    assert names.count("start") == 2 and names.count("end") == 2
-    assert counts["/mrl/observation"] == counts["/mrl/action"] == 3 * sum(r.steps for r in results)
-    assert len(next(iter(log.messages(["/robot_1/scan"]))).msg.ranges) == 360
+    check_twin_fleet_plays_two_episodes(tiny_policy, fleet_file, tmp_path, "ros1")
 
 
 def test_rosbag_record_of_a_ros1_deployment_reads_as_the_session_recording(ros1_master, tiny_policy, tmp_path):
