@@ -55,6 +55,9 @@ def test_twin_refuses_bad_input_with_a_clear_message(tmp_path):
     proc = start_twin("--fleet", str(fleet), "--silence", "robot_9@1.0")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and "no robot 'robot_9' in the fleet" in err and "Traceback" not in err
+    proc = start_twin("--fleet", str(fleet), "--domain-id", "999")
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "network.domain_id = 999: must be in 0..232" in err and "Traceback" not in err
 
 
 def test_the_lab_twin_publishes_each_stream_at_its_own_rate_in_the_robots_clock(tmp_path):
