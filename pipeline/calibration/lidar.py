@@ -212,6 +212,12 @@ def stationary_spans(
     return out
 
 
+def valid_returns(r: np.ndarray, span: ScanSpan) -> np.ndarray:
+    """Which ranges are returns: finite and within [range_min, range_max). A range of exactly the maximum is a
+    driver's "no return" (drivers write +inf, NaN, 0 or the maximum for it; the first three fall outside already)."""
+    return np.isfinite(r) & (r >= span.range_min_m) & (r < span.range_max_m)
+
+
 def _unidentifiable(reason: str, notes: Sequence[str] = (), **kw: object) -> LidarFit:
     return LidarFit(
         Estimate.unidentifiable(reason, "m"),
@@ -226,7 +232,7 @@ def _unidentifiable(reason: str, notes: Sequence[str] = (), **kw: object) -> Lid
 def _span_means(span: ScanSpan) -> tuple[np.ndarray, np.ndarray]:
     """Per beam: mean of the valid returns over the span's scans (m) and how many there were."""
     r = span.ranges
-    valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m)
+    valid = valid_returns(r, span)
     count = valid.sum(axis=0)
     total = np.where(valid, r, 0.0).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -298,7 +304,7 @@ def blocked_beams(spans: Sequence[ScanSpan]) -> dict[int, np.ndarray]:
     for span in spans:
         n = span.ranges.shape[1]
         r = span.ranges
-        valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m)
+        valid = valid_returns(r, span)
         dark = (~valid).mean(axis=0) >= BLOCKED_SHARE
         votes[n] = votes.get(n, np.zeros(n, dtype=np.int64)) + dark
         seen[n] = seen.get(n, 0) + 1
@@ -686,7 +692,7 @@ def _within_span_noise(
     who: list[np.ndarray] = []
     for k, (span, mask) in enumerate(zip(spans, masks, strict=True)):
         r = span.ranges
-        valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m) & mask
+        valid = valid_returns(r, span) & mask
         n = valid.sum(axis=0)
         keep = n >= 2
         if not keep.any():
@@ -923,7 +929,7 @@ def estimate_lidar(
         mask = free & use[None, :]
         masks.append(mask)
         r = span.ranges
-        valid = np.isfinite(r) & (r >= span.range_min_m) & (r <= span.range_max_m)
+        valid = valid_returns(r, span)
         trials[k] = mask.sum()
         drops[k] = (mask & ~valid).sum()
         per_span_res.append((r - cast[None, :])[mask & valid])

@@ -7,7 +7,8 @@ The keys (units in the names; those marked * are optional and default to the ide
 
     lidar:     {beams, rate_hz, noise_sigma_m, dropout_prob, bias_m, mount_yaw_rad,
                 noise_per_m*, mount_xy_m*: [dx, dy], blocked_sectors_rad*: [[from, to], ...],
-                motion_distortion*: bool}
+                motion_distortion*: bool, range_step_m*, beam_noise_spread*, mixed_pixel_prob*,
+                no_return*: inf | zero | max | nan, beam_angle_jitter_rad*, rate_wander*, scan_drop_prob*}
     actuation: {delay_s, time_constant_s, linear_gain, angular_gain}
     odometry:  {rate_hz, drift_per_m, encoder_ticks_per_rev*}
     network:   {loss_prob, jitter_s, burst_len*}
@@ -18,7 +19,15 @@ The keys (units in the names; those marked * are optional and default to the ide
 
 Lidar noise is ``noise_sigma_m + noise_per_m * range`` (1 sigma); blocked sectors are angles in the
 lidar's frame (radians, from < to, each narrower than 2 pi) where the robot's mast returns nothing
-usable; with ``motion_distortion`` each beam is taken at its own time within the sweep. Odometry
+usable; with ``motion_distortion`` each beam is taken at its own time within the sweep. What real 2-D lidars
+add (their datasheets and drivers state it): ranges reported in steps of ``range_step_m`` (0: continuous); each
+beam's noise scaled by a factor of mean square 1, fixed per beam (log-normal with log-sd ``beam_noise_spread``: the
+receiver's response and what each beam sees differ); at a depth edge (a beam whose true range differs from its
+neighbour's by more than 0.1 m) a return between the near and the far surface with probability
+``mixed_pixel_prob``; a beam without a return reading +inf, 0, the range maximum or NaN as the driver's
+``no_return`` convention says; beams pointing off their stated angles by N(0, ``beam_angle_jitter_rad``), fixed per
+unit; each sweep's period off the nominal by N(0, ``rate_wander``) relative; whole scans lost in the driver (USB)
+with probability ``scan_drop_prob``. Odometry
 integrates wheel encoder ticks with the nominal SPARK wheel radius and separation, so the base's
 true radii and separation turn into drift. Stamps are in the robot's clock: ``offset_s`` ahead of
 the host, running ``drift_ppm`` parts per million fast. Boxes and walls stand where ``map`` puts
@@ -31,7 +40,7 @@ from __future__ import annotations
 import math
 import typing
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, Literal
 
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 from pipeline.mappings import setting
@@ -53,6 +62,13 @@ class LidarProfile:
     mount_xy_m: tuple[float, ...] = setting((0.0, 0.0), ge=-0.3, le=0.3, min_len=2, max_len=2, optional=True)
     blocked_sectors_rad: tuple[tuple[float, ...], ...] = setting((), ge=-7.0, le=7.0, optional=True)
     motion_distortion: bool = setting(False, optional=True)
+    range_step_m: float = setting(0.0, ge=0.0, le=0.05, optional=True)
+    beam_noise_spread: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    mixed_pixel_prob: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    no_return: Literal["inf", "zero", "max", "nan"] = setting("inf", optional=True)
+    beam_angle_jitter_rad: float = setting(0.0, ge=0.0, le=0.05, optional=True)
+    rate_wander: float = setting(0.0, ge=0.0, le=0.2, optional=True)
+    scan_drop_prob: float = setting(0.0, ge=0.0, lt=1.0, optional=True)
 
     def check(self) -> list[tuple[str, object, str]]:
         bad: list[tuple[str, object, str]] = []

@@ -54,16 +54,32 @@ PROFILE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
 `ENCODER_TICKS` ticks per revolution; the blocked sector (the mast) is [centre - width / 2, centre + width / 2],
 none when narrower than 0.05 rad."""
 ENCODER_TICKS = (512, 1024, 1560, 4096)
+RANGE_STEPS_M = (0.00025, 0.0005, 0.001, 0.002)
+"""The range resolutions of 2-D lidars' datasheets and drivers (RPLIDAR 0.25 mm, Hokuyo URG/UST and SICK TiM 1 mm,
+LDS-01 and some RPLIDAR drivers' output 2 mm...)."""
+NO_RETURN_CONVENTIONS = ("inf", "zero", "max", "nan")
+"""What drivers publish for a beam without a return (REP 117's +inf; 0 from urg_node and others; the range maximum;
+NaN)."""
 WIDE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     **PROFILE_RANGES,
+    "lidar": {**PROFILE_RANGES["lidar"], "noise_sigma_m": (0.001, 0.02)},
+    "lidar_real": {
+        "beam_noise_spread": (0.0, 0.4),
+        "mixed_pixel_prob": (0.0, 0.5),
+        "beam_angle_jitter_rad": (0.0, 0.002),
+        "rate_wander": (0.0, 0.03),
+        "scan_drop_prob": (0.0, 0.02),
+    },
     "actuation": {**PROFILE_RANGES["actuation"], "delay_s": (0.02, 0.15), "time_constant_s": (0.05, 0.3)},
     "network": {"loss_prob": (0.0, 0.06), "jitter_s": (0.0, 0.02), "burst_len": (1.0, 6.0)},
     "base": {**PROFILE_RANGES["base"], "friction": (0.3, 1.0)},
     "clock": {"offset_s": (-1.0, 1.0), "drift_ppm": (-100.0, 100.0)},
 }
 """Ranges that span the robots labs have (a used base with a slow driver and slipping wheels, an unsynchronized
-clock, a lossy link): what a calibration must stay honest on. `PROFILE_RANGES` stays as it was, so a ``drawn:SEED``
-profile of an earlier result is drawn the same."""
+clock, a lossy link) and the lidars they have (``lidar_real``: ranges in one of `RANGE_STEPS_M`, noise that differs
+per beam, mixed pixels at depth edges, one of `NO_RETURN_CONVENTIONS`, uneven beam angles, a wandering sweep rate,
+scans lost in the driver; noise from 1 mm): what a calibration must stay honest on. `PROFILE_RANGES` stays as it was,
+so a ``drawn:SEED`` profile of an earlier result is drawn the same."""
 
 
 def draw_profile_mapping(
@@ -108,6 +124,10 @@ def draw_profile_mapping(
             "wall_offset_m": u("map", "wall_offset_m"),
         },
     }
+    if "lidar_real" in ranges:  # drawn last: the values above stay those of the same seed without it
+        lidar.update({k: u("lidar_real", k) for k in ranges["lidar_real"]})
+        lidar["range_step_m"] = float(rng.choice(RANGE_STEPS_M))
+        lidar["no_return"] = str(rng.choice(NO_RETURN_CONVENTIONS))
     return out
 
 

@@ -5,7 +5,11 @@
   otherwise), from the lidar's pose at that moment: the base pose composed with the mounting offset
   (x, y, yaw). Noise grows with range (sigma = noise_sigma_m + noise_per_m * r), plus a bias;
   dropouts read +inf (no return), beams in a blocked sector read the mast's distance (below
-  range_min: invalid), beyond range_max +inf.
+  range_min: invalid), beyond range_max no return. As a real 2-D lidar: ranges in steps of
+  ``range_step_m``; a per-beam noise factor (mean square 1, fixed per unit); mixed pixels at depth
+  edges (a return between the near and the far surface); no return read as the driver's convention
+  (+inf, 0, range_max or NaN); beams off their stated angles (fixed per unit); each sweep's period
+  wandering about the nominal one; whole scans lost in the driver (:meth:`LidarSweep.dropped`).
 - :class:`EncoderOdometry`: wheel encoder ticks integrated with the NOMINAL wheel radius and
   separation, so the base's true radii and separation become drift, as on a real robot; on top,
   per episode, a scale error, a yaw-rate scale error and a heading drift per metre, each drawn
@@ -36,6 +40,10 @@ LIDAR_RANGE_MAX_M = 8.0
 """The twin's lidar: a 360-degree scanner measuring 0.12 to 8 m."""
 MAST_RANGE_M = 0.04
 """What a beam in a blocked sector reads: the mast, closer than the lidar's minimum range."""
+DEPTH_EDGE_M = 0.1
+"""A beam whose true range differs from the previous beam's by more than this straddles a depth edge."""
+NO_RETURN = {"inf": math.inf, "zero": 0.0, "max": LIDAR_RANGE_MAX_M, "nan": math.nan}
+"""What a beam without a return reads, per the profile's ``no_return`` convention."""
 
 
 def wrap(a: np.ndarray | float) -> np.ndarray:
@@ -49,8 +57,16 @@ class LidarSweep:
         self.profile = profile
         self.rng = rng
         self.beams = profile.beams
-        self.period_ns = round(NS_PER_S / profile.rate_hz)
+        self.nominal_period_ns = round(NS_PER_S / profile.rate_hz)
+        self.period_ns = self.nominal_period_ns
         self.angles = 2 * math.pi * np.arange(self.beams) / self.beams  # in the lidar's frame
+        # what differs per unit is drawn only where the profile asks for it (a profile without it keeps its streams)
+        if profile.beam_angle_jitter_rad > 0:
+            self.angles = self.angles + rng.normal(0.0, profile.beam_angle_jitter_rad, self.beams)
+        self.noise_factor = np.ones(self.beams)
+        if profile.beam_noise_spread > 0:
+            s = profile.beam_noise_spread
+            self.noise_factor = np.exp(s * rng.standard_normal(self.beams) - s * s)  # E[factor^2] = 1
         self.blocked = np.zeros(self.beams, dtype=bool)
         for start, end in profile.blocked_sectors_rad:
             rel = np.mod(self.angles - start, 2 * math.pi)
@@ -62,6 +78,16 @@ class LidarSweep:
         self.start_ns = t0_ns
         self.ranges = np.full(self.beams, np.inf)
         self.taken = 0
+        self._previous_true = math.nan  # the true range of the beam before the next one taken
+        wander = self.profile.rate_wander
+        if wander > 0:
+            factor = 1.0 + wander * float(np.clip(self.rng.standard_normal(), -3.0, 3.0))
+            self.period_ns = round(self.nominal_period_ns * factor)
+
+    def dropped(self) -> bool:
+        """Whether the sweep just completed is lost in the driver (never published)."""
+        p = self.profile.scan_drop_prob
+        return p > 0 and bool(self.rng.random() < p)
 
     def beam_time_ns(self, k: np.ndarray | int) -> np.ndarray:
         """When beam k of the current sweep is taken."""
@@ -90,16 +116,31 @@ class LidarSweep:
     def measure(self, k: np.ndarray, true_m: np.ndarray) -> None:
         """Store the measured ranges of beams `k` from their true ranges."""
         p = self.profile
-        out = np.asarray(true_m, dtype=float).copy()
+        true = np.asarray(true_m, dtype=float)
+        out = true.copy()
+        if p.mixed_pixel_prob > 0 and len(k):
+            # a beam straddling a depth edge returns somewhere between the near and the far surface
+            before = np.concatenate([[self._previous_true], true[:-1]])
+            both = np.isfinite(true) & np.isfinite(before)
+            edge = both & (np.abs(true - np.where(both, before, 0.0)) > DEPTH_EDGE_M)
+            mixed = edge & (self.rng.random(out.shape) < p.mixed_pixel_prob)
+            if mixed.any():
+                near, far = np.minimum(true, before), np.maximum(true, before)
+                out = np.where(mixed, near + self.rng.random(out.shape) * (far - near), out)
+            self._previous_true = float(true[-1])
         finite = np.isfinite(out)
-        sigma = p.noise_sigma_m + p.noise_per_m * np.where(finite, out, 0.0)
+        sigma = (p.noise_sigma_m + p.noise_per_m * np.where(finite, out, 0.0)) * self.noise_factor[k]
         noise = self.rng.normal(0.0, 1.0, size=out.shape) * sigma
         out = np.where(finite, out + p.bias_m + noise, np.inf)
+        if p.range_step_m > 0:
+            out = np.where(finite, np.round(out / p.range_step_m) * p.range_step_m, out)
         out = np.where(finite & (out > LIDAR_RANGE_MAX_M), np.inf, out)
         if p.dropout_prob > 0:
             out = np.where(self.rng.random(out.shape) < p.dropout_prob, np.inf, out)
-        out = np.where(self.blocked[k], MAST_RANGE_M, out)
-        self.ranges[k] = np.maximum(out, 0.0)
+        out = np.maximum(out, 0.0)
+        if p.no_return != "inf":
+            out = np.where(np.isinf(out), NO_RETURN[p.no_return], out)
+        self.ranges[k] = np.where(self.blocked[k], MAST_RANGE_M, out)
         self.taken = int(k[-1]) + 1 if len(k) else self.taken
 
     @property

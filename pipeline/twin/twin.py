@@ -420,7 +420,7 @@ class HardwareTwin:
 
     def _publish_scan(self, i: int, lidar: LidarSweep) -> None:
         ns = self.namespaces[i]
-        if self._silenced(ns, lidar.end_ns):
+        if self._silenced(ns, lidar.end_ns) or lidar.dropped():
             return
         period_s = lidar.period_ns / NS_PER_S
         msg = C.laser_scan(

@@ -20,7 +20,14 @@ from pipeline.twin.profile import (
     load_profile,
     load_profile_for,
 )
-from pipeline.twin.sensors import MAST_RANGE_M, BurstLoss, EncoderOdometry, LidarSweep, RobotClock
+from pipeline.twin.sensors import (
+    LIDAR_RANGE_MAX_M,
+    MAST_RANGE_M,
+    BurstLoss,
+    EncoderOdometry,
+    LidarSweep,
+    RobotClock,
+)
 
 MS = 1_000_000
 
@@ -77,6 +84,84 @@ def test_blocked_sectors_read_the_mast_and_far_returns_read_no_return():
     blocked = (angles >= math.degrees(3.0)) & (angles <= math.degrees(3.3))
     assert blocked.sum() == 18 and (sweep.ranges[blocked] == MAST_RANGE_M).all()
     assert (sweep.ranges[:170] == 2.0).all() and np.isinf(sweep.ranges[~blocked & (angles >= 190)]).all()
+
+
+def sweeps(profile: LidarProfile, true_m: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """(n, beams) ranges of `n` sweeps of the same true ranges."""
+    sweep = LidarSweep(profile, np.random.default_rng(seed))
+    out = []
+    for _ in range(n):
+        sweep.restart(0)
+        sweep.measure(np.arange(sweep.beams), true_m)
+        out.append(sweep.ranges.copy())
+    return np.array(out)
+
+
+def test_ranges_come_in_the_profile_s_steps_and_the_noise_keeps_its_spread():
+    true = np.linspace(0.5, 5.0, 360)
+    step = 0.002
+    ranges = sweeps(lidar(noise_sigma_m=0.003, range_step_m=step), true, 60)
+    units = ranges / step
+    assert np.abs(units - np.round(units)).max() < 1e-6  # every range on the lattice
+    assert len(np.unique(np.round(units[:, 100]))) > 3  # and still noisy
+    spread = float(np.std(ranges - true[None, :]))
+    assert spread == pytest.approx(math.sqrt(0.003**2 + step**2 / 12), rel=0.05)
+    continuous = sweeps(lidar(noise_sigma_m=0.003), true, 5)
+    assert np.abs(continuous / step - np.round(continuous / step)).max() > 0.1
+
+
+@pytest.mark.parametrize(("convention", "reads"), [("inf", math.inf), ("zero", 0.0), ("max", LIDAR_RANGE_MAX_M)])
+def test_a_beam_without_a_return_reads_the_driver_s_convention(convention, reads):
+    true = np.concatenate([np.full(180, 2.0), np.full(180, 9.0)])  # beyond range: no return
+    ranges = sweeps(lidar(no_return=convention, dropout_prob=0.1), true, 20)
+    assert (ranges[:, 180:] == reads).all()
+    dropped = ranges[:, :180] == reads
+    assert 0.05 < dropped.mean() < 0.15 and (ranges[:, :180][~dropped] == 2.0).all()
+
+
+def test_no_return_as_nan():
+    ranges = sweeps(lidar(no_return="nan"), np.full(360, 9.0), 1)
+    assert np.isnan(ranges).all()
+
+
+def test_mixed_pixels_lie_between_the_surfaces_of_a_depth_edge_and_nowhere_else():
+    true = np.where(np.arange(360) % 20 < 10, 1.0, 3.0)  # 36 depth edges per sweep
+    ranges = sweeps(lidar(mixed_pixel_prob=0.5), true, 40)
+    between = (ranges > 1.0) & (ranges < 3.0)
+    edge = np.zeros(360, dtype=bool)
+    edge[np.flatnonzero(np.diff(true) != 0) + 1] = True
+    assert not between[:, ~edge].any()
+    assert between[:, edge].mean() == pytest.approx(0.5, abs=0.06)
+
+
+def test_beam_noise_differs_per_beam_with_mean_square_one():
+    ranges = sweeps(lidar(noise_sigma_m=0.01, beam_noise_spread=0.4), np.full(360, 2.0), 200)
+    per_beam = ranges.std(axis=0)
+    assert per_beam.max() / per_beam.min() > 2.0  # uneven
+    assert math.sqrt(float(np.mean(per_beam**2))) == pytest.approx(0.01, rel=0.1)
+    again = sweeps(lidar(noise_sigma_m=0.01, beam_noise_spread=0.4), np.full(360, 2.0), 200)
+    assert np.corrcoef(per_beam, again.std(axis=0))[0, 1] > 0.9  # fixed per unit (same seed)
+
+
+def test_beams_point_off_their_stated_angles_by_the_profile_s_jitter():
+    sweep = LidarSweep(lidar(beam_angle_jitter_rad=0.002), np.random.default_rng(3))
+    off = sweep.angles - 2 * math.pi * np.arange(360) / 360
+    assert float(np.std(off)) == pytest.approx(0.002, rel=0.15)
+    assert (LidarSweep(lidar(), np.random.default_rng(3)).angles == 2 * math.pi * np.arange(360) / 360).all()
+
+
+def test_the_sweep_period_wanders_and_scans_are_dropped_at_the_profile_s_rates():
+    sweep = LidarSweep(lidar(rate_wander=0.02, scan_drop_prob=0.1), np.random.default_rng(4))
+    periods, drops = [], 0
+    for _ in range(2000):
+        periods.append(sweep.period_ns)
+        drops += sweep.dropped()
+        sweep.restart(sweep.end_ns)
+    rel = np.array(periods) / (125 * MS)
+    assert float(np.mean(rel)) == pytest.approx(1.0, abs=0.002) and float(np.std(rel)) == pytest.approx(0.02, rel=0.1)
+    assert drops / 2000 == pytest.approx(0.1, abs=0.02)
+    steady = LidarSweep(lidar(), np.random.default_rng(4))
+    assert steady.period_ns == 125 * MS and not any(steady.dropped() for _ in range(100))
 
 
 def test_the_mounting_offset_moves_and_turns_the_lidar_with_the_base():
