@@ -671,7 +671,8 @@ class CalibratedKey:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        """Identified (``ok``, or ``weak``: an interval wider than the value)."""
+        return self.status in ("ok", "weak")
 
 
 @dataclass(frozen=True)
@@ -702,14 +703,14 @@ def _calibrated_keys(uncertainty: Any) -> tuple[dict[str, CalibratedKey], list[C
     for group, entries in uncertainty.items():
         for name, entry in (entries or {}).items() if isinstance(entries, dict) else ():
             key = f"{group}.{name}"
-            if not isinstance(entry, dict) or entry.get("status") not in ("ok", "unidentifiable"):
+            if not isinstance(entry, dict) or entry.get("status") not in ("ok", "weak", "unidentifiable"):
                 problems.append(
-                    ConfigProblem(f"uncertainty.{key}", entry, "a mapping with status ok or unidentifiable")
+                    ConfigProblem(f"uncertainty.{key}", entry, "a mapping with status ok, weak or unidentifiable")
                 )
                 continue
             interval = entry.get("interval_95")
             value = entry.get("value")
-            if entry["status"] == "ok" and not (
+            if entry["status"] in ("ok", "weak") and not (
                 isinstance(value, (int, float))
                 and (interval is None or (isinstance(interval, list) and len(interval) == 2))
             ):

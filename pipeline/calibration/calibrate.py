@@ -18,6 +18,7 @@ the recordings.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import math
 from collections.abc import Mapping, Sequence
@@ -35,7 +36,13 @@ from pipeline.calibration.floor import estimate_floor
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
 from pipeline.calibration.localize import OccupancyMap, PoseSource, localize_robot
 from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors, wheel_speeds
-from pipeline.calibration.network import NetworkFit, StampStream, estimate_network, rate_estimate
+from pipeline.calibration.network import (
+    NetworkFit,
+    StampStream,
+    estimate_network,
+    rate_estimate,
+    rate_wander_estimate,
+)
 from pipeline.calibration.odometry import OdometryEpisode, OdometryFit, estimate_odometry
 from pipeline.calibration.options import CalibrationSettings, Part
 from pipeline.calibration.randomization import RandomizationFit, fit_randomization
@@ -49,8 +56,19 @@ from pipeline.core.timebase import NS_PER_S
 from pipeline.mappings import bounds_text, in_bounds
 from pipeline.params import WorldConfig
 
+LIDAR_FIT_KEYS = ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m")
 PROFILE_KEYS: dict[str, tuple[str, ...]] = {
-    "lidar": ("beams", "rate_hz", "noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"),
+    "lidar": (
+        "beams",
+        "rate_hz",
+        *LIDAR_FIT_KEYS,
+        "range_step_m",
+        "beam_noise_spread",
+        "mixed_pixel_prob",
+        "beam_angle_jitter_rad",
+        "rate_wander",
+        "scan_drop_prob",
+    ),
     "actuation": ("delay_s", "time_constant_s", "linear_gain", "angular_gain"),
     "odometry": ("rate_hz", "drift_per_m"),
     "network": ("loss_prob", "jitter_s", "burst_len"),
@@ -302,6 +320,8 @@ class Calibration:
                 out.setdefault(group, {})[name] = [[parts.get((b, i), 0.0) for i in range(2)] for b in range(n)]
         if self.lidar is not None and self.lidar.blocked_sectors_rad:
             out.setdefault("lidar", {})["blocked_sectors_rad"] = [list(s) for s in self.lidar.blocked_sectors_rad]
+        if self.lidar is not None and self.lidar.no_return is not None:
+            out.setdefault("lidar", {})["no_return"] = self.lidar.no_return
         order = list(PROFILE_KEYS)
         return {g: out[g] for g in sorted(out, key=lambda g: order.index(g) if g in order else len(order))}
 
@@ -725,6 +745,7 @@ def calibrate(
         if key in values:
             values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
     values = within_physical_ranges(values)
+    values = {key: _flag_weak(key, est) for key, est in values.items()}
     return Calibration(
         read.scenario.name,
         _sources(read.sessions),
@@ -868,8 +889,14 @@ def _lidar_values(lidar: LidarFit, data: _Gathered) -> dict[str, Estimate]:
     else:
         values["lidar.beams"] = Estimate.unidentifiable("no scan recorded", "beams")
     values["lidar.rate_hz"] = rate_estimate(data.scan_stamps)
-    for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad", "noise_per_m"):
+    values["lidar.rate_wander"] = rate_wander_estimate(data.scan_stamps)
+    for key in (*LIDAR_FIT_KEYS, "range_step_m", "beam_noise_spread", "mixed_pixel_prob"):
         values[f"lidar.{key}"] = getattr(lidar, key)
+    values["lidar.beam_angle_jitter_rad"] = Estimate.unidentifiable(
+        "a beam a few milliradians off its stated angle moves its range by range x tan(incidence) x the error: below "
+        "the noise except at grazing incidence, and grazing beams are left out",
+        "rad",
+    )
     values["lidar.mount_xy_m[0]"] = lidar.mount_x_m
     values["lidar.mount_xy_m[1]"] = lidar.mount_y_m
     values["map.wall_offset_m"] = lidar.wall_offset_m
@@ -992,6 +1019,18 @@ def _network_fits(
 ) -> tuple[NetworkFit, ClockFit]:
     """Loss, bursts and jitter of the robots' messages and their clock, into `values`."""
     network = estimate_network(streams, settings, rng)
+    scans = [s for s in streams if s.topic.endswith("/scan")]
+    others = [s for s in streams if not s.topic.endswith("/scan")]
+    if scans and others:
+        # a scan lost in the lidar's driver (USB) is a loss on the scan topics alone: the network's loss and bursts
+        # come from the other topics, the scans' excess is the driver's
+        wire = estimate_network(others, settings, rng)
+        network = dataclasses.replace(network, loss_prob=wire.loss_prob, burst_len=wire.burst_len)
+        values["lidar.scan_drop_prob"] = scan_drop_estimate(estimate_network(scans, settings, rng), wire)
+    else:
+        values["lidar.scan_drop_prob"] = Estimate.unidentifiable(
+            "no topic besides the scans to tell the network's losses from the driver's", "probability"
+        )
     values["network.loss_prob"] = network.loss_prob
     values["network.jitter_s"] = network.jitter_s
     values["network.burst_len"] = network.burst_len
@@ -1089,6 +1128,36 @@ def _offset_on_followed_clock(offset: Estimate, sessions: Sequence[SessionData])
 
 UNMEASURED_DRIFT_PPM = 200.0
 """A robot clock's rate error assumed at most this when the recording cannot tell it."""
+
+
+def _flag_weak(key: str, est: Estimate) -> Estimate:
+    """`est` flagged ``weak`` where its key is a scale, a probability or a rate (its profile bound below is >= 0)
+    and its interval is wider than its value."""
+    group, name, _ = split_key(key)
+    try:
+        meta = profile_setting(f"{group}.{name}").metadata
+    except KeyError:
+        return est
+    low = bounds_of(meta)[0]
+    return est.flagged(low) if low >= 0 else est
+
+
+def scan_drop_estimate(scans: NetworkFit, wire: NetworkFit) -> Estimate:
+    """The probability that the lidar's driver loses a whole scan: the scan topics' loss beyond the other topics'
+    (1 - (1 - p_scan) / (1 - p_wire)), its interval from the two intervals' far ends (conservative, within [0, 1))."""
+    a, b = scans.loss_prob, wire.loss_prob
+    unit = "probability"
+    if not (a.ok and b.ok and a.value is not None and b.value is not None and a.interval and b.interval):
+        return Estimate.unidentifiable("the scans' or the other topics' loss is not identified", unit)
+
+    def excess(p_scan: float, p_wire: float) -> float:
+        return min(max(1 - (1 - p_scan) / (1 - p_wire), 0.0), 1.0) if p_wire < 1 else 0.0
+
+    value = excess(a.value, b.value)
+    lo, hi = excess(a.interval[0], b.interval[1]), excess(a.interval[1], b.interval[0])
+    se = (hi - lo) / (2 * 1.959963984540054)
+    method = "loss on the scan topics beyond the other topics' (the driver's), from the two losses' intervals"
+    return Estimate.of(value, se, (lo, max(hi, value)), unit, method, a.n)
 
 
 def _host_rate(rate: Estimate, drift: Estimate | None) -> Estimate:

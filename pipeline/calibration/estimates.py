@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -12,7 +13,9 @@ from scipy import stats
 
 from pipeline.core.stats import wilson_interval
 
-Status = Literal["ok", "unidentifiable"]
+Status = Literal["ok", "weak", "unidentifiable"]
+"""``weak``: a value whose 95 % interval is wider than the value itself (the data bound it more than they pin it);
+used as an identified one, flagged in the report."""
 Z_95 = 1.959963984540054
 MAD_TO_SIGMA = 1.4826
 """A normal variable's standard deviation over its median absolute deviation."""
@@ -37,7 +40,23 @@ class Estimate:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        """Identified: a value with its uncertainty (``ok`` or ``weak``)."""
+        return self.status in ("ok", "weak")
+
+    @property
+    def weak(self) -> bool:
+        return self.status == "weak"
+
+    def flagged(self, low_bound: float) -> Estimate:
+        """This estimate, ``weak`` where its key cannot go below `low_bound` >= 0 (a scale, a probability, a rate)
+        and its interval is wider than its value above that bound."""
+        if self.status != "ok" or self.value is None or self.interval is None or low_bound < 0:
+            return self
+        width = self.interval[1] - self.interval[0]
+        if width > abs(self.value - low_bound):
+            reason = "weakly determined: its 95 % interval is wider than its value"
+            return dataclasses.replace(self, status="weak", reason=reason)
+        return self
 
     @staticmethod
     def of(
@@ -67,6 +86,8 @@ class Estimate:
         out["interval_95"] = None if self.interval is None else [_round(self.interval[0]), _round(self.interval[1])]
         out["method"] = self.method
         out["n"] = self.n
+        if self.weak:
+            out["reason"] = self.reason
         return out
 
 

@@ -35,9 +35,9 @@ def _row(key: str, est: Estimate) -> str:
     if not est.ok:
         return f"| `{key}` | unidentifiable | | | {est.reason} |"
     interval = "-" if est.interval is None else f"[{_fmt(est.interval[0])}, {_fmt(est.interval[1])}]"
-    return (
-        f"| `{key}` | {_fmt(est.value)} {est.unit} | {_fmt(est.std_error)} | {interval} | {est.method}, n = {est.n} |"
-    )
+    value = f"{_fmt(est.value)} {est.unit}" + (" (weak)" if est.weak else "")
+    how = f"{est.method}, n = {est.n}" + (f"; {est.reason}" if est.weak else "")
+    return f"| `{key}` | {value} | {_fmt(est.std_error)} | {interval} | {how} |"
 
 
 def plot_lidar(calibration: Calibration, path: Path) -> bool:

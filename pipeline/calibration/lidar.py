@@ -42,6 +42,18 @@ import numpy as np
 from scipy import stats
 
 from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, binomial_estimate, bootstrap, spread
+from pipeline.calibration.lidar_noise import (
+    NOISE_BOUNDS,
+    NoiseBins,
+    beam_spread,
+    correlation,
+    dispersion,
+    fit_noise,
+    log_add,
+    log_widen,
+    profile_intervals,
+    range_step,
+)
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry, cast_circles, wrap
 from pipeline.calibration.smoothing import Track
@@ -73,6 +85,8 @@ MIN_MAP_BEAMS = 30
 """A wall or box offset seen by fewer clean beams than this is unidentifiable."""
 RANGE_BIN_M = 0.5
 MIN_BIN_SAMPLES = 50
+DEPTH_EDGE_M = 0.1
+"""Beams whose cast ranges differ by more than this straddle a depth edge (where mixed pixels are)."""
 MOUNT_XY_MAX_SE_M = 0.03
 """A mounting offset less certain than this is reported unidentifiable."""
 
@@ -125,6 +139,14 @@ class LidarFit:
     yaw_cost: tuple[np.ndarray, np.ndarray] | None = None
     notes: tuple[str, ...] = ()
     residual_spectrum: ResidualSpectrum | None = None
+    range_step_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m"))
+    beam_noise_spread: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "log-sd"))
+    mixed_pixel_prob: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "probability"))
+    noise_at_range: tuple[float, Estimate] | None = None
+    """(the median range seen (m), the noise there): what the data determine where intercept and slope trade off."""
+    noise_correlation: float = math.nan
+    no_return: str | None = None
+    """The driver's convention for a beam without a return, as the recording shows it (inf, zero, max, nan)."""
 
 
 SPECTRUM_OUTLIER_M = 0.05
@@ -178,7 +200,7 @@ def residual_spectrum(
         n_beams = len(mean)
         x = np.where(have, mean - np.mean(mean[have]), 0.0)
         powers.append(np.abs(np.fft.rfft(x)) ** 2 / n_beams)
-        var = np.where(have, (noise_sigma_m + noise_per_m * cast) ** 2 / np.maximum(count, 1), 0.0)
+        var = np.where(have, (noise_sigma_m + noise_per_m * np.where(have, cast, 0.0)) ** 2 / np.maximum(count, 1), 0)
         noises.append(np.full(n_beams // 2 + 1, var.sum() / n_beams))  # white: the same at every frequency
     if not powers or n_beams is None:
         return None
@@ -215,7 +237,7 @@ def stationary_spans(
 def valid_returns(r: np.ndarray, span: ScanSpan) -> np.ndarray:
     """Which ranges are returns: finite and within [range_min, range_max). A range of exactly the maximum is a
     driver's "no return" (drivers write +inf, NaN, 0 or the maximum for it; the first three fall outside already)."""
-    return np.isfinite(r) & (r >= span.range_min_m) & (r < span.range_max_m)
+    return np.asarray(np.isfinite(r) & (r >= span.range_min_m) & (r < span.range_max_m), dtype=bool)
 
 
 def _unidentifiable(reason: str, notes: Sequence[str] = (), **kw: object) -> LidarFit:
@@ -676,20 +698,38 @@ def _geometry_estimate(fit: _Geometry, k: int, unit: str, max_se: float | None =
     return Estimate.of(float(fit.params[k]), se, (float(lo), float(hi)), unit, fit.method, int(fit.seen[k]))
 
 
+@dataclass(frozen=True)
+class NoiseFit:
+    """The noise's estimates and what the report says of them."""
+
+    sigma: Estimate
+    per_m: Estimate
+    curve: tuple[np.ndarray, np.ndarray] | None = None
+    at_range: tuple[float, Estimate] | None = None
+    """(the median range seen (m), the noise there): the combination of intercept and slope the data determine."""
+    correlation: float = math.nan
+    """Of intercept and slope (NaN without a slope)."""
+    dispersion: float = 1.0
+    beam_spread: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "log-sd"))
+    notes: tuple[str, ...] = ()
+
+
 def _within_span_noise(
     spans: Sequence[ScanSpan],
     masks: Sequence[np.ndarray],
     rng: np.random.Generator,
     settings: CalibrationSettings,
     bias_m: float = 0.0,
-) -> tuple[Estimate, Estimate, tuple[np.ndarray, np.ndarray] | None]:
+    step_m: float = 0.0,
+) -> NoiseFit:
     """noise_sigma_m and noise_per_m from each beam's spread about its own mean within a span, against the distance
     the beam travelled: its mean range less the lidar's range bias `bias_m` (the noise grows with the true distance;
     against the measured range the line's intercept moves by -noise_per_m x bias, about 1 % of the noise on drawn
-    lidars)."""
+    lidars); ranges in steps of `step_m` (:mod:`pipeline.calibration.lidar_noise` says how)."""
     dev: list[np.ndarray] = []
     rng_of: list[np.ndarray] = []
     who: list[np.ndarray] = []
+    beam_of: list[np.ndarray] = []
     for k, (span, mask) in enumerate(zip(spans, masks, strict=True)):
         r = span.ranges
         valid = valid_returns(r, span) & mask
@@ -703,10 +743,11 @@ def _within_span_noise(
         dev.append(d[sel])
         rng_of.append(np.broadcast_to(mean[None, :] - bias_m, r.shape)[sel])
         who.append(np.full(int(sel.sum()), k))
+        beam_of.append(np.broadcast_to(np.arange(r.shape[1])[None, :], r.shape)[sel])
     if not dev:
         reason = "no beam returned twice within a stationary span"
-        return Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"), None
-    d, R, owner = np.concatenate(dev), np.concatenate(rng_of), np.concatenate(who)
+        return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
+    d, R, owner, beam = np.concatenate(dev), np.concatenate(rng_of), np.concatenate(who), np.concatenate(beam_of)
     bins = np.floor(R / RANGE_BIN_M).astype(np.int64)
     labels = np.unique(bins)
     rows = []  # (bin, centre, half-width of the clip)
@@ -718,68 +759,126 @@ def _within_span_noise(
         rows.append((b, float(R[sel].mean()), half))
     if len(rows) < 1:
         reason = f"fewer than {MIN_BIN_SAMPLES} repeated returns in any {RANGE_BIN_M:g} m range bin"
-        return Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"), None
+        return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
     correction = truncation_correction(CLIP_SIGMAS)
     n_spans = len(spans)
     # per span and bin: count, sum and sum of squares of the clipped deviations, and the sum of ranges
     sums = np.zeros((n_spans, len(rows), 4))
+    kept = np.zeros(len(d), dtype=bool)
     for i, (b, _, half) in enumerate(rows):
         sel = (bins == b) & (np.abs(d) <= half)
+        kept |= sel
         np.add.at(sums[:, i, 0], owner[sel], 1.0)
         np.add.at(sums[:, i, 1], owner[sel], d[sel])
         np.add.at(sums[:, i, 2], owner[sel], d[sel] ** 2)
         np.add.at(sums[:, i, 3], owner[sel], R[sel])
-
-    def line(total: np.ndarray) -> np.ndarray:
-        n, sigma, centre = _bin_spreads(total, correction)
-        if not len(n):
-            return np.array([np.nan, np.nan])
-        if len(n) < 2 or np.ptp(centre) < RANGE_BIN_M:
-            return np.array([float(np.average(sigma, weights=n)), np.nan])
-        slope, intercept = np.polyfit(centre, sigma, 1, w=np.sqrt(n))
-        return np.array([intercept, slope])
-
-    full = line(sums.sum(axis=0))
     total = sums.sum(axis=0)
-    lack_of_fit = _line_misfit(total, full, correction)
-    curve = (
-        total[:, 3] / np.maximum(total[:, 0], 1),
-        np.sqrt(np.maximum(total[:, 2] / np.maximum(total[:, 0], 1), 0)) * correction,
-    )
+    every = NoiseBins.of(total, correction)
+    slope = every.spans_range and float(np.ptp(every.range_m)) >= RANGE_BIN_M
+    full = fit_noise(every, step_m, slope)
+    phi = dispersion(every, full, step_m)
+    at_m = every.median_range()
+    curve = (every.range_m, np.sqrt(every.var))
     n_dev = int(total[:, 0].sum())
     clusters = _Clusters.of(spans, sums[:, :, 0].sum(axis=1) > 0)
-    method = f"within-span spread, {clusters.method}"
+    notes: list[str] = []
+    values = [float(full[0]), float(full[1]), float(full[0]) + (float(full[1]) if slope else 0.0) * at_m]
+    widen = math.sqrt(phi)
     if clusters.count >= MIN_SPANS_FOR_BOOTSTRAP:
         cluster_sums = clusters.sum(sums)
-        samples = bootstrap(
-            lambda c: line(np.tensordot(c, cluster_sums, axes=1)), clusters.count, settings.bootstrap, rng
-        )
+
+        def stat(c: np.ndarray) -> np.ndarray:
+            f = fit_noise(NoiseBins.of(np.tensordot(c, cluster_sums, axes=1), correction), step_m, slope)
+            return np.array([f[0], f[1], f[0] + (f[1] if slope else 0.0) * at_m])
+
+        samples = bootstrap(stat, clusters.count, settings.bootstrap, rng)
+        inflate = math.sqrt(clusters.count / (clusters.count - 1))
+        widen *= inflate * float(stats.t.ppf(0.975, clusters.dof)) / Z_95
+        intervals = []
+        ses = []
+        for k in range(3):
+            boot_se, (lo, hi) = spread(samples[:, k])
+            shift = values[k] - float(np.nanmedian(samples[:, k])) if math.isfinite(boot_se) else 0.0
+            intervals.append((max(lo + shift, 0.0), max(hi + shift, values[k])))
+            ses.append(boot_se * inflate)
+        good = np.all(np.isfinite(samples[:, :2]), axis=1)
+        varied = slope and good.sum() > 2 and np.std(samples[good, 0]) > 0 and np.std(samples[good, 1]) > 0
+        corr = float(np.corrcoef(samples[good, 0], samples[good, 1])[0, 1]) if varied else math.nan
+        method = f"maximum likelihood (both >= 0), {clusters.method}"
     else:
-        samples = np.full((2, 2), np.nan)
-        method = "within-span spread, normal theory (independent returns; too few spans to resample)"
-        theory = _line_sampling_error(total, full, correction)
+        intervals = list(profile_intervals(every, full, step_m, phi, at_m))
+        ses = [(hi - lo) / (2 * Z_95) for lo, hi in intervals]
+        widen = 1.0  # the profile's threshold holds the dispersion already
+        corr = correlation(every, full, step_m)
+        method = (
+            f"maximum likelihood (both >= 0), profile-likelihood interval ({clusters.count} stationary span(s): too "
+            "few to resample)"
+        )
+    if phi > 1.05:
+        method += f"; widened for the bins' dispersion about the fit ({phi:.2f} x sampling)"
+    # the noise differs per beam: the beams seen carry a mean square of their factors that the profile's is not
+    per_beam = beam_spread(
+        [(beam[kept], d[kept], R[kept])], lambda x: float(full[0]) + (float(full[1]) if slope else 0.0) * x
+    )
+    spread_est = (
+        Estimate.of(
+            per_beam[0],
+            per_beam[1],
+            per_beam[2],
+            "log-sd",
+            "per-beam noise over the fitted line, over sampling (bootstrap over beams)",
+            per_beam[3],
+        )
+        if math.isfinite(per_beam[0])
+        else Estimate.unidentifiable(f"only {per_beam[3]} beams returned 20 times or more while still", "log-sd")
+    )
+    rel_sd = 0.0
+    if math.isfinite(per_beam[0]) and per_beam[3] > 0:
+        s_hi = per_beam[2][1]
+        rel_sd = math.sqrt(math.expm1(4 * s_hi**2)) / (2 * math.sqrt(per_beam[3]))
     ests = []
-    for k, unit in ((0, "m"), (1, "m/m")):
-        value = float(full[k])
+    for k, unit in ((0, "m"), (1, "m/m"), (2, "m")):
+        value = values[k]
         if not math.isfinite(value):
             reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
             ests.append(Estimate.unidentifiable(reason, unit, n_dev))
             continue
-        if clusters.count >= MIN_SPANS_FOR_BOOTSTRAP:
-            se, ci = clusters.widen(value, samples[:, k])
-        else:
-            se = float(theory[k])
-            ci = (value - Z_95 * se, value + Z_95 * se)
-        if not math.isfinite(se):
+        lo, hi = intervals[k]
+        if not (math.isfinite(lo) and math.isfinite(hi)):
             ests.append(Estimate.unidentifiable("too few stationary spans to tell its uncertainty", unit, n_dev))
             continue
-        # a line that does not go through the bins' spreads (what the model leaves) widens the interval
-        misfit = float(lack_of_fit[k])
-        if misfit > se:
-            se = misfit
-            ci = (min(ci[0], value - Z_95 * se), max(ci[1], value + Z_95 * se))
-        ests.append(Estimate.of(value, se, ci, unit, method, n_dev))
-    return ests[0], ests[1], curve
+        lo, hi = log_add(value, log_widen(value, (lo, hi), widen), rel_sd)
+        bound = NOISE_BOUNDS["noise_per_m" if k == 1 else "noise_sigma_m"][1] + (k == 2) * at_m * 0.2
+        hi = min(hi, bound)
+        se = max(float(ses[k]) * widen, (hi - lo) / (2 * Z_95)) if math.isfinite(ses[k]) else (hi - lo) / (2 * Z_95)
+        ests.append(Estimate.of(value, se, (lo, hi), unit, method, n_dev))
+    step_var = step_m**2 / 12
+    if step_m > 0:
+        pooled = float(np.sum(every.n * every.var) / np.sum(every.n))
+        if pooled < 2 * step_var:
+            notes.append(
+                f"the noise is below the range step ({step_m * 1e3:.3g} mm): the returns' spread "
+                f"({math.sqrt(pooled) * 1e3:.3g} mm) is mostly the rounding's ({math.sqrt(step_var) * 1e3:.3g} mm), "
+                "so the noise is bounded, not measured"
+            )
+        else:
+            notes.append(
+                f"ranges in steps of {step_m * 1e3:.3g} mm: the rounding's step^2 / 12 taken out of the variance"
+            )
+    at_range = (at_m, ests[2]) if ests[2].ok else None
+    if slope and math.isfinite(corr) and ests[0].ok and ests[1].ok and at_range is not None:
+        lo, hi = ests[2].interval or (math.nan, math.nan)
+        notes.append(
+            f"noise_sigma_m and noise_per_m trade off (correlation {corr:+.2f}); what the data determine is the noise "
+            f"at {at_m:.2f} m, the median range seen: {float(ests[2].value or 0.0) * 1e3:.3g} mm "
+            f"[{lo * 1e3:.3g}, {hi * 1e3:.3g}]"
+        )
+    elif not slope:
+        notes.append(
+            f"the still returns' ranges span less than {RANGE_BIN_M:g} m: the noise is one value, its growth with "
+            "range is not determined"
+        )
+    return NoiseFit(ests[0], ests[1], curve, at_range, corr, phi, spread_est, tuple(notes))
 
 
 def clipped_moments(
@@ -809,42 +908,6 @@ def truncation_correction(sigmas: float) -> float:
     mass = 2 * stats.norm.cdf(sigmas) - 1
     var = 1 - 2 * sigmas * stats.norm.pdf(sigmas) / mass
     return 1.0 / math.sqrt(var)
-
-
-def _bin_spreads(total: np.ndarray, correction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Of the range bins with >= 2 returns in `total` (bins, [count, sum, sum of squares, sum of ranges]): the
-    count, the clipped spread (corrected for the clipping) and the mean range."""
-    ok = total[:, 0] >= 2
-    n = total[ok, 0]
-    sigma = np.sqrt(np.maximum(total[ok, 2] / n - (total[ok, 1] / n) ** 2, 0.0)) * correction
-    return n, sigma, total[ok, 3] / n
-
-
-def _line_sampling_error(total: np.ndarray, line: np.ndarray, correction: float) -> np.ndarray:
-    """Standard errors (intercept, slope) of the line through the bins' spreads from each spread's own sampling
-    error (sigma / sqrt(2 (n - 1)) for n returns); the slope's is NaN with one bin."""
-    n, sigma, centre = _bin_spreads(total, correction)
-    var = np.maximum(sigma**2 / (2 * (n - 1)), 1e-18)
-    if len(n) < 2 or not math.isfinite(float(line[1])):
-        return np.array([math.sqrt(1.0 / float(np.sum(1.0 / var))), math.nan])
-    x = np.stack([np.ones_like(centre), centre], axis=1)
-    cov = np.linalg.inv(x.T @ (x / var[:, None]))
-    return np.asarray(np.sqrt(np.maximum(np.diag(cov), 0.0)))
-
-
-def _line_misfit(total: np.ndarray, line: np.ndarray, correction: float) -> np.ndarray:
-    """Standard errors (intercept, slope) of the weighted line through the range bins' spreads from its own
-    residuals: zero where the line explains the bins, large where it does not (the twin's noise not linear
-    in range, robots not quite still)."""
-    n, sigma, centre = _bin_spreads(total, correction)
-    if len(n) < 3 or not np.all(np.isfinite(line)):
-        return np.zeros(2)
-    w = n / n.mean()
-    x = np.stack([np.ones_like(centre), centre], axis=1)
-    resid = sigma - x @ line
-    s2 = float(np.sum(w * resid**2)) / (len(n) - 2)
-    cov = s2 * np.linalg.inv(x.T @ (w[:, None] * x))
-    return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
 def dropout_estimate(drops: np.ndarray, trials: np.ndarray) -> Estimate:
@@ -918,6 +981,9 @@ def estimate_lidar(
     masks: list[np.ndarray] = []
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
+    edges: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (returns, near, far) at depth edges
+    changes: list[np.ndarray] = []
+    missing = {"inf": 0, "nan": 0, "zero": 0, "max": 0}
     for k, span in enumerate(spans):
         # clean beams of the room as fitted, cast from the fitted mounting: a box corner a few centimetres off its
         # mapped place, beside a robot that stands against it, reads closer than the range minimum to beams that the
@@ -939,6 +1005,24 @@ def estimate_lidar(
         with np.errstate(invalid="ignore", divide="ignore"):
             span_mean = np.where(count > 0, np.where(kept, r - fitted[0][None, :], 0.0).sum(axis=0) / count, np.nan)
         span_means.append((span_mean, count, fitted[0]))
+        both = valid[1:] & valid[:-1]
+        changes.append(np.diff(np.where(valid, r, 0.0), axis=0)[both])
+        unblocked = ~blocked[span.ranges.shape[1]]
+        seen = r[:, unblocked]
+        missing["inf"] += int(np.isposinf(seen).sum())
+        missing["nan"] += int(np.isnan(seen).sum())
+        missing["zero"] += int((seen == 0.0).sum())
+        missing["max"] += int((seen == np.float32(span.range_max_m)).sum())
+        # depth edges of the fitted room: a beam whose cast range differs from the previous beam's by more than
+        # DEPTH_EDGE_M, both clear of robots and of the mast
+        here, before = fitted[0], np.roll(fitted[0], 1)
+        jump = np.isfinite(here) & np.isfinite(before) & (np.abs(here - before) > DEPTH_EDGE_M) & unblocked
+        jump &= np.roll(unblocked, 1)
+        clear = free & np.roll(free, 1, axis=1) & jump[None, :] & valid
+        if clear.any():
+            near = np.broadcast_to(np.minimum(here, before)[None, :], r.shape)[clear]
+            far = np.broadcast_to(np.maximum(here, before)[None, :], r.shape)[clear]
+            edges.append((r[clear], near, far))
     n_trials = int(trials.sum())
     notes = [f"{len(spans)} stationary spans, {stationary_s:.1f} s, {sum(s.ranges.shape[0] for s in spans)} scans"]
     if sectors:
@@ -950,7 +1034,14 @@ def estimate_lidar(
         return dataclasses.replace(fit, mount_yaw_rad=yaw_est, yaw_cost=curve, blocked_sectors_rad=sectors)
     residuals = np.concatenate(per_span_res)
     bias_value = float(bias_geo.value) if bias_geo.ok and bias_geo.value is not None else 0.0
-    sigma_est, per_m_est, noise_curve = _within_span_noise(spans, masks, rng, settings, bias_value)
+    step = range_step(np.concatenate(changes) if changes else np.zeros(0))
+    step_m = float(step.value) if step.ok and step.value else 0.0
+    noise = _within_span_noise(spans, masks, rng, settings, bias_value, step_m)
+    sigma_est, per_m_est, noise_curve = noise.sigma, noise.per_m, noise.curve
+    notes += list(noise.notes)
+    no_return, convention_note = _no_return_convention(missing)
+    notes.append(convention_note)
+    mixed = _mixed_pixels(edges, noise)
     spans_used = int(np.sum(trials > 0))
     if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
         drop_est = dropout_estimate(drops, trials)
@@ -980,4 +1071,51 @@ def estimate_lidar(
         box_offsets_m=boxes,
         blocked_sectors_rad=sectors,
         noise_curve=noise_curve,
+        range_step_m=step,
+        beam_noise_spread=noise.beam_spread,
+        mixed_pixel_prob=mixed,
+        noise_at_range=noise.at_range,
+        noise_correlation=noise.correlation,
+        no_return=no_return,
     )
+
+
+def _no_return_convention(missing: dict[str, int]) -> tuple[str | None, str]:
+    """The driver's convention for a beam without a return (the most common of +inf, NaN, 0 and the range maximum
+    among the still scans' unblocked beams) and a note with the counts."""
+    total = sum(missing.values())
+    counts = ", ".join(f"{k} {v}" for k, v in missing.items())
+    if total == 0:
+        return None, "no beam without a return while still: the driver's no-return convention not seen"
+    kind = max(missing, key=lambda k: missing[k])
+    return kind, f"beams without a return read {kind} ({counts}; all read as no return)"
+
+
+def _mixed_pixels(edges: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], noise: NoiseFit) -> Estimate:
+    """The probability that a beam at a depth edge returns between the near and the far surface (a mixed pixel),
+    from the still returns at the fitted room's depth edges: a return more than 4 noise sigmas inside both surfaces is
+    mixed; a mixed return spread evenly between them lands there with probability 1 - 2 margin / gap, which turns
+    the count into a probability (Wilson interval on the effective trials)."""
+    unit = "probability"
+    if not edges:
+        return Estimate.unidentifiable("no depth edge of the room seen clear of robots while still", unit)
+    r = np.concatenate([e[0] for e in edges])
+    near = np.concatenate([e[1] for e in edges])
+    far = np.concatenate([e[2] for e in edges])
+    sigma = noise.sigma.value if noise.sigma.ok and noise.sigma.value is not None else 0.01
+    per_m = noise.per_m.value if noise.per_m.ok and noise.per_m.value is not None else 0.0
+    margin = CLIP_SIGMAS * (sigma + per_m * far) + 0.005
+    inner = (r > near + margin) & (r < far - margin)
+    share = np.clip(1 - 2 * margin / (far - near), 0.0, 1.0)
+    trials = float(share.sum())
+    if trials < 20:
+        return Estimate.unidentifiable(f"only {len(r)} still returns at depth edges wide enough to tell", unit, len(r))
+    events = float(inner.sum())
+    p = min(events / trials, 1.0)
+    se = math.sqrt(max(p * (1 - p), 1 / trials) / trials)
+    lo, hi = wilson_interval(events, trials)
+    method = (
+        f"returns between the surfaces of {len(r)} still beams at depth edges, over the share of the gap a mixed "
+        "return lands in (Wilson interval)"
+    )
+    return Estimate.of(p, se, (lo, min(hi, 1.0)), unit, method, len(r))

@@ -33,6 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, bootstrap, spread
 from pipeline.calibration.options import CalibrationSettings
@@ -198,6 +199,39 @@ def rate_estimate(streams: Sequence[np.ndarray], unit: str = "Hz") -> Estimate:
     se = float(np.median(ses))
     interval = (min(rates) - 1.96 * max(ses), max(rates) + 1.96 * max(ses))
     return Estimate.of(rate, se, interval, unit, "stamp on message index over runs of regular sending", count)
+
+
+WANDER_FLOOR = 1e-4
+"""Relative spreads of the sweep period below this are not told apart from a steady one."""
+
+
+def rate_wander_estimate(streams: Sequence[np.ndarray]) -> Estimate:
+    """The relative spread of a sensor's period from one sweep to the next (a lidar's motor speed wandering), from
+    the stamps of each robot's stream: gaps of about one period (a lost message's longer gap left out), each over its
+    stream's mean, their root mean square about 1; the interval chi-square's (n - k degrees of freedom for k
+    streams), at least up to `WANDER_FLOOR`. Stamps taken at reception rather than at the sweep's start add their
+    own jitter to it."""
+    unit = "relative"
+    deviations: list[np.ndarray] = []
+    for s in streams:
+        t = np.unique(np.asarray(s, dtype=np.int64))
+        if len(t) < 10:
+            continue
+        gaps = np.diff(t).astype(np.float64)
+        single = np.abs(gaps / np.median(gaps) - 1) < 0.25
+        if single.sum() < 10:
+            continue
+        g = gaps[single]
+        deviations.append(g / g.mean() - 1)
+    if not deviations:
+        return Estimate.unidentifiable("fewer than 10 periods of one length on any stream", unit)
+    d = np.concatenate(deviations)
+    dof = max(len(d) - len(deviations), 1)
+    rms = math.sqrt(float(np.sum(d**2)) / dof)
+    lo = rms * math.sqrt(dof / float(stats.chi2.ppf(0.975, dof)))
+    hi = max(rms * math.sqrt(dof / float(stats.chi2.ppf(0.025, dof))), WANDER_FLOOR)
+    method = f"root mean square of {len(d)} single periods about their stream's mean (chi-square interval)"
+    return Estimate.of(rms, rms / math.sqrt(2 * dof), (lo, hi), unit, method, len(d))
 
 
 def _gap_missing(stamp_ns: np.ndarray, max_gap_s: float) -> np.ndarray:
