@@ -128,7 +128,8 @@ def test_a_turtlebot_like_still_span_reports_what_the_data_determine():
         assert "profile-likelihood" in est.method
     at_m, at = fit.noise_at_range
     assert at.interval[0] <= 0.0015 + 0.0005 * at_m <= at.interval[1]
-    assert (at.interval[1] - at.interval[0]) / at.value < (fit.noise_sigma_m.interval[1] - fit.noise_sigma_m.interval[0]) / fit.noise_sigma_m.value  # fmt: skip
+    sigma = fit.noise_sigma_m
+    assert (at.interval[1] - at.interval[0]) / at.value < (sigma.interval[1] - sigma.interval[0]) / sigma.value
     assert fit.noise_correlation < -0.5
     assert any("trade off" in n for n in fit.notes) and any("steps of 2 mm" in n for n in fit.notes)
     assert fit.no_return == "inf"
