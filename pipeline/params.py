@@ -42,6 +42,16 @@ class LidarConfig:
     """Range-dependent noise: a beam's sigma is noise_sigma_m + noise_per_m * range."""
     mount_xy_m: tuple[float, ...] = setting((0.0, 0.0), ge=-0.3, le=0.3, min_len=2, max_len=2, optional=True)
     """Where the beams start in the robot frame (forward, left) (m)."""
+    range_step_m: float = setting(0.0, ge=0.0, le=0.05, optional=True)
+    """Ranges reported in steps of this (m; 0: continuous), as a driver reports them."""
+    beam_noise_spread: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    """Each beam's noise scaled by exp(s z - s^2) (mean square 1), drawn per robot and episode."""
+    mixed_pixel_prob: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    """At a depth edge (a beam's range more than 0.1 m from the previous beam's), a return between the two surfaces."""
+    no_return: Literal["inf", "zero", "max", "nan"] = setting("inf", optional=True)
+    """What a beam without a return reads: +inf, 0, range_max_m or NaN (the observation reads each as nothing seen)."""
+    scan_drop_prob: float = setting(0.0, ge=0.0, le=0.5, optional=True)
+    """Whole scans lost in the lidar's driver (before the network): the policy keeps the previous one."""
 
     def check(self) -> list[tuple[str, object, str]]:
         if not self.range_max_m > self.range_min_m:

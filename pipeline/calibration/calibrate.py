@@ -382,6 +382,10 @@ class Calibration:
         if all(m is not None and m.ok and m.value is not None for m in mount):
             out.setdefault("lidar", {})["mount_xy_m"] = [_short(m.value) for m in mount if m and m.value is not None]
         put("lidar", "sim_beams", "lidar.beams")
+        for key in ("range_step_m", "beam_noise_spread", "mixed_pixel_prob", "scan_drop_prob"):
+            put("lidar", key, f"lidar.{key}")  # what real lidars add, so the calibrated round trains with it
+        if self.lidar is not None and self.lidar.no_return is not None:
+            out.setdefault("lidar", {})["no_return"] = self.lidar.no_return
         if "lidar" in out:
             out["lidar"]["robot_radius_seen_m"] = 0.0
         for key in PROFILE_KEYS["actuation"]:

@@ -52,6 +52,8 @@ class LinkSettings:
     burst_len: float = 1.0
     delay_s: float = 0.0
     jitter_s: float = 0.0
+    drop_prob: float = 0.0
+    """Messages lost independently before the link (a sensor's driver), on top of the link's loss."""
 
 
 class BurstLoss:
@@ -116,6 +118,9 @@ class MessageStream:
                 produced = int(self._next_ns[i])
                 self._next_ns[i] += self.period_ns
                 self.sent[i] += 1
+                if s.drop_prob > 0.0 and rng.random() < s.drop_prob:
+                    self.lost[i] += 1
+                    continue
                 if s.loss_prob > 0.0 and self.loss.lost(i, rng):
                     self.lost[i] += 1
                     continue

@@ -46,7 +46,11 @@ class NetworkedSensors:
     def __init__(self, n_robots: int, world: WorldConfig) -> None:
         self.n = n_robots
         self.period_ns = round(world.control_period_s * NS_PER_S)
-        self.plays = world.network.plays or any(k.startswith("network.") for k in world.randomize.ranges())
+        self.plays = (
+            world.network.plays
+            or world.lidar.scan_drop_prob > 0
+            or any(k.startswith("network.") for k in world.randomize.ranges())
+        )
         self.settings = world.network
         self.rng = np.random.default_rng(0)
         self.stale = np.zeros(n_robots, dtype=bool)
@@ -68,7 +72,8 @@ class NetworkedSensors:
             "delay_s": net.delay_s,
             "jitter_s": net.jitter_s,
         }
-        self.scans = MessageStream(LinkSettings(net.scan_rate_hz, **link), self.n, self.period_ns)
+        drop = world.lidar.scan_drop_prob
+        self.scans = MessageStream(LinkSettings(net.scan_rate_hz, **link, drop_prob=drop), self.n, self.period_ns)
         self.odometry = MessageStream(LinkSettings(net.odom_rate_hz, **link), self.n, self.period_ns)
         self.stale = np.zeros(self.n, dtype=bool)
         self.t_ns = 0

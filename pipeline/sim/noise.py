@@ -1,8 +1,27 @@
-"""Sensor error models of the simulator: lidar noise, dropouts and bias; odometry drift."""
+"""Sensor error models of the simulator: lidar noise, dropouts, bias, range steps, mixed pixels and the driver's
+no-return value; odometry drift."""
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
+
+DEPTH_EDGE_M = 0.1
+"""A beam whose true range differs from the previous beam's by more than this straddles a depth edge."""
+
+
+@dataclass(frozen=True)
+class RealLidar:
+    """What a real 2-D lidar adds to Gaussian noise: ranges in steps of `step_m` (0: continuous), a per-beam noise
+    factor (`beam_factor`, (..., beams), None: 1), mixed pixels at depth edges with probability `mixed_prob`, and what
+    a beam without a return reads (`no_return`: +inf, 0, the range maximum or NaN)."""
+
+    step_m: float = 0.0
+    beam_factor: np.ndarray | None = None
+    mixed_prob: float = 0.0
+    no_return: float = math.inf
 
 
 def noisy_ranges(
@@ -12,21 +31,46 @@ def noisy_ranges(
     dropout_prob: float,
     bias_m: float,
     noise_per_m: float = 0.0,
+    real: RealLidar | None = None,
 ) -> np.ndarray:
-    """Measured ranges (same shape) from true ones (m); +inf (no return) stays +inf.
+    """Measured ranges (same shape) from true ones (m); +inf (no return) stays +inf unless `real` says otherwise.
 
     Adds `bias_m` and zero-mean Gaussian noise of `sigma_m` + `noise_per_m` * range; each beam
-    drops out (reads +inf) with probability `dropout_prob`.
+    drops out (reads +inf) with probability `dropout_prob`. With `real` (beams along the last axis): a beam at a depth
+    edge returns, with its probability, a range drawn evenly between the two surfaces; each beam's noise is scaled by
+    its factor; ranges are rounded to the step; no return reads the driver's value.
     """
+    if real is not None and real.mixed_prob > 0:
+        before = np.roll(true_m, 1, axis=-1)
+        both = np.isfinite(true_m) & np.isfinite(before)
+        here, prev = np.where(both, true_m, 0.0), np.where(both, before, 0.0)
+        edge = both & (np.abs(here - prev) > DEPTH_EDGE_M)
+        mixed = edge & (rng.random(true_m.shape) < real.mixed_prob)
+        if mixed.any():
+            near, far = np.minimum(here, prev), np.maximum(here, prev)
+            true_m = np.where(mixed, near + rng.random(true_m.shape) * (far - near), true_m)
     out = true_m + bias_m
+    factor = 1.0 if real is None or real.beam_factor is None else real.beam_factor
     if noise_per_m > 0:
         finite = np.where(np.isfinite(true_m), true_m, 0.0)
-        out = out + rng.standard_normal(size=true_m.shape) * (sigma_m + noise_per_m * finite)
+        out = out + rng.standard_normal(size=true_m.shape) * (sigma_m + noise_per_m * finite) * factor
     elif sigma_m > 0:
-        out = out + rng.normal(0.0, sigma_m, size=true_m.shape)
+        out = out + rng.normal(0.0, sigma_m, size=true_m.shape) * factor
     if dropout_prob > 0:
         out = np.where(rng.random(true_m.shape) < dropout_prob, np.inf, out)
+    if real is not None:
+        if real.step_m > 0:
+            out = np.where(np.isfinite(out), np.round(out / real.step_m) * real.step_m, out)
+        if not (math.isinf(real.no_return) and real.no_return > 0):
+            out = np.where(np.isposinf(out), real.no_return, out)
     return np.asarray(out)
+
+
+def beam_factors(spread: float, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray | None:
+    """Per-beam noise factors exp(s z - s^2) (mean square 1) of log-sd `spread`; None for 0."""
+    if spread <= 0:
+        return None
+    return np.exp(spread * rng.standard_normal(shape) - spread * spread)
 
 
 class OdometryDrift:

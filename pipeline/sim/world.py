@@ -13,7 +13,7 @@ from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
 from pipeline.params import WorldConfig
 from pipeline.sim.model import GROUP_LIDAR_ONLY, GROUP_ROBOT, GROUP_STATIC, build_model, lidar_directions
-from pipeline.sim.noise import OdometryDrift, noisy_ranges
+from pipeline.sim.noise import OdometryDrift, RealLidar, beam_factors, noisy_ranges
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
@@ -69,6 +69,7 @@ class SimWorld:
             self.model.actuator_gainprm[self._ctrl_w, 0].copy(),
         )
         self.odometry = OdometryDrift(world.odometry.drift_per_m, world.actuation.yaw_rate_per_mps)
+        self._real_lidar: RealLidar | None = None
         self._use(world)
         self.rng = np.random.default_rng(0)
         self._pending: deque[tuple[int, np.ndarray]] = deque()
@@ -129,6 +130,13 @@ class SimWorld:
         self._substep = 0
         self.truth = self.read_truth()
         self.odometry.reset(self.truth, self.rng)
+        lidar = self.world.lidar
+        self._real_lidar = None
+        real = lidar.range_step_m > 0 or lidar.beam_noise_spread > 0 or lidar.mixed_pixel_prob > 0
+        if real or lidar.no_return != "inf":
+            no_return = {"inf": math.inf, "zero": 0.0, "max": lidar.range_max_m, "nan": math.nan}[lidar.no_return]
+            factor = beam_factors(lidar.beam_noise_spread, (self.n, lidar.sim_beams), self.rng)
+            self._real_lidar = RealLidar(lidar.range_step_m, factor, lidar.mixed_pixel_prob, no_return)
 
     def read_truth(self) -> np.ndarray:
         """(n_robots, 3) ground-truth x, y (m), yaw (rad) in [-pi, pi)."""
@@ -239,6 +247,12 @@ class SimWorld:
         """
         lidar = self.world.lidar
         noisy = noisy_ranges(
-            self.true_ranges(), self.rng, lidar.noise_sigma_m, lidar.dropout_prob, lidar.bias_m, lidar.noise_per_m
+            self.true_ranges(),
+            self.rng,
+            lidar.noise_sigma_m,
+            lidar.dropout_prob,
+            lidar.bias_m,
+            lidar.noise_per_m,
+            self._real_lidar,
         )
         return noisy.astype(np.float32).astype(np.float64)

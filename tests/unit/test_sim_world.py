@@ -100,6 +100,51 @@ def test_gaussian_noise_dropout_and_bias_statistics():
     assert err.std() == pytest.approx(0.05, rel=0.03)
 
 
+def test_the_simulated_lidar_has_what_real_ones_have():
+    """The keys calibration finds in a real lidar: ranges in steps, noise that differs per beam (mean square 1),
+    mixed pixels at the boxes' depth edges, the driver's no-return value."""
+    real = {"noise_sigma_m": 0.01, "sim_beams": 360, "range_step_m": 0.002, "beam_noise_spread": 0.4,
+            "mixed_pixel_prob": 0.5, "no_return": "zero", "range_max_m": 3.5, "dropout_prob": 0.05}  # fmt: skip
+    sim = world("obstacles", n_robots=1, lidar=real)
+    truth = sim.true_ranges()[0]
+    scans = np.stack([sim.scan()[0] for _ in range(300)])
+    returned = scans > 0
+    units = scans[returned] / 0.002
+    assert np.abs(units - np.round(units)).max() < 1e-3  # on the lattice (float32 as a LaserScan carries it)
+    assert (scans[:, ~np.isfinite(truth)] == 0.0).all()  # nothing within range reads the driver's 0
+    assert 0.03 < (scans[:, np.isfinite(truth)] == 0.0).mean() < 0.07  # and so do dropouts
+    before = np.roll(truth, 1)
+    both = np.isfinite(truth) & np.isfinite(before)
+    here, prev = np.where(both, truth, 0.0), np.where(both, before, 0.0)
+    edge = both & (np.abs(here - prev) > 0.1)
+    inside = returned & (scans > np.minimum(here, prev) + 0.05) & (scans < np.maximum(here, prev) - 0.05)
+    assert edge.sum() >= 4 and inside[:, edge].mean() > 0.05 and not inside[:, ~edge].any()
+    clean = world("obstacles", n_robots=1, lidar={**real, "mixed_pixel_prob": 0.0})
+    again = np.stack([clean.scan()[0] for _ in range(300)])
+    assert not ((again > np.minimum(here, prev) + 0.05) & (again < np.maximum(here, prev) - 0.05))[:, edge].any()
+    plain = np.isfinite(truth) & ~edge
+    spread = np.std(np.where(returned, scans, np.nan)[:, plain], axis=0, where=returned[:, plain])
+    assert spread.max() / spread.min() > 2.0
+    assert np.sqrt(np.mean(spread**2)) == pytest.approx(0.01, rel=0.25)
+
+
+def test_scans_lost_in_the_driver_leave_the_policy_the_previous_one():
+    from pipeline.sim.env import NetworkedSensors
+
+    cfg = world_config({"lidar": {"scan_drop_prob": 0.3}})
+    sensors = NetworkedSensors(2, cfg)
+    assert sensors.plays
+    sensors.reset(cfg, seed=1)
+    pose = np.zeros((2, 3))
+    sensors.receive(np.zeros((2, 4)), pose, first=True)
+    for k in range(1, 1001):
+        sensors.receive(np.full((2, 4), float(k)), pose, first=False)
+    assert sensors.scans is not None
+    assert sensors.scans.lost / sensors.scans.sent == pytest.approx(np.full(2, 0.3), abs=0.05)
+    ideal = NetworkedSensors(2, world_config({}))
+    assert not ideal.plays
+
+
 def test_odometry_drift_grows_about_drift_per_metre():
     errors = []
     for seed in range(40):
