@@ -73,6 +73,11 @@ from pipeline.twin.draw import PROFILE_RANGES, WIDE_RANGES, draw_profile_mapping
 from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, load_profile
 
 IDENTIFIABLE = (
+    "lidar.range_step_m",
+    "lidar.rate_wander",
+    "lidar.scan_drop_prob",
+    "lidar.mixed_pixel_prob",
+    "lidar.beam_noise_spread",
     "lidar.noise_sigma_m",
     "lidar.noise_per_m",
     "lidar.dropout_prob",
@@ -357,6 +362,8 @@ def main() -> int:
     return 0
 
 
+CATEGORIES = ("lidar.no_return",)
+"""Keys that are a choice, not a number: scored as found or not, outside the coverage figures."""
 COLUMNS = ["profile", "key", "truth", "truth_of", "profile_truth", "value", "low", "high", "covered", "rel_error"]
 
 
@@ -381,6 +388,11 @@ def _scored(
     if deliveries.is_file():
         realized["network.jitter_s"] = realized_jitter(deliveries)
     rows: list[dict[str, object]] = []
+    if cal.lidar is not None and cal.lidar.no_return is not None:  # a category: found or not
+        truth = str(mapping.get("lidar", {}).get("no_return", "inf"))
+        found = cal.lidar.no_return
+        rows.append({"profile": seed, "key": "lidar.no_return", "truth": truth, "truth_of": "profile",
+                     "profile_truth": truth, "value": found, "covered": int(found == truth)})  # fmt: skip
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]
     scored += [(f"effective.{name}", value.estimate, None) for name, value in cal.effective.items()]
     for key, est, profile_truth in scored:
@@ -468,6 +480,10 @@ def summary(rows: list[dict[str, object]]) -> None:
     worst, at_target, counted, close, identifiable = 1.0, 0, 0, 0, 0
     for key in keys:
         mine = [r for r in rows if r["key"] == key]
+        if key in CATEGORIES:
+            found = sum(int(r["covered"]) for r in mine)  # type: ignore[call-overload]
+            print(f"{key:34s} {'category':10s} {len(mine):>4d}/{len(mine):<5d} found the truth in {found}/{len(mine)}")
+            continue
         ok = [r for r in mine if "covered" in r]
         realized = any(r.get("truth_of") == "realized" for r in mine)
         base = key.split(" ")[0]

@@ -166,6 +166,11 @@ def _runs_period(ticks: np.ndarray, period0: float) -> tuple[float, float, int] 
     spans = [float(np.ptp(i)) * slope for i in xs]
     if grid_s > 0 and spans and np.median(spans) > 0:
         se = max(se, grid_s / float(np.median(spans)) * slope)
+    # a period that wanders from one message to the next (a lidar's motor) makes the stamps a random walk, not a line
+    # with noise on it: the slope's error is then the gaps' spread over the square root of their number
+    per_step = (gaps / np.maximum(steps, 1) - slope)[regular]
+    if len(per_step) > 1:
+        se = max(se, float(np.std(per_step, ddof=1)) / math.sqrt(len(per_step)))
     return slope, se, sum(len(i) for i in xs)
 
 

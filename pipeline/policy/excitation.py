@@ -29,7 +29,7 @@ import numpy as np
 from pipeline.core.actions import ActionCodec
 from pipeline.core.observation import ObservationLayout
 from pipeline.policy.errors import PolicyMismatch
-from pipeline.policy.scripted import front_beams, range_ahead
+from pipeline.policy.scripted import GoToGoalController, front_beams, range_ahead
 from pipeline.policy.spec import PolicySpec
 
 PHASES = ("policy", "step", "turn", "stop")
@@ -140,6 +140,48 @@ class ExcitationDrive:
 
     def actions(self, obs: np.ndarray) -> np.ndarray:
         """Actions for the policy's codec: (n_robots, 2) in [-1, 1]."""
+        return self.codec.encode(self.commands(obs))
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.actions(obs)
+
+
+class StillThenDrive:
+    """A recording as a user's bag often starts: every robot stands still for `still_s`, then drives to its goal
+    (the scripted go-to-goal controller where the policy's layout has the goal, else the policy). The robots,
+    layout, limits and world are `policy`'s, so the deployment checks it as it checks the policy."""
+
+    def __init__(self, policy: DrivenPolicy, still_s: float) -> None:
+        self.policy = policy
+        self.spec = policy.spec
+        self.layout = policy.layout
+        self.codec = policy.codec
+        self.still_steps = round(still_s / float(policy.spec.world.control_period_s))
+        self.controller = GoToGoalController(policy.layout, policy.codec) if policy.layout.has_goal else None
+        self._steps = 0
+        self.session_extra = {"drive": "still_then_drive", "still_s": f"{still_s:g}"}
+
+    @property
+    def name(self) -> str:
+        return f"still, then driving, over {self.policy.name}"
+
+    @property
+    def document(self) -> dict[str, Any]:
+        return self.policy.document
+
+    def check_fits(self, robots: Sequence[str], layout: ObservationLayout, *args: Any, **kwargs: Any) -> None:
+        self.policy.check_fits(robots, layout, *args, **kwargs)
+
+    def commands(self, obs: np.ndarray) -> np.ndarray:
+        """(n_robots, 2) (v m/s, w rad/s): zero for the first `still_s`, then the drive's."""
+        self._steps += 1
+        if self._steps <= self.still_steps:
+            return np.zeros((len(obs), 2))
+        if self.controller is not None:
+            return self.controller.commands(np.asarray(obs, dtype=np.float64))
+        return self.policy.commands(np.asarray(obs, dtype=np.float32))
+
+    def actions(self, obs: np.ndarray) -> np.ndarray:
         return self.codec.encode(self.commands(obs))
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:

@@ -106,7 +106,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         fleet = load_fleet(args.fleet)
         if args.domain_id is not None:
             fleet = replace(fleet, network=replace(fleet.network, domain_id=args.domain_id))
-        scenario = load_scenario(fleet.scenario)
+        scenario = load_scenario(fleet.scenario, len(fleet.robots))  # the first robots, as the deployment
         name, profile = load_profile_for(args.profile or fleet.twin.profile, scenario)
         scale = fleet.twin.time_scale if args.time_scale is None else args.time_scale
         if not 0 < scale <= 20:

@@ -12,7 +12,7 @@ import pytest
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import ScanSpan, estimate_lidar
 from pipeline.calibration.lidar_noise import NoiseBins, fit_noise, profile_intervals, range_step
-from pipeline.calibration.network import rate_wander_estimate
+from pipeline.calibration.network import rate_estimate, rate_wander_estimate
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.raycast import MapGeometry
 from pipeline.core.scenario import load_scenario
@@ -192,3 +192,17 @@ def test_the_sweep_period_s_wander_is_measured_from_the_stamps(wander):
     est = rate_wander_estimate(streams)
     lo, hi = est.interval
     assert 0.0 <= lo <= wander <= hi and hi > lo, est
+
+
+def test_the_rate_s_interval_holds_a_wandering_sweep():
+    """A sweep period that wanders 2 % from one sweep to the next makes the stamps a random walk: over 100 recordings
+    of three robots' 300 scans the rate's interval holds the true 7.7 Hz in at least 90 % (a line fitted to the
+    stamps alone claimed a tenth of the spread)."""
+    rng = np.random.default_rng(9)
+    hits = 0
+    for _ in range(100):
+        streams = [np.cumsum(np.round(1e9 / 7.7 * (1 + 0.02 * rng.standard_normal(300)))).astype(np.int64)
+                   for _ in range(3)]  # fmt: skip
+        lo, hi = rate_estimate(streams).interval
+        hits += lo <= 7.7 <= hi
+    assert hits >= 90, hits
