@@ -774,6 +774,12 @@ def _within_span_noise(
         np.add.at(sums[:, i, 3], owner[sel], R[sel])
     total = sums.sum(axis=0)
     every = NoiseBins.of(total, correction)
+    if not np.any(every.var > 1e-18):  # below a nanometre: rounding of the mean, not noise
+        reason = (
+            "every beam read the same range in every still scan: the noise is below what the driver reports "
+            "(no range step seen either), not measured"
+        )
+        return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
     slope = every.spans_range and float(np.ptp(every.range_m)) >= RANGE_BIN_M
     full = fit_noise(every, step_m, slope)
     phi = dispersion(every, full, step_m)
@@ -943,7 +949,10 @@ def estimate_lidar(
     min_s = settings.stationary_min_s
     spans = [s for s in spans if s.ranges.shape[0] > 0]
     if not spans:
-        return _unidentifiable(f"robots never stood still for >= {min_s:g} s while scanning")
+        return _unidentifiable(
+            f"robots never stood still for >= {min_s:g} s while scanning: the noise, bias, mounting and map are read "
+            "from still spans only (no estimate from scans while driving)"
+        )
     stationary_s = float(sum(s.duration_s for s in spans))
     blocked = blocked_beams(spans)
     sectors: tuple[tuple[float, float], ...] = ()

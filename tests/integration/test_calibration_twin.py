@@ -87,6 +87,11 @@ TOLERANCES: dict[str, Tolerance] = {
         "the receiver (+0.3 % absolute measured)",
     ),
     "lidar.noise_per_m": Tolerance(0.0015, 0.2, "a line through the within-span spread in 0.5 m range bins"),
+    "lidar.range_step_m": Tolerance(1e-5, 0, "continuous ranges: no lattice of 10 um or more"),
+    "lidar.beam_noise_spread": Tolerance(0.06, 0, "the same noise on every beam: the per-beam spread near 0"),
+    "lidar.mixed_pixel_prob": Tolerance(0.03, 0, "no mixed pixels: returns at depth edges lie on their surfaces"),
+    "lidar.rate_wander": Tolerance(0.002, 0, "a steady sweep, stamped at its start on the twin's clock"),
+    "lidar.scan_drop_prob": Tolerance(0.01, 0, "no scan lost in the driver: the scans lose what the other topics lose"),
     "base.wheel_radius_left_m": Tolerance(
         0,
         0.03,
@@ -133,7 +138,14 @@ def twin_calibration(request: pytest.FixtureRequest, twin_session):
 def with_ideal_defaults(truth: dict) -> dict:
     """The profile with its optional keys at the ideal values the twin takes when they are absent."""
     ideal = {
-        "lidar": {"noise_per_m": 0.0},
+        "lidar": {
+            "noise_per_m": 0.0,
+            "range_step_m": 0.0,
+            "beam_noise_spread": 0.0,
+            "mixed_pixel_prob": 0.0,
+            "rate_wander": 0.0,
+            "scan_drop_prob": 0.0,
+        },
         "base": {
             "wheel_radius_left_m": 0.034,
             "wheel_radius_right_m": 0.034,
@@ -154,6 +166,7 @@ UNIDENTIFIABLE_ON_THE_TWIN = {
     "clock.offset_s": "/clock",
     "base.max_wheel_accel_radps2": "no limit binds",
     "base.friction": "friction is",
+    "lidar.beam_angle_jitter_rad": "grazing",
 }
 """Keys the mild and harsh recordings cannot tell, and a word their reason must name: the clock offset on a
 time-scaled twin, an acceleration limit these profiles do not have, and the floor's friction (never identified: the

@@ -206,3 +206,12 @@ def test_the_rate_s_interval_holds_a_wandering_sweep():
         lo, hi = rate_estimate(streams).interval
         hits += lo <= 7.7 <= hi
     assert hits >= 90, hits
+
+
+def test_ranges_that_never_change_leave_the_noise_unmeasured_with_the_reason():
+    rng = np.random.default_rng(10)
+    span = still_span(rng, (1.0, 1.0, 0.3), 0.0, 0.0, scans=30)
+    fit = estimate_lidar(GEOMETRY, [span], SETTINGS, rng)
+    for est in (fit.noise_sigma_m, fit.noise_per_m):
+        assert not est.ok and "every beam read the same range" in est.reason
+    assert not fit.range_step_m.ok and "stand still" in fit.range_step_m.reason
