@@ -85,6 +85,9 @@ MIN_MAP_BEAMS = 30
 """A wall or box offset seen by fewer clean beams than this is unidentifiable."""
 RANGE_BIN_M = 0.5
 MIN_BIN_SAMPLES = 50
+BEAM_ANGLE_ERROR_RAD = 0.002
+"""How far a beam may point off its stated angle (a tenth of a degree: the angular accuracy 2-D lidars' datasheets
+give); unidentified from still scans, it widens the mounting yaw's interval."""
 DEPTH_EDGE_M = 0.1
 """Beams whose cast ranges differ by more than this straddle a depth edge (where mixed pixels are)."""
 MOUNT_XY_MAX_SE_M = 0.03
@@ -764,10 +767,10 @@ def _within_span_noise(
     n_spans = len(spans)
     # per span and bin: count, sum and sum of squares of the clipped deviations, and the sum of ranges
     sums = np.zeros((n_spans, len(rows), 4))
-    kept = np.zeros(len(d), dtype=bool)
+    loose = np.zeros(len(d), dtype=bool)  # gross outliers out, a noisy beam's tails in: the beams' spread
     for i, (b, _, half) in enumerate(rows):
         sel = (bins == b) & (np.abs(d) <= half)
-        kept |= sel
+        loose |= (bins == b) & (np.abs(d) <= 3 * half)
         np.add.at(sums[:, i, 0], owner[sel], 1.0)
         np.add.at(sums[:, i, 1], owner[sel], d[sel])
         np.add.at(sums[:, i, 2], owner[sel], d[sel] ** 2)
@@ -824,7 +827,7 @@ def _within_span_noise(
         method += f"; widened for the bins' dispersion about the fit ({phi:.2f} x sampling)"
     # the noise differs per beam: the beams seen carry a mean square of their factors that the profile's is not
     per_beam = beam_spread(
-        [(beam[kept], d[kept], R[kept])], lambda x: float(full[0]) + (float(full[1]) if slope else 0.0) * x
+        [(beam[loose], d[loose], R[loose])], lambda x: float(full[0]) + (float(full[1]) if slope else 0.0) * x, step_m
     )
     spread_est = (
         Estimate.of(
@@ -1033,6 +1036,7 @@ def estimate_lidar(
             far = np.broadcast_to(np.maximum(here, before)[None, :], r.shape)[clear]
             edges.append((r[clear], near, far))
     n_trials = int(trials.sum())
+    yaw_est = _with_beam_angle_errors(yaw_est, masks)
     notes = [f"{len(spans)} stationary spans, {stationary_s:.1f} s, {sum(s.ranges.shape[0] for s in spans)} scans"]
     if sectors:
         shown = ", ".join(f"[{a:.2f}, {b:.2f}]" for a, b in sectors)
@@ -1087,6 +1091,28 @@ def estimate_lidar(
         noise_correlation=noise.correlation,
         no_return=no_return,
     )
+
+
+def _with_beam_angle_errors(yaw: Estimate, masks: Sequence[np.ndarray]) -> Estimate:
+    """The mounting yaw's interval widened for beams off their stated angles, which no still scan identifies: the
+    fit reads the mean of the used beams' angle errors as yaw, so up to `BEAM_ANGLE_ERROR_RAD` per beam moves it by
+    about that over the square root of the beams used (added in quadrature, 95 %)."""
+    if not yaw.ok or yaw.value is None or yaw.interval is None or not masks:
+        return yaw
+    used = np.zeros(masks[0].shape[1], dtype=bool)
+    for mask in masks:
+        if mask.shape[1] == len(used):
+            used |= mask.any(axis=0)
+    count = max(int(used.sum()), 1)
+    extra = Z_95 * BEAM_ANGLE_ERROR_RAD / math.sqrt(count)
+    lo, hi = yaw.interval
+    down = math.hypot(yaw.value - lo, extra)
+    up = math.hypot(hi - yaw.value, extra)
+    se = math.hypot(yaw.std_error or 0.0, extra / Z_95)
+    method = (
+        f"{yaw.method}; widened for beams off their stated angles (up to {BEAM_ANGLE_ERROR_RAD:g} rad, {count} beams)"
+    )
+    return dataclasses.replace(yaw, interval=(yaw.value - down, yaw.value + up), std_error=se, method=method)
 
 
 def _no_return_convention(missing: dict[str, int]) -> tuple[str | None, str]:

@@ -247,26 +247,32 @@ def log_add(value: float, interval: tuple[float, float], rel_sd: float) -> tuple
 
 
 def beam_spread(
-    deviations: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], sigma_of: Callable[[np.ndarray], np.ndarray]
+    deviations: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    sigma_of: Callable[[np.ndarray], np.ndarray],
+    step_m: float = 0.0,
 ) -> tuple[float, float, tuple[float, float], int]:
     """(s, its standard error, its 95 % interval, beams) of the per-beam noise factor exp(s z - s^2) from (beam
-    index, deviation, range) triples: per beam, the mean square deviation over the fitted noise at its ranges; the
-    variance of its log beyond chi-square's sampling (trigamma(n / 2)) is 4 s^2. The standard error from a bootstrap
-    over beams."""
+    index, deviation, range) triples (gross outliers left out, the tails kept: a noisy beam's are its own): per beam,
+    its mean square deviation less the rounding's step^2 / 12, over the fitted noise's square at its ranges, is its
+    factor squared; the variance of its log beyond sampling (chi-square's trigamma(n / 2), scaled for the rounding
+    taken out) is 4 s^2. Beams whose spread is mostly rounding are left out. The interval from a bootstrap over
+    beams."""
     if not deviations:
         return math.nan, math.nan, (math.nan, math.nan), 0
     beam = np.concatenate([d[0] for d in deviations])
     dev = np.concatenate([d[1] for d in deviations])
     rng_m = np.concatenate([d[2] for d in deviations])
-    ratio = dev**2 / np.maximum(sigma_of(rng_m) ** 2, 1e-18)
+    step_var = step_m**2 / 12
     _, inverse = np.unique(beam, return_inverse=True)
     n = np.bincount(inverse).astype(np.float64)
-    mean = np.bincount(inverse, weights=ratio) / n
-    keep = (n >= 20) & (mean > 0)
+    square = np.bincount(inverse, weights=dev**2) / n
+    model = np.bincount(inverse, weights=np.maximum(sigma_of(rng_m) ** 2, 1e-18)) / n
+    keep = (n >= 20) & (square > 1.5 * step_var) & (square > 0)
     if keep.sum() < 20:
         return math.nan, math.nan, (math.nan, math.nan), int(keep.sum())
-    y = np.log(mean[keep])
-    sampling = special.polygamma(1, n[keep] / 2)
+    signal = square[keep] - step_var
+    y = np.log(signal / model[keep])
+    sampling = special.polygamma(1, n[keep] / 2) * (square[keep] / signal) ** 2
 
     def s_of(idx: np.ndarray) -> float:
         excess = float(np.var(y[idx], ddof=1) - np.mean(sampling[idx]))
@@ -278,4 +284,14 @@ def beam_spread(
     boot = np.array([s_of(rng.integers(0, len(all_idx), len(all_idx))) for _ in range(400)])
     lo, hi = np.percentile(boot, [2.5, 97.5])
     shift = s - float(np.median(boot))
-    return s, float(np.std(boot, ddof=1)), (max(float(lo) + shift, 0.0), max(float(hi) + shift, s)), len(all_idx)
+    low = max(float(lo) + shift, 0.0)
+    # at the bound the bootstrap cannot say whether 0 is in: Bartlett's test of equal variances over the beams can
+    ratio = square[keep] / model[keep]
+    dof = n[keep] - 1
+    total = float(dof.sum())
+    pooled = float(np.sum(dof * ratio)) / total
+    stat = total * math.log(pooled) - float(np.sum(dof * np.log(ratio)))
+    scale = 1 + (float(np.sum(1 / dof)) - 1 / total) / (3 * (len(dof) - 1))
+    if float(stats.chi2.sf(stat / scale, len(dof) - 1)) > 0.05:
+        low = 0.0
+    return s, float(np.std(boot, ddof=1)), (low, max(float(hi) + shift, s)), len(all_idx)

@@ -38,13 +38,15 @@ def still_span(
     no_return_share: float = 0.0,
     mixed: float = 0.0,
     label: str = "span",
+    factor: np.ndarray | None = None,
 ) -> ScanSpan:
     """A robot standing still at `pose` in the obstacle room: `scans` scans of `beams` beams, noise sigma + per_m x
     range, ranges in `step` steps; `no_return_share` of the beams (a fixed set: dark or far surfaces) never return
     and read `no_return`; at depth edges a return between the two surfaces with probability `mixed`."""
     angles = 2 * math.pi * np.arange(beams) / beams
     true = GEOMETRY.cast(np.array(pose[:2]), pose[2] + angles).range_m
-    r = true[None, :] + rng.standard_normal((scans, beams)) * (sigma + per_m * true)[None, :]
+    scale = (sigma + per_m * true) * (1.0 if factor is None else factor)
+    r = true[None, :] + rng.standard_normal((scans, beams)) * scale[None, :]
     if mixed > 0:
         before = np.roll(true, 1)
         edge = np.isfinite(true) & np.isfinite(before) & (np.abs(true - before) > 0.1)
@@ -215,3 +217,18 @@ def test_ranges_that_never_change_leave_the_noise_unmeasured_with_the_reason():
     for est in (fit.noise_sigma_m, fit.noise_per_m):
         assert not est.ok and "every beam read the same range" in est.reason
     assert not fit.range_step_m.ok and "stand still" in fit.range_step_m.reason
+
+
+@pytest.mark.parametrize("spread", [0.0, 0.1, 0.25])
+def test_the_beams_own_noise_spread_is_recovered_through_the_range_steps(spread):
+    """Each beam's noise scaled by exp(s z - s^2), ranges in 2 mm steps, noise 2-4 mm: over 8 still spans of 720
+    beams the spread's interval holds s in at least 7."""
+    held = 0
+    for seed in range(8):
+        rng = np.random.default_rng(100 + seed)
+        factor = np.exp(spread * rng.standard_normal(720) - spread**2)
+        span = still_span(rng, (1.0, 1.0, 0.3), 0.002, 0.0005, step=0.002, factor=factor)
+        est = estimate_lidar(GEOMETRY, [span], SETTINGS, rng).beam_noise_spread
+        assert est.ok and 0.0 <= est.interval[0] <= est.interval[1]
+        held += est.interval[0] <= spread <= est.interval[1]
+    assert held >= 7, held
