@@ -733,6 +733,7 @@ def _within_span_noise(
     rng_of: list[np.ndarray] = []
     who: list[np.ndarray] = []
     beam_of: list[np.ndarray] = []
+    robots: dict[str, int] = {}
     for k, (span, mask) in enumerate(zip(spans, masks, strict=True)):
         r = span.ranges
         valid = valid_returns(r, span) & mask
@@ -746,7 +747,8 @@ def _within_span_noise(
         dev.append(d[sel])
         rng_of.append(np.broadcast_to(mean[None, :] - bias_m, r.shape)[sel])
         who.append(np.full(int(sel.sum()), k))
-        beam_of.append(np.broadcast_to(np.arange(r.shape[1])[None, :], r.shape)[sel])
+        lidar_unit = robots.setdefault(span.robot, len(robots))  # each robot's lidar is a unit of its own
+        beam_of.append(np.broadcast_to(lidar_unit * 100_000 + np.arange(r.shape[1])[None, :], r.shape)[sel])
     if not dev:
         reason = "no beam returned twice within a stationary span"
         return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
@@ -993,7 +995,7 @@ def estimate_lidar(
     masks: list[np.ndarray] = []
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
-    edges: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (returns, near, far) at depth edges
+    edges: list[tuple[np.ndarray, ...]] = []  # (returns, the beam's median, near, far) at depth edges
     changes: list[np.ndarray] = []
     missing = {"inf": 0, "nan": 0, "zero": 0, "max": 0}
     for k, span in enumerate(spans):
@@ -1028,13 +1030,24 @@ def estimate_lidar(
         # depth edges of the fitted room: a beam whose cast range differs from the previous beam's by more than
         # DEPTH_EDGE_M, both clear of robots and of the mast
         here, before = fitted[0], np.roll(fitted[0], 1)
-        jump = np.isfinite(here) & np.isfinite(before) & (np.abs(here - before) > DEPTH_EDGE_M) & unblocked
+        both_cast = np.isfinite(here) & np.isfinite(before)
+        gap = np.abs(np.where(both_cast, here, 0.0) - np.where(both_cast, before, 0.0))
+        jump = both_cast & (gap > DEPTH_EDGE_M) & unblocked
         jump &= np.roll(unblocked, 1)
         clear = free & np.roll(free, 1, axis=1) & jump[None, :] & valid
-        if clear.any():
-            near = np.broadcast_to(np.minimum(here, before)[None, :], r.shape)[clear]
-            far = np.broadcast_to(np.maximum(here, before)[None, :], r.shape)[clear]
-            edges.append((r[clear], near, far))
+        cols = np.flatnonzero(clear.sum(axis=0) >= 3)
+        if len(cols):
+            seen_at = np.where(clear[:, cols], r[:, cols], np.nan)
+            centre = np.nanmedian(seen_at, axis=0)  # the beam's own surface: most of its returns
+            keep = np.isfinite(seen_at)
+            edges.append(
+                (
+                    seen_at[keep],
+                    np.broadcast_to(centre[None, :], seen_at.shape)[keep],
+                    np.broadcast_to(np.minimum(here, before)[cols][None, :], seen_at.shape)[keep],
+                    np.broadcast_to(np.maximum(here, before)[cols][None, :], seen_at.shape)[keep],
+                )
+            )
     n_trials = int(trials.sum())
     yaw_est = _with_beam_angle_errors(yaw_est, masks)
     notes = [f"{len(spans)} stationary spans, {stationary_s:.1f} s, {sum(s.ranges.shape[0] for s in spans)} scans"]
@@ -1126,31 +1139,32 @@ def _no_return_convention(missing: dict[str, int]) -> tuple[str | None, str]:
     return kind, f"beams without a return read {kind} ({counts}; all read as no return)"
 
 
-def _mixed_pixels(edges: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], noise: NoiseFit) -> Estimate:
+def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit) -> Estimate:
     """The probability that a beam at a depth edge returns between the near and the far surface (a mixed pixel),
-    from the still returns at the fitted room's depth edges: a return more than 4 noise sigmas inside both surfaces is
-    mixed; a mixed return spread evenly between them lands there with probability 1 - 2 margin / gap, which turns
-    the count into a probability (Wilson interval on the effective trials)."""
+    from the still returns at the fitted room's depth edges: a return further than a margin (4 noise sigmas at its
+    range, for the noisiest beams) from the beam's own median return (its surface: a box a few centimetres off its
+    mapped place moves both) and between the two cast surfaces is mixed; a mixed return spread evenly over the gap
+    lands that far from the surface with probability 1 - margin / gap, which turns the count into a probability
+    (Wilson interval on the effective trials)."""
     unit = "probability"
     if not edges:
         return Estimate.unidentifiable("no depth edge of the room seen clear of robots while still", unit)
-    r = np.concatenate([e[0] for e in edges])
-    near = np.concatenate([e[1] for e in edges])
-    far = np.concatenate([e[2] for e in edges])
+    r, centre, near, far = (np.concatenate([e[k] for e in edges]) for k in range(4))
     sigma = noise.sigma.value if noise.sigma.ok and noise.sigma.value is not None else 0.01
     per_m = noise.per_m.value if noise.per_m.ok and noise.per_m.value is not None else 0.0
-    margin = CLIP_SIGMAS * (sigma + per_m * far) + 0.005
-    inner = (r > near + margin) & (r < far - margin)
-    share = np.clip(1 - 2 * margin / (far - near), 0.0, 1.0)
+    spread = noise.beam_spread.value if noise.beam_spread.ok and noise.beam_spread.value is not None else 0.0
+    margin = CLIP_SIGMAS * (sigma + per_m * centre) * math.exp(3 * spread) + 0.005
+    inner = (np.abs(r - centre) > margin) & (r > near - 0.02) & (r < far + 0.02)
+    share = np.clip(1 - margin / np.maximum(far - near, 1e-9), 0.0, 1.0)
     trials = float(share.sum())
     if trials < 20:
         return Estimate.unidentifiable(f"only {len(r)} still returns at depth edges wide enough to tell", unit, len(r))
     events = float(inner.sum())
     p = min(events / trials, 1.0)
     se = math.sqrt(max(p * (1 - p), 1 / trials) / trials)
-    lo, hi = wilson_interval(events, trials)
+    lo, hi = wilson_interval(min(events, trials), trials)
     method = (
-        f"returns between the surfaces of {len(r)} still beams at depth edges, over the share of the gap a mixed "
-        "return lands in (Wilson interval)"
+        f"returns off their beam's surface toward the other, of {len(r)} still beams at depth edges, over the share "
+        "of the gap a mixed return lands in (Wilson interval)"
     )
     return Estimate.of(p, se, (lo, min(hi, 1.0)), unit, method, len(r))

@@ -206,16 +206,18 @@ def rate_estimate(streams: Sequence[np.ndarray], unit: str = "Hz") -> Estimate:
     return Estimate.of(rate, se, interval, unit, "stamp on message index over runs of regular sending", count)
 
 
+OUTLIER_MADS = 6.0
+"""A period further than this many robust deviations from its stream's is a restart, not the sensor's wander."""
 WANDER_FLOOR = 1e-4
 """Relative spreads of the sweep period below this are not told apart from a steady one."""
 
 
 def rate_wander_estimate(streams: Sequence[np.ndarray]) -> Estimate:
     """The relative spread of a sensor's period from one sweep to the next (a lidar's motor speed wandering), from
-    the stamps of each robot's stream: gaps of about one period (a lost message's longer gap left out), each over its
-    stream's mean, their root mean square about 1; the interval chi-square's (n - k degrees of freedom for k
-    streams), at least up to `WANDER_FLOOR`. Stamps taken at reception rather than at the sweep's start add their
-    own jitter to it."""
+    the stamps of each robot's stream: gaps of about one period (a lost message's longer gap and a restart's left
+    out), each over its stream's mean, their root mean square about 1; the interval chi-square's (n - k degrees of
+    freedom for k streams), at least up to `WANDER_FLOOR`. Stamps taken at reception rather than at the sweep's
+    start add their own jitter to it."""
     unit = "relative"
     deviations: list[np.ndarray] = []
     for s in streams:
@@ -227,7 +229,11 @@ def rate_wander_estimate(streams: Sequence[np.ndarray]) -> Estimate:
         if single.sum() < 10:
             continue
         g = gaps[single]
-        deviations.append(g / g.mean() - 1)
+        x = g / np.median(g) - 1
+        # a sensor restarted (an episode's reset) leaves one gap of any length: far outside the others' spread
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(x - np.median(x))))
+        x = x[np.abs(x - np.median(x)) <= max(OUTLIER_MADS * scale, 1e-9)]
+        deviations.append(x - x.mean())
     if not deviations:
         return Estimate.unidentifiable("fewer than 10 periods of one length on any stream", unit)
     d = np.concatenate(deviations)

@@ -53,20 +53,25 @@ def wrap(a: np.ndarray | float) -> np.ndarray:
 class LidarSweep:
     """One robot's lidar: `beams` beams per sweep, `rate_hz` sweeps per second, starting at `t0_ns`."""
 
-    def __init__(self, profile: LidarProfile, rng: np.random.Generator, t0_ns: int = 0) -> None:
+    def __init__(
+        self, profile: LidarProfile, rng: np.random.Generator, t0_ns: int = 0, unit: np.random.Generator | None = None
+    ) -> None:
+        """`unit` draws what is fixed per lidar unit (its beams' angle errors and noise factors; `rng` where None):
+        the twin gives each robot's lidar the same unit in every episode."""
         self.profile = profile
         self.rng = rng
+        made = rng if unit is None else unit
         self.beams = profile.beams
         self.nominal_period_ns = round(NS_PER_S / profile.rate_hz)
         self.period_ns = self.nominal_period_ns
         self.angles = 2 * math.pi * np.arange(self.beams) / self.beams  # in the lidar's frame
         # what differs per unit is drawn only where the profile asks for it (a profile without it keeps its streams)
         if profile.beam_angle_jitter_rad > 0:
-            self.angles = self.angles + rng.normal(0.0, profile.beam_angle_jitter_rad, self.beams)
+            self.angles = self.angles + made.normal(0.0, profile.beam_angle_jitter_rad, self.beams)
         self.noise_factor = np.ones(self.beams)
         if profile.beam_noise_spread > 0:
             s = profile.beam_noise_spread
-            self.noise_factor = np.exp(s * rng.standard_normal(self.beams) - s * s)  # E[factor^2] = 1
+            self.noise_factor = np.exp(s * made.standard_normal(self.beams) - s * s)  # E[factor^2] = 1
         self.blocked = np.zeros(self.beams, dtype=bool)
         for start, end in profile.blocked_sectors_rad:
             rel = np.mod(self.angles - start, 2 * math.pi)
@@ -81,7 +86,7 @@ class LidarSweep:
         self._previous_true = math.nan  # the true range of the beam before the next one taken
         wander = self.profile.rate_wander
         if wander > 0:
-            factor = 1.0 + wander * float(np.clip(self.rng.standard_normal(), -3.0, 3.0))
+            factor = 1.0 + wander * float(np.clip(self.rng.standard_normal(), -4.0, 4.0))
             self.period_ns = round(self.nominal_period_ns * factor)
 
     def dropped(self) -> bool:

@@ -225,6 +225,10 @@ class BaseDriver:
         return np.stack([(v - w * half) / NOMINAL_WHEEL_RADIUS_M, (v + w * half) / NOMINAL_WHEEL_RADIUS_M], axis=1)
 
 
+LIDAR_UNIT_STREAM = 0x4C494441
+"""Seeds each robot's lidar unit with the twin's seed, apart from the episodes' streams."""
+
+
 class HardwareTwin:
     """Plays the drivers of `fleet`'s robots in `scenario` with the reality of `profile`."""
 
@@ -317,13 +321,18 @@ class HardwareTwin:
         self.odometry = EncoderOdometry(len(self.namespaces), self.profile.odometry, np.random.default_rng(streams[-1]))
         self.odometry.reset(layout.starts, self.physics.wheel_angles())
         self.lidars = [
-            LidarSweep(self.profile.lidar, np.random.default_rng(streams[i]), now_ns) for i in range(len(streams) - 1)
+            LidarSweep(self.profile.lidar, np.random.default_rng(streams[i]), now_ns, self._lidar_unit(i))
+            for i in range(len(streams) - 1)
         ]
         self.next_odom_ns = now_ns
         self.odom_period_ns = round(NS_PER_S / self.profile.odometry.rate_hz)
         self.next_truth_ns = now_ns
         self.truth_period_ns = round(NS_PER_S / TRUTH_RATE_HZ)
         self.last_odom_ns = now_ns
+
+    def _lidar_unit(self, i: int) -> np.random.Generator:
+        """What robot i's lidar unit is made of (its beams' angle errors and noise factors): the same every episode."""
+        return np.random.default_rng([self.seed, LIDAR_UNIT_STREAM, i])
 
     def write_record(self, path: str) -> None:
         """What the twin realized, as a NumPy archive: the link's deliveries (`LossyLink.deliveries_arrays`) and the
