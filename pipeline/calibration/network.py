@@ -385,6 +385,12 @@ def estimate_network(
         # gaps over the whole stream (a burst across an episode's start is still counted), each told to the
         # episode its first message after the gap falls in
         missing = _gap_missing(stream.stamp_ns, settings.network_max_gap_s)
+        if stream.windows:
+            # a gap across an episode's start is the reset's pause (the sensor restarts with the episode), no loss
+            starts = np.array([a for a, _ in stream.windows], dtype=np.int64)
+            before, after = stream.log_ns[:-1], stream.log_ns[1:]
+            across = np.searchsorted(starts, before, side="right") < np.searchsorted(starts, after, side="right")
+            missing = np.where(across, 0, missing)
         for a, b in stream.windows or [(int(stream.log_ns.min()), int(stream.log_ns.max()))]:
             sel = (stream.log_ns >= a) & (stream.log_ns <= b)
             if sel.sum() >= 3:
