@@ -28,6 +28,7 @@ hold them all, and a note says so.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -206,6 +207,8 @@ def rate_estimate(streams: Sequence[np.ndarray], unit: str = "Hz") -> Estimate:
     return Estimate.of(rate, se, interval, unit, "stamp on message index over runs of regular sending", count)
 
 
+RESET_PAUSE_NS = 1_000_000
+"""Episodes further apart than this (1 ms) have a reset's pause between them."""
 OUTLIER_MADS = 6.0
 """A period further than this many robust deviations from its stream's is a restart, not the sensor's wander."""
 WANDER_FLOOR = 1e-4
@@ -386,8 +389,11 @@ def estimate_network(
         # episode its first message after the gap falls in
         missing = _gap_missing(stream.stamp_ns, settings.network_max_gap_s)
         if stream.windows:
-            # a gap across an episode's start is the reset's pause (the sensor restarts with the episode), no loss
-            starts = np.array([a for a, _ in stream.windows], dtype=np.int64)
+            # a gap across the pause before an episode's start is the reset's (the sensor restarts with the
+            # episode), no loss; episodes that follow each other without a pause keep theirs
+            ordered = sorted(stream.windows)
+            paused = [b for (_, end), (b, _) in itertools.pairwise(ordered) if b - end > RESET_PAUSE_NS]
+            starts = np.array(paused, dtype=np.int64)
             before, after = stream.log_ns[:-1], stream.log_ns[1:]
             across = np.searchsorted(starts, before, side="right") < np.searchsorted(starts, after, side="right")
             missing = np.where(across, 0, missing)
