@@ -14,6 +14,8 @@ Layout of ``calibration.yaml``:
   drive chain's delay, lag and response time), each with the profile keys it stands for and the model it belongs to;
 - ``ambiguous``: where two drive models explain the recording alike (a gain or a speed limit at one commanded speed;
   a delay or a lag), both readings, the one kept and what recording would tell them apart;
+- ``trade_offs``: keys whose estimates trade off (the lidar's noise at zero range and its growth, from a short still
+  span), their correlation and the combination the data determine;
 - ``speed_limits``: per command channel (linear, angular), whether the base saturated and at what speed
   (a top speed, not a gain: the gains are fitted below it), with the largest speeds commanded and achieved;
 - ``source``: the recordings (path and session metadata) and the calibration settings.
@@ -21,6 +23,7 @@ Layout of ``calibration.yaml``:
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -61,6 +64,7 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             "unidentified": calibration.unidentified(),
             "effective": {name: value.as_mapping() for name, value in calibration.effective.items()},
             "ambiguous": [a.as_mapping() for a in (calibration.actuation.ambiguities if calibration.actuation else ())],
+            "trade_offs": _trade_offs(calibration),
             "speed_limits": {
                 limit.channel: limit.as_mapping()
                 for limit in (calibration.actuation.speed_limits if calibration.actuation else ())
@@ -85,6 +89,25 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
         }
     )
     return mapping
+
+
+def _trade_offs(calibration: Calibration) -> list[dict[str, Any]]:
+    """Keys whose estimates trade off, their correlation and the combination the data determine."""
+    lidar = calibration.lidar
+    if lidar is None or lidar.noise_at_range is None or not math.isfinite(lidar.noise_correlation):
+        return []
+    at_m, noise = lidar.noise_at_range
+    return [
+        {
+            "keys": ["lidar.noise_sigma_m", "lidar.noise_per_m"],
+            "correlation": round(lidar.noise_correlation, 3),
+            "determined": {
+                "what": f"the noise (1 sigma) at {at_m:.3g} m, the median range seen: noise_sigma_m + {at_m:.3g} "
+                "noise_per_m",
+                **noise.as_mapping(),
+            },
+        }
+    ]
 
 
 def _header(calibration: Calibration) -> str:

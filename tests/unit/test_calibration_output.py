@@ -60,10 +60,12 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
         "unidentified",
         "effective",
         "ambiguous",
+        "trade_offs",
         "speed_limits",
         "source",
     }
     assert data["speed_limits"] == {} and data["effective"] == {} and data["ambiguous"] == []  # no actuation fit
+    assert data["trade_offs"] == []  # no lidar fit with a slope
     assert data["profile"]["lidar"] == {
         "beams": 360,
         "rate_hz": 10.0,
