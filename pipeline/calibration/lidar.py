@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -85,6 +86,8 @@ MIN_MAP_BEAMS = 30
 """A wall or box offset seen by fewer clean beams than this is unidentifiable."""
 RANGE_BIN_M = 0.5
 MIN_BIN_SAMPLES = 50
+EDGE_OWN_M = 0.08
+"""An edge beam's returns within this of its cast range read its own surface."""
 BEAM_ANGLE_ERROR_RAD = 0.002
 """How far a beam may point off its stated angle (a tenth of a degree: the angular accuracy 2-D lidars' datasheets
 give); unidentified from still scans, it widens the mounting yaw's interval."""
@@ -1015,7 +1018,7 @@ def estimate_lidar(
         per_span_res.append((r - cast[None, :])[mask & valid])
         kept = mask & valid
         count = kept.sum(axis=0)
-        fitted, _, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
+        fitted, fitted_surface, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
         with np.errstate(invalid="ignore", divide="ignore"):
             span_mean = np.where(count > 0, np.where(kept, r - fitted[0][None, :], 0.0).sum(axis=0) / count, np.nan)
         span_means.append((span_mean, count, fitted[0]))
@@ -1027,18 +1030,25 @@ def estimate_lidar(
         missing["nan"] += int(np.isnan(seen).sum())
         missing["zero"] += int((seen == 0.0).sum())
         missing["max"] += int((seen == np.float32(span.range_max_m)).sum())
-        # depth edges of the fitted room: a beam whose cast range differs from the previous beam's by more than
-        # DEPTH_EDGE_M, both clear of robots and of the mast
+        # depth edges of the fitted room: a beam that meets another surface than the previous beam, nearer or farther
+        # by more than DEPTH_EDGE_M, both clear of robots and of the mast
         here, before = fitted[0], np.roll(fitted[0], 1)
         both_cast = np.isfinite(here) & np.isfinite(before)
         gap = np.abs(np.where(both_cast, here, 0.0) - np.where(both_cast, before, 0.0))
-        jump = both_cast & (gap > DEPTH_EDGE_M) & unblocked
+        other = fitted_surface[0] != np.roll(fitted_surface[0], 1)  # a smooth surface seen at a slant is no edge
+        jump = both_cast & other & (gap > DEPTH_EDGE_M) & unblocked
         jump &= np.roll(unblocked, 1)
         clear = free & np.roll(free, 1, axis=1) & jump[None, :] & valid
         cols = np.flatnonzero(clear.sum(axis=0) >= 3)
         if len(cols):
             seen_at = np.where(clear[:, cols], r[:, cols], np.nan)
-            centre = np.nanmedian(seen_at, axis=0)  # the beam's own surface: most of its returns
+            # the beam's own surface: where the fitted room casts it, refined by its returns near there (a box a few
+            # centimetres off its mapped place, unidentified, moves it)
+            near_own = np.abs(seen_at - here[cols][None, :]) < EDGE_OWN_M
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a beam with none near: the cast stays
+                refined = np.nanmedian(np.where(near_own, seen_at, np.nan), axis=0)
+            centre = np.where(np.isfinite(refined), refined, here[cols])
             keep = np.isfinite(seen_at)
             edges.append(
                 (
@@ -1142,8 +1152,8 @@ def _no_return_convention(missing: dict[str, int]) -> tuple[str | None, str]:
 def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit) -> Estimate:
     """The probability that a beam at a depth edge returns between the near and the far surface (a mixed pixel),
     from the still returns at the fitted room's depth edges: a return further than a margin (4 noise sigmas at its
-    range, for the noisiest beams) from the beam's own median return (its surface: a box a few centimetres off its
-    mapped place moves both) and between the two cast surfaces is mixed; a mixed return spread evenly over the gap
+    range, for the noisiest beams) from the beam's own surface (its cast, refined by its returns near it) and between
+    the two cast surfaces is mixed; a mixed return spread evenly over the gap
     lands that far from the surface with probability 1 - margin / gap, which turns the count into a probability
     (Wilson interval on the effective trials)."""
     unit = "probability"

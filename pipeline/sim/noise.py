@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 DEPTH_EDGE_M = 0.1
-"""A beam whose true range differs from the previous beam's by more than this straddles a depth edge."""
+"""A beam that hits another surface than the previous beam, nearer or farther by more than this, straddles a depth
+edge."""
 
 
 @dataclass(frozen=True)
@@ -32,19 +33,23 @@ def noisy_ranges(
     bias_m: float,
     noise_per_m: float = 0.0,
     real: RealLidar | None = None,
+    surfaces: np.ndarray | None = None,
 ) -> np.ndarray:
     """Measured ranges (same shape) from true ones (m); +inf (no return) stays +inf unless `real` says otherwise.
 
     Adds `bias_m` and zero-mean Gaussian noise of `sigma_m` + `noise_per_m` * range; each beam
     drops out (reads +inf) with probability `dropout_prob`. With `real` (beams along the last axis): a beam at a depth
-    edge returns, with its probability, a range drawn evenly between the two surfaces; each beam's noise is scaled by
-    its factor; ranges are rounded to the step; no return reads the driver's value.
+    edge (another surface than the previous beam's in `surfaces`, nearer or farther by more than 0.1 m) returns, with
+    its probability, a range drawn evenly between the two surfaces; each beam's noise is scaled by its factor; ranges
+    are rounded to the step; no return reads the driver's value.
     """
     if real is not None and real.mixed_prob > 0:
         before = np.roll(true_m, 1, axis=-1)
         both = np.isfinite(true_m) & np.isfinite(before)
         here, prev = np.where(both, true_m, 0.0), np.where(both, before, 0.0)
         edge = both & (np.abs(here - prev) > DEPTH_EDGE_M)
+        if surfaces is not None and surfaces.shape == true_m.shape:
+            edge &= surfaces != np.roll(surfaces, 1, axis=-1)  # another surface: a smooth one is no edge
         mixed = edge & (rng.random(true_m.shape) < real.mixed_prob)
         if mixed.any():
             near, far = np.minimum(here, prev), np.maximum(here, prev)

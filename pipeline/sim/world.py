@@ -70,6 +70,8 @@ class SimWorld:
         )
         self.odometry = OdometryDrift(world.odometry.drift_per_m, world.actuation.yaw_rate_per_mps)
         self._real_lidar: RealLidar | None = None
+        self.surfaces = np.zeros((0, 0), dtype=np.int32)
+        """(n_robots, sim_beams) what each ray of the last `true_ranges` hit (a geom id, -1 for nothing)."""
         self._use(world)
         self.rng = np.random.default_rng(0)
         self._pending: deque[tuple[int, np.ndarray]] = deque()
@@ -209,6 +211,8 @@ class SimWorld:
         """(n_robots, sim_beams) exact ranges (m) to the nearest visible geom; +inf where none within range_max."""
         lidar = self.world.lidar
         out = np.empty((self.n, lidar.sim_beams))
+        if self.surfaces.shape != out.shape:
+            self.surfaces = np.zeros(out.shape, dtype=np.int32)
         dx, dy = lidar.mount_xy_m
         for i in range(self.n):
             x, y, yaw = self.truth[i]
@@ -236,6 +240,7 @@ class SimWorld:
                 lidar.range_max_m,
             )
             out[i] = self._dist
+            self.surfaces[i] = self._geomid
         out[(out < 0) | (out > self.world.lidar.range_max_m)] = np.inf
         return out
 
@@ -254,5 +259,6 @@ class SimWorld:
             lidar.bias_m,
             lidar.noise_per_m,
             self._real_lidar,
+            self.surfaces,
         )
         return noisy.astype(np.float32).astype(np.float64)

@@ -308,7 +308,8 @@ class FleetPhysics:
 
     def cast(self, robot: int, origin_xy: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
         """Ranges (m) of horizontal rays at the lidar's height from `origin_xy` at world `angles_rad`,
-        past robot `robot`'s own chassis; inf where nothing is hit."""
+        past robot `robot`'s own chassis; inf where nothing is hit. `last_surfaces` keeps what each ray hit (a geom
+        id, -1 for nothing)."""
         angles = np.asarray(angles_rad, dtype=float).reshape(-1)
         k = len(angles)
         if k == 0:
@@ -324,4 +325,5 @@ class FleetPhysics:
         mujoco.mj_multiRay(
             self.model, self.data, pnt, vec, None, 1, int(self._body[robot]), geomid, dist, None, k, 100.0
         )
+        self.last_surfaces = geomid.copy()
         return np.where(geomid >= 0, dist, np.inf)

@@ -41,7 +41,8 @@ LIDAR_RANGE_MAX_M = 8.0
 MAST_RANGE_M = 0.04
 """What a beam in a blocked sector reads: the mast, closer than the lidar's minimum range."""
 DEPTH_EDGE_M = 0.1
-"""A beam whose true range differs from the previous beam's by more than this straddles a depth edge."""
+"""A beam that hits another surface than the previous beam, nearer or farther by more than this, straddles a depth
+edge."""
 NO_RETURN = {"inf": math.inf, "zero": 0.0, "max": LIDAR_RANGE_MAX_M, "nan": math.nan}
 """What a beam without a return reads, per the profile's ``no_return`` convention."""
 
@@ -77,13 +78,16 @@ class LidarSweep:
             rel = np.mod(self.angles - start, 2 * math.pi)
             self.blocked |= rel <= (end - start)
         self.mount = np.array([profile.mount_xy_m[0], profile.mount_xy_m[1], profile.mount_yaw_rad])
+        # the beam before the next one taken (across sweeps: the first beam's neighbour is the last): its true range
+        # and what it hit
+        self._previous_true = math.nan
+        self._previous_surface = -2
         self.restart(t0_ns)
 
     def restart(self, t0_ns: int) -> None:
         self.start_ns = t0_ns
         self.ranges = np.full(self.beams, np.inf)
         self.taken = 0
-        self._previous_true = math.nan  # the true range of the beam before the next one taken
         wander = self.profile.rate_wander
         if wander > 0:
             factor = 1.0 + wander * float(np.clip(self.rng.standard_normal(), -4.0, 4.0))
@@ -118,16 +122,21 @@ class LidarSweep:
     def world_angles(self, heading: float, k: np.ndarray) -> np.ndarray:
         return np.asarray(heading + self.angles[k], dtype=float)
 
-    def measure(self, k: np.ndarray, true_m: np.ndarray) -> None:
-        """Store the measured ranges of beams `k` from their true ranges."""
+    def measure(self, k: np.ndarray, true_m: np.ndarray, surfaces: np.ndarray | None = None) -> None:
+        """Store the measured ranges of beams `k` from their true ranges (and what each hit: a depth edge is a change
+        of surface; without `surfaces`, any change of range beyond `DEPTH_EDGE_M`)."""
         p = self.profile
         true = np.asarray(true_m, dtype=float)
         out = true.copy()
         if p.mixed_pixel_prob > 0 and len(k):
-            # a beam straddling a depth edge returns somewhere between the near and the far surface
+            # a beam straddling a depth edge (another surface, nearer or farther) returns somewhere between the two
             before = np.concatenate([[self._previous_true], true[:-1]])
             both = np.isfinite(true) & np.isfinite(before)
-            edge = both & (np.abs(true - np.where(both, before, 0.0)) > DEPTH_EDGE_M)
+            edge = both & (np.abs(np.where(both, true, 0.0) - np.where(both, before, 0.0)) > DEPTH_EDGE_M)
+            if surfaces is not None:
+                hit = np.asarray(surfaces)[: len(k)]
+                edge &= hit != np.concatenate([[self._previous_surface], hit[:-1]])
+                self._previous_surface = int(hit[-1])
             mixed = edge & (self.rng.random(out.shape) < p.mixed_pixel_prob)
             if mixed.any():
                 near, far = np.minimum(true, before), np.maximum(true, before)

@@ -422,7 +422,8 @@ class HardwareTwin:
             if len(k):
                 poses = self.physics.poses() if poses is None else poses
                 origin, heading = lidar.pose_of_lidar(poses[i])
-                lidar.measure(k, self.physics.cast(i, origin, lidar.world_angles(heading, k)))
+                true = self.physics.cast(i, origin, lidar.world_angles(heading, k))
+                lidar.measure(k, true, self.physics.last_surfaces)
             if lidar.complete and now_ns >= lidar.end_ns:
                 self._publish_scan(i, lidar)
                 lidar.restart(lidar.end_ns)

@@ -44,12 +44,14 @@ def still_span(
     range, ranges in `step` steps; `no_return_share` of the beams (a fixed set: dark or far surfaces) never return
     and read `no_return`; at depth edges a return between the two surfaces with probability `mixed`."""
     angles = 2 * math.pi * np.arange(beams) / beams
-    true = GEOMETRY.cast(np.array(pose[:2]), pose[2] + angles).range_m
+    hits = GEOMETRY.cast(np.array(pose[:2]), pose[2] + angles)
+    true = hits.range_m
     scale = (sigma + per_m * true) * (1.0 if factor is None else factor)
     r = true[None, :] + rng.standard_normal((scans, beams)) * scale[None, :]
     if mixed > 0:
         before = np.roll(true, 1)
-        edge = np.isfinite(true) & np.isfinite(before) & (np.abs(true - before) > 0.1)
+        both = np.isfinite(true) & np.isfinite(before)
+        edge = both & (np.abs(np.where(both, true - before, 0.0)) > 0.1) & (hits.surface != np.roll(hits.surface, 1))
         hit = edge[None, :] & (rng.random((scans, beams)) < mixed)
         near, far = np.minimum(true, before), np.maximum(true, before)
         between = near[None, :] + rng.random((scans, beams)) * (far - near)[None, :]

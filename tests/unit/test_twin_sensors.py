@@ -128,10 +128,9 @@ def test_mixed_pixels_lie_between_the_surfaces_of_a_depth_edge_and_nowhere_else(
     true = np.where(np.arange(360) % 20 < 10, 1.0, 3.0)  # 36 depth edges per sweep
     ranges = sweeps(lidar(mixed_pixel_prob=0.5), true, 40)
     between = (ranges > 1.0) & (ranges < 3.0)
-    edge = np.zeros(360, dtype=bool)
-    edge[np.flatnonzero(np.diff(true) != 0) + 1] = True
-    assert not between[:, ~edge].any()
-    assert between[:, edge].mean() == pytest.approx(0.5, abs=0.06)
+    edge = true != np.roll(true, 1)  # the first beam's neighbour is the last of the sweep before
+    assert not between[:, ~edge].any() and not between[0, 0]  # (none before the first sweep)
+    assert between[1:, edge].mean() == pytest.approx(0.5, abs=0.06)
 
 
 def test_beam_noise_differs_per_beam_with_mean_square_one():
