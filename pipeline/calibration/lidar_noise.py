@@ -34,6 +34,8 @@ LATTICE_SHARE = 0.99
 LATTICE_TOL = 0.02
 """A change lies on the lattice of q when it is within this share of q of a multiple of it."""
 MIN_CHANGES = 50
+LATTICE_SPAN = 50
+"""The lattice is read on changes of up to this many steps."""
 CHI2_95_1DOF = float(stats.chi2.ppf(0.95, 1))
 NOISE_BOUNDS = {"noise_sigma_m": (0.0, 1.0), "noise_per_m": (0.0, 0.2)}
 
@@ -50,22 +52,25 @@ def range_step(changes_m: np.ndarray) -> Estimate:
             len(d),
         )
     small = d[d <= np.percentile(d, 5)]
-    values, counts = np.unique(np.round(small, 7), return_counts=True)
+    values, counts = np.unique(np.round(small, 6), return_counts=True)  # micrometres: float32 noise rounded away
     q0 = float(values[counts.argmax()])
     for k in range(1, 13):
         q = q0 / k
         if q < MIN_STEP_M:
             break
-        units = d / q
+        near = d[d <= LATTICE_SPAN * q]  # a large change (something moved) tells the step less than its rounding
+        if len(near) < MIN_CHANGES:
+            continue
+        units = near / q
         on = np.abs(units - np.round(units)) < LATTICE_TOL
         share = float(on.mean())
         if share >= LATTICE_SHARE:
             m = np.round(units[on])
-            q_hat = float(np.sum(d[on] * m) / np.sum(m * m))
-            resid = d[on] - m * q_hat
+            q_hat = float(np.sum(near[on] * m) / np.sum(m * m))
+            resid = near[on] - m * q_hat
             se = math.sqrt(float(np.sum(resid**2)) / max(len(m) - 1, 1) / float(np.sum(m * m)))
             half = max(Z_95 * se, 1e-3 * q_hat)  # at least the float32 the ranges travel in
-            method = f"lattice of the changes of each beam's range between scans ({share:.1%} of {len(d)} on it)"
+            method = f"lattice of the changes of each beam's range between scans ({share:.1%} of {len(near)} on it)"
             return Estimate.of(q_hat, se, (q_hat - half, q_hat + half), "m", method, len(d))
     method = f"no lattice: continuous ranges (no step of {MIN_STEP_M * 1e6:g} um or more holds {LATTICE_SHARE:.0%})"
     return Estimate.of(0.0, 0.0, (0.0, MIN_STEP_M), "m", method, len(d))

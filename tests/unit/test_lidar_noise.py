@@ -234,3 +234,34 @@ def test_the_beams_own_noise_spread_is_recovered_through_the_range_steps(spread)
         assert est.ok and 0.0 <= est.interval[0] <= est.interval[1]
         held += est.interval[0] <= spread <= est.interval[1]
     assert held >= 7, held
+
+
+# -- a bag with nothing but scans ----------------------------------------------------------------------------------
+
+
+def test_a_scan_only_recording_finds_its_still_spans_and_reads_the_noise_there():
+    """A sensor still for 5 s, carried for 10 s (every range changing by centimetres), still for 5 s again: the two
+    still spans are found from the scans alone, and the step, the noise at the median range and the no-return
+    convention come back; a recording that never stands still says so."""
+    from pipeline.calibration.scan_only import lidar_from_scans
+
+    rng = np.random.default_rng(11)
+    beams, period = 540, 100_000_000
+    base = 2.5 + 1.5 * np.sin(np.linspace(0.0, 6.0, beams))  # a room: smooth surfaces
+    rows = []
+    for t in range(200):
+        moving = 50 <= t < 150
+        offset = 0.05 * np.sin(t / 3.0) + 0.03 * t / 10 if moving else (0.3 if t >= 150 else 0.0)
+        true = base + offset + (0.02 * rng.standard_normal(beams) if moving else 0.0)
+        r = quantize(true + rng.standard_normal(beams) * (0.002 + 0.001 * true), 0.001)
+        r[::7] = 0.0  # no return reads 0
+        rows.append(r)
+    stamps = np.arange(200, dtype=np.int64) * period + 10**18
+    fit = lidar_from_scans(np.array(rows), stamps, -2.0, 4.0 / beams, 0.05, 10.0, CalibrationSettings(bootstrap=60))
+    assert len(fit.still_spans) == 2 and fit.no_return == "zero"
+    assert fit.range_step_m.interval[0] <= 0.001 <= fit.range_step_m.interval[1]
+    at_m, at = fit.noise.at_range
+    assert at.interval[0] <= 0.002 + 0.001 * at_m <= at.interval[1], (at_m, at)
+    moving = np.array(rows) + 0.05 * np.arange(200)[:, None]
+    never = lidar_from_scans(moving, stamps, -2.0, 4.0 / beams, 0.05, 20.0)
+    assert not never.noise.sigma.ok and "never stood still" in never.noise.sigma.reason
