@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 
 from pipeline.calibration import CalibrationSettings, calibrate, write_calibration
+from pipeline.calibration.calibrate import split_key
+from pipeline.core.reality import profile_bounds
 from pipeline.params import WorldConfig, calibrated_world
 from pipeline.policy.excitation import StillThenDrive
 from pipeline.policy.runtime import PolicyRuntime
@@ -46,6 +48,12 @@ def test_a_turtlebot_like_recording_calibrates_inside_the_domains_and_holds_the_
         assert 0.0 <= est.interval[0] < est.interval[1], (key, est)
         held.append(est.interval[0] <= lidar[key] <= est.interval[1])
     assert sum(held) >= 5, held  # 95 % intervals: one of six may miss
+    for key, est in result.values.items():  # every interval inside its key's domain, never of zero width
+        if not est.ok or est.interval is None or key == "lidar.beams":
+            continue
+        group, name, _ = split_key(key)
+        low, high = profile_bounds(f"{group}.{name}")
+        assert low <= est.interval[0] < est.interval[1] <= high, (key, est)
     assert any("steps of 2 mm" in note for note in result.lidar.notes)
     written = write_calibration(result, tmp_path / "cal")
     (trade,) = yaml.safe_load(written.read_text())["trade_offs"]
