@@ -998,7 +998,7 @@ def estimate_lidar(
     masks: list[np.ndarray] = []
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
-    edges: list[tuple[np.ndarray, ...]] = []  # (returns, the beam's median, near, far) at depth edges
+    edges: list[tuple[np.ndarray, ...]] = []  # (returns, own surface, near, far, beam) at depth edges
     changes: list[np.ndarray] = []
     missing = {"inf": 0, "nan": 0, "zero": 0, "max": 0}
     for k, span in enumerate(spans):
@@ -1042,20 +1042,25 @@ def estimate_lidar(
         cols = np.flatnonzero(clear.sum(axis=0) >= 3)
         if len(cols):
             seen_at = np.where(clear[:, cols], r[:, cols], np.nan)
-            # the beam's own surface: where the fitted room casts it, refined by its returns near there (a box a few
+            # the beam's own surface: of the two cast surfaces the one nearer its median return (a beam a little off
+            # its stated angle sees the other one throughout), refined by its returns near it (a box a few
             # centimetres off its mapped place, unidentified, moves it)
-            near_own = np.abs(seen_at - here[cols][None, :]) < EDGE_OWN_M
+            lo_m, hi_m = np.minimum(here, before)[cols], np.maximum(here, before)[cols]
             with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # a beam with none near: the cast stays
+                warnings.simplefilter("ignore", RuntimeWarning)  # a beam with no return near: its cast stays
+                median = np.nanmedian(seen_at, axis=0)
+                side = np.where(np.abs(median - lo_m) <= np.abs(median - hi_m), lo_m, hi_m)
+                near_own = np.abs(seen_at - side[None, :]) < EDGE_OWN_M
                 refined = np.nanmedian(np.where(near_own, seen_at, np.nan), axis=0)
-            centre = np.where(np.isfinite(refined), refined, here[cols])
+            centre = np.where(np.isfinite(refined), refined, side)
             keep = np.isfinite(seen_at)
             edges.append(
                 (
                     seen_at[keep],
                     np.broadcast_to(centre[None, :], seen_at.shape)[keep],
-                    np.broadcast_to(np.minimum(here, before)[cols][None, :], seen_at.shape)[keep],
-                    np.broadcast_to(np.maximum(here, before)[cols][None, :], seen_at.shape)[keep],
+                    np.broadcast_to(lo_m[None, :], seen_at.shape)[keep],
+                    np.broadcast_to(hi_m[None, :], seen_at.shape)[keep],
+                    np.broadcast_to((k * 100_000 + cols)[None, :], seen_at.shape)[keep],  # the beam in its span
                 )
             )
     n_trials = int(trials.sum())
@@ -1077,7 +1082,8 @@ def estimate_lidar(
     notes += list(noise.notes)
     no_return, convention_note = _no_return_convention(missing)
     notes.append(convention_note)
-    mixed = _mixed_pixels(edges, noise)
+    spacing = float(np.median(np.abs(np.diff(spans[0].beam_angles_rad)))) if spans[0].beam_angles_rad.size > 1 else 0.0
+    mixed = _mixed_pixels(edges, noise, spacing)
     spans_used = int(np.sum(trials > 0))
     if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
         drop_est = dropout_estimate(drops, trials)
@@ -1149,17 +1155,18 @@ def _no_return_convention(missing: dict[str, int]) -> tuple[str | None, str]:
     return kind, f"beams without a return read {kind} ({counts}; all read as no return)"
 
 
-def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit) -> Estimate:
+def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit, spacing_rad: float = 0.0) -> Estimate:
     """The probability that a beam at a depth edge returns between the near and the far surface (a mixed pixel),
     from the still returns at the fitted room's depth edges: a return further than a margin (4 noise sigmas at its
-    range, for the noisiest beams) from the beam's own surface (its cast, refined by its returns near it) and between
-    the two cast surfaces is mixed; a mixed return spread evenly over the gap
-    lands that far from the surface with probability 1 - margin / gap, which turns the count into a probability
-    (Wilson interval on the effective trials)."""
+    range, for the noisiest beams) from the beam's own surface (the cast surface nearer its median return, refined by
+    its returns near it) and between the two cast surfaces is mixed; a mixed return spread evenly over the gap
+    lands that far from the surface with probability 1 - margin / gap, which turns the count into a probability (the
+    edge beams' counts as :func:`dropout_estimate` takes the spans': a Wilson interval on the counts divided by their
+    design effect)."""
     unit = "probability"
     if not edges:
         return Estimate.unidentifiable("no depth edge of the room seen clear of robots while still", unit)
-    r, centre, near, far = (np.concatenate([e[k] for e in edges]) for k in range(4))
+    r, centre, near, far, beam = (np.concatenate([e[k] for e in edges]) for k in range(5))
     sigma = noise.sigma.value if noise.sigma.ok and noise.sigma.value is not None else 0.01
     per_m = noise.per_m.value if noise.per_m.ok and noise.per_m.value is not None else 0.0
     spread = noise.beam_spread.value if noise.beam_spread.ok and noise.beam_spread.value is not None else 0.0
@@ -1169,12 +1176,21 @@ def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit) -> E
     trials = float(share.sum())
     if trials < 20:
         return Estimate.unidentifiable(f"only {len(r)} still returns at depth edges wide enough to tell", unit, len(r))
-    events = float(inner.sum())
-    p = min(events / trials, 1.0)
-    se = math.sqrt(max(p * (1 - p), 1 / trials) / trials)
-    lo, hi = wilson_interval(min(events, trials), trials)
+    # per edge beam (and span): its mixed returns and its effective trials; beams that differ (one a little off its
+    # stated angle sees one surface throughout, never both) spread them beyond the binomial: the design effect
+    _, which = np.unique(beam, return_inverse=True)
+    events = np.bincount(which, weights=inner.astype(np.float64))
+    tries = np.bincount(which, weights=share)
+    est = dropout_estimate(np.minimum(events, tries), tries)
     method = (
-        f"returns off their beam's surface toward the other, of {len(r)} still beams at depth edges, over the share "
-        "of the gap a mixed return lands in (Wilson interval)"
+        f"returns off their beam's surface toward the other, of {len(r)} still returns at {len(tries)} edge beams, "
+        "over the share of the gap a mixed return lands in; " + est.method.split(": ", 1)[1]
     )
-    return Estimate.of(p, se, (lo, min(hi, 1.0)), unit, method, len(r))
+    # an edge within a beam's angle error of it lies on the other side of that beam than the map says: the beam never
+    # straddles it and dilutes the count (up to 2 x the error over the beam spacing of the edge beams)
+    shifted = min(2 * BEAM_ANGLE_ERROR_RAD / spacing_rad, 0.5) if spacing_rad > 0 else 0.0
+    if est.interval is not None and shifted > 0:
+        lo, hi = est.interval
+        est = dataclasses.replace(est, interval=(lo, min(hi / (1 - shifted), 1.0)))
+        method += f"; its upper end divided by {1 - shifted:.2f} for edges that beams off their angle do not straddle"
+    return dataclasses.replace(est, method=method, n=len(r))
