@@ -51,6 +51,11 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.share_experience": False,
     "train.n_step": 1,
     "train.selection.stop_after_convergence": False,
+    "world.lidar.range_step_m": 0.0,
+    "world.lidar.beam_noise_spread": 0.0,
+    "world.lidar.mixed_pixel_prob": 0.0,
+    "world.lidar.no_return": "inf",
+    "world.lidar.scan_drop_prob": 0.0,
     **{f"world.network.{k}": v for k, v in to_mapping(NetworkConfig()).items()},
     **{f"world.randomize.network.{k}": v for k, v in to_mapping(NetworkRanges()).items()},
 }
