@@ -490,13 +490,15 @@ def _normal_equations(
     means: Sequence[tuple[np.ndarray, np.ndarray]],
     sets: Sequence[np.ndarray],
     p: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per clean beam at parameters `p`: residual of the span-mean range to the model (m), Jacobian rows,
-    weight (scans) and span index; plus how many beams see each parameter."""
+    weight (scans), span index and the beam (its robot's lidar and its index in the scan); plus how many beams see
+    each parameter."""
     h_yaw, h_xy = 1e-4, 1e-4
     yaw, mx, my = float(p[0]), float(p[1]), float(p[2])
     room = design.moved(geometry, p)
-    res, jac, weight, owner = [], [], [], []
+    res, jac, weight, owner, beam = [], [], [], [], []
+    units: dict[str, int] = {}
     for k, (span, (mean, count), use) in enumerate(zip(spans, means, sets, strict=True)):
         if not use.any():
             continue
@@ -521,9 +523,10 @@ def _normal_equations(
         jac.append(rows)
         weight.append(count[use].astype(np.float64))
         owner.append(np.full(int(use.sum()), k))
+        beam.append(units.setdefault(span.robot, len(units)) * 100_000 + np.flatnonzero(use))
     r, j = np.concatenate(res), np.concatenate(jac)
     seen = (np.abs(j) > 1e-9).sum(axis=0)
-    return r, j, np.concatenate(weight), np.concatenate(owner), seen
+    return r, j, np.concatenate(weight), np.concatenate(owner), np.concatenate(beam), seen
 
 
 def _fit_geometry(
@@ -555,10 +558,11 @@ def _fit_geometry(
     g = np.zeros((len(spans), size))
     r = w = np.zeros(0)
     who = np.zeros(0, dtype=np.int64)
+    beam_of = np.zeros(0, dtype=np.int64)
     seen = np.zeros(size)
     ridge = np.eye(size) * 1e-9
     for _ in range(GAUSS_NEWTON_STEPS):
-        r, j, w, who, seen = _normal_equations(geometry, design, spans, means, sets, p)
+        r, j, w, who, beam_of, seen = _normal_equations(geometry, design, spans, means, sets, p)
         scale = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)) * np.sqrt(w))) + 1e-6
         delta = HUBER_K * scale / np.sqrt(w)
         w = w * np.minimum(1.0, delta / np.maximum(np.abs(r), 1e-12))
@@ -615,6 +619,21 @@ def _fit_geometry(
                 se[k] = max(se[k], se_v[k])
                 interval[k] = (min(interval[k, 0], p[k] - t_v * se_v[k]), max(interval[k, 1], p[k] + t_v * se_v[k]))
         method += f"; at least a cluster-robust sandwich over {n_views} viewpoints (t, {n_views - 1} d.o.f.)"
+    # and over the beams: what is the beam's own (an angle off its stated one, a range offset of its own) is shared
+    # by every span it is used in, whatever the viewpoint
+    _, by_beam = np.unique(beam_of, return_inverse=True)
+    n_beam = int(by_beam.max()) + 1 if len(by_beam) else 0
+    if n_beam >= 2:
+        scores_b = np.zeros((n_beam, size))
+        np.add.at(scores_b, by_beam, wr)
+        meat_b = scores_b.T @ scores_b * (n_beam / (n_beam - 1)) * ((n_beams - 1) / max(n_beams - size, 1))
+        se_b = np.sqrt(np.maximum(np.diag(inv @ meat_b @ inv), 0.0))
+        t_b = float(stats.t.ppf(0.975, n_beam - 1))
+        for k in range(size):
+            if t_b * se_b[k] > max(p[k] - interval[k, 0], interval[k, 1] - p[k]):
+                se[k] = max(se[k], se_b[k])
+                interval[k] = (min(interval[k, 0], p[k] - t_b * se_b[k]), max(interval[k, 1], p[k] + t_b * se_b[k]))
+        method += f"; at least a cluster-robust sandwich over {n_beam} beams"
     return _Geometry(p, se, interval, seen, method, total)
 
 
