@@ -166,7 +166,8 @@ def main() -> int:
                 episodes=1, seed=seed, recording=recording, time_scale=args.time_scale, profile=str(path),
                 progress=False,
             )  # fmt: skip
-            deploy_policy(StillThenDrive(runtime, args.still_s), fleet, str(fleet_path), request)
+            driver: Any = StillThenDrive(runtime, args.still_s)  # the policy's interface, the drive's commands
+            deploy_policy(driver, fleet, str(fleet_path), request)
             for row in scored(recording, truth, seed):
                 rows.append(row)
                 writer.writerow(row)
