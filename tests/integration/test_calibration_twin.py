@@ -88,7 +88,13 @@ TOLERANCES: dict[str, Tolerance] = {
     ),
     "lidar.noise_per_m": Tolerance(0.0015, 0.2, "a line through the within-span spread in 0.5 m range bins"),
     "lidar.range_step_m": Tolerance(1e-5, 0, "continuous ranges: no lattice of 10 um or more"),
-    "lidar.beam_noise_spread": Tolerance(0.06, 0, "the same noise on every beam: the per-beam spread near 0"),
+    "lidar.beam_noise_spread": Tolerance(
+        0.12,
+        0,
+        "the same noise on every beam, but beams whose returns move within a still span (a robot still to the "
+        "smoother, not to a grazing beam) read as uneven noise: 0.02-0.06 on these sessions, up to +0.1 on the "
+        "coverage benchmark's realities (docs/lidar.md)",
+    ),
     "lidar.mixed_pixel_prob": Tolerance(0.03, 0, "no mixed pixels: returns at depth edges lie on their surfaces"),
     "lidar.rate_wander": Tolerance(0.002, 0, "a steady sweep, stamped at its start on the twin's clock"),
     "lidar.scan_drop_prob": Tolerance(
