@@ -607,34 +607,34 @@ def _fit_geometry(
         method = clusters.method
     n_views = clusters.views
     if n_views >= 2:
-        views = clusters.view_of[who]
         # and at least a cluster-robust sandwich over the viewpoints with Student's t (V - 1 d.o.f.)
-        scores = np.zeros((n_views, size))
-        np.add.at(scores, views, wr)
-        meat_v = scores.T @ scores * (n_views / (n_views - 1)) * ((n_beams - 1) / max(n_beams - size, 1))
-        se_v = np.sqrt(np.maximum(np.diag(inv @ meat_v @ inv), 0.0))
-        t_v = float(stats.t.ppf(0.975, n_views - 1))
-        for k in range(size):
-            if t_v * se_v[k] > max(p[k] - interval[k, 0], interval[k, 1] - p[k]):
-                se[k] = max(se[k], se_v[k])
-                interval[k] = (min(interval[k, 0], p[k] - t_v * se_v[k]), max(interval[k, 1], p[k] + t_v * se_v[k]))
+        _at_least_sandwich(clusters.view_of[who], n_views, wr, inv, p, se, interval)
         method += f"; at least a cluster-robust sandwich over {n_views} viewpoints (t, {n_views - 1} d.o.f.)"
     # and over the beams: what is the beam's own (an angle off its stated one, a range offset of its own) is shared
     # by every span it is used in, whatever the viewpoint
     _, by_beam = np.unique(beam_of, return_inverse=True)
     n_beam = int(by_beam.max()) + 1 if len(by_beam) else 0
     if n_beam >= 2:
-        scores_b = np.zeros((n_beam, size))
-        np.add.at(scores_b, by_beam, wr)
-        meat_b = scores_b.T @ scores_b * (n_beam / (n_beam - 1)) * ((n_beams - 1) / max(n_beams - size, 1))
-        se_b = np.sqrt(np.maximum(np.diag(inv @ meat_b @ inv), 0.0))
-        t_b = float(stats.t.ppf(0.975, n_beam - 1))
-        for k in range(size):
-            if t_b * se_b[k] > max(p[k] - interval[k, 0], interval[k, 1] - p[k]):
-                se[k] = max(se[k], se_b[k])
-                interval[k] = (min(interval[k, 0], p[k] - t_b * se_b[k]), max(interval[k, 1], p[k] + t_b * se_b[k]))
+        _at_least_sandwich(by_beam, n_beam, wr, inv, p, se, interval)
         method += f"; at least a cluster-robust sandwich over {n_beam} beams"
     return _Geometry(p, se, interval, seen, method, total)
+
+
+def _at_least_sandwich(
+    cluster: np.ndarray, n: int, wr: np.ndarray, inv: np.ndarray, p: np.ndarray, se: np.ndarray, interval: np.ndarray
+) -> None:
+    """Widen `se` and `interval` (in place) to at least a cluster-robust sandwich over `n` clusters (`cluster`: each
+    beam row's) with Student's t on n - 1 degrees of freedom; `wr` the weighted score rows, `inv` the bread."""
+    rows, size = wr.shape
+    scores = np.zeros((n, size))
+    np.add.at(scores, cluster, wr)
+    meat = scores.T @ scores * (n / (n - 1)) * ((rows - 1) / max(rows - size, 1))
+    se_c = np.sqrt(np.maximum(np.diag(inv @ meat @ inv), 0.0))
+    t = float(stats.t.ppf(0.975, n - 1))
+    for k in range(size):
+        if t * se_c[k] > max(p[k] - interval[k, 0], interval[k, 1] - p[k]):
+            se[k] = max(se[k], se_c[k])
+            interval[k] = (min(interval[k, 0], p[k] - t * se_c[k]), max(interval[k, 1], p[k] + t * se_c[k]))
 
 
 VIEWPOINT_M = 0.05
