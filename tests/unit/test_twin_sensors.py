@@ -259,6 +259,9 @@ def test_old_profiles_stay_valid_and_take_the_ideal_values():
         (lambda p: p["lidar"].update(mount_xy_m=[0.05]), "lidar.mount_xy_m"),
         (lambda p: p["clock"].update(skew=1), "clock.skew"),
         (lambda p: p["network"].update(burst_len=0.5), "network.burst_len"),
+        (lambda p: p["lidar"].update(no_return="none"), "lidar.no_return"),
+        (lambda p: p["lidar"].update(range_step_m=-0.001), "lidar.range_step_m"),
+        (lambda p: p["lidar"].update(scan_drop_prob=1.0), "lidar.scan_drop_prob"),
     ],
 )
 def test_bad_profile_values_are_named(tmp_path, edit, key):
