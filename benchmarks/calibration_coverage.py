@@ -65,12 +65,13 @@ from pipeline.calibration.options import PARTS, CalibrationSettings, Part
 from pipeline.calibration.recording import SessionData
 from pipeline.core.scenario import load_scenario
 from pipeline.core.timebase import NS_PER_S
+from pipeline.errors import MrlError
 from pipeline.policy.excitation import ExcitationDrive
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 from pipeline.twin.draw import PROFILE_RANGES, WIDE_RANGES, draw_profile_mapping
-from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, load_profile
+from pipeline.twin.profile import NOMINAL_WHEEL_RADIUS_M, load_profile, load_profile_for, profile_path
 
 IDENTIFIABLE = (
     "lidar.range_step_m",
@@ -284,6 +285,12 @@ def main() -> int:
         default="wide",
         help="wide: the ranges of real robots (pipeline.twin.draw.WIDE_RANGES); drawn: the sim2real benchmark's",
     )
+    parser.add_argument(
+        "--reality",
+        metavar="PROFILE",
+        help="no drawing: every recording against this reality profile (bundled name or YAML path), as the loop's "
+        "deployment has it (the loop's own recordings: --reality lab --episodes 50, seeds as the deploy stage's)",
+    )
     parser.add_argument("--out", type=Path, default=Path("logs/benchmarks/calibration_coverage.csv"))
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--keep", type=Path, help="keep profiles and recordings in this folder")
@@ -321,6 +328,14 @@ def main() -> int:
     runtime = PolicyRuntime(args.policy)
     fleet = load_fleet(args.fleet)
     scenario = load_scenario(fleet.scenario)
+    fixed: dict[str, Any] | None = None
+    if args.reality is not None:
+        try:
+            load_profile_for(args.reality, scenario)
+        except MrlError as e:
+            print(f"calibration_coverage: --reality {args.reality}: {e}")
+            return 2
+        fixed = yaml.safe_load(profile_path(args.reality).read_text(encoding="utf-8"))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, object]] = []
     if args.keep is not None:
@@ -332,7 +347,7 @@ def main() -> int:
         for p in range(args.profiles):
             seed = args.seed + p
             ranges = WIDE_RANGES if args.ranges == "wide" else PROFILE_RANGES
-            mapping = draw_profile_mapping(seed, len(scenario.obstacles), ranges)
+            mapping = fixed if fixed is not None else draw_profile_mapping(seed, len(scenario.obstacles), ranges)
             path = Path(tmp) / f"drawn_{seed}.yaml"
             path.write_text(yaml.safe_dump(mapping), encoding="utf-8")
             recording = Path(tmp) / f"drawn_{seed}.mcap"
