@@ -81,6 +81,8 @@ IDENTIFIABLE = (
     "lidar.beam_noise_spread",
     "lidar.noise_sigma_m",
     "lidar.noise_per_m",
+    "lidar.noise_at_range",
+    "lidar.noise_at_range_driving",
     "lidar.dropout_prob",
     "lidar.bias_m",
     "lidar.mount_yaw_rad",
@@ -409,6 +411,15 @@ def _scored(
         rows.append({"profile": seed, "key": "lidar.no_return", "truth": truth, "truth_of": "profile",
                      "profile_truth": truth, "value": found, "covered": int(found == truth)})  # fmt: skip
     scored = [(key, est, truth_of(mapping, key)) for key, est in cal.values.items()]
+    # the noise at the range the data determine, from the still spans and from the scans while driving
+    sigma, per_m = truth_of(mapping, "lidar.noise_sigma_m"), truth_of(mapping, "lidar.noise_per_m") or 0.0
+    if cal.lidar is not None and sigma is not None:
+        determined = [("lidar.noise_at_range", cal.lidar.noise_at_range)]
+        if cal.lidar.noise_driving is not None:
+            determined.append(("lidar.noise_at_range_driving", cal.lidar.noise_driving.at_range))
+        for key, at in determined:
+            if at is not None:
+                scored.append((key, at[1], sigma + per_m * at[0]))
     scored += [(f"effective.{name}", value.estimate, None) for name, value in cal.effective.items()]
     for key, est, profile_truth in scored:
         kind, truth = "profile", profile_truth

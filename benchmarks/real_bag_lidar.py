@@ -11,37 +11,12 @@ trade-off), the beams' own spread, the no-return convention, the sweep's rate an
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 from pathlib import Path
 
-import numpy as np
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
-
 from pipeline.calibration.options import CalibrationSettings
-from pipeline.calibration.scan_only import lidar_from_scans, scan_only_summary
-
-LASER_SCAN = "sensor_msgs/msg/LaserScan"
-
-
-def read_scans(path: Path, topic: str | None) -> tuple[str, np.ndarray, np.ndarray, object]:
-    """(topic, (n, beams) ranges, (n,) header stamps ns, the first message) of one LaserScan topic."""
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
-        scans = [c for c in reader.connections if c.msgtype == LASER_SCAN and (topic is None or c.topic == topic)]
-        if not scans:
-            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
-            raise SystemExit(f"real_bag_lidar: {path} has no LaserScan topic{f' {topic}' if topic else ''}: {found}")
-        chosen = scans[0].topic
-        ranges, stamps, first = [], [], None
-        for conn, _, raw in reader.messages(connections=[c for c in scans if c.topic == chosen]):
-            msg = reader.deserialize(raw, conn.msgtype)
-            first = first or msg
-            if len(msg.ranges) != len(first.ranges):
-                continue
-            ranges.append(np.asarray(msg.ranges, dtype=np.float64))
-            stamps.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
-    return chosen, np.array(ranges), np.array(stamps, dtype=np.int64), first
+from pipeline.calibration.scan_only import bag_sha256, lidar_from_scans, read_scan_topic, scan_only_summary
+from pipeline.errors import MrlError
 
 
 def main() -> int:
@@ -52,18 +27,23 @@ def main() -> int:
     if not args.bag.exists():
         print(f"real_bag_lidar: {args.bag} does not exist")
         return 2
-    topic, ranges, stamps, first = read_scans(args.bag, args.topic)
-    digest = hashlib.sha256(args.bag.read_bytes()).hexdigest() if args.bag.is_file() else "-"
-    print(f"bag {args.bag.name} sha256 {digest[:16]}: {topic}, {len(ranges)} scans of {ranges.shape[1]} beams over "
-          f"{(stamps[-1] - stamps[0]) / 1e9:.1f} s, range {first.range_min:g}-{first.range_max:g} m, "  # type: ignore[attr-defined]
-          f"increment {first.angle_increment:.6g} rad")  # type: ignore[attr-defined]  # fmt: skip
+    try:
+        scans = read_scan_topic(args.bag, args.topic)
+    except MrlError as e:
+        print(f"real_bag_lidar: {e}")
+        return 2
+    ranges, stamps = scans.ranges, scans.stamps_ns
+    digest = bag_sha256(args.bag)
+    print(f"bag {args.bag.name} sha256 {digest[:16]}: {scans.topic}, {len(ranges)} scans of {ranges.shape[1]} beams "
+          f"over {(stamps[-1] - stamps[0]) / 1e9:.1f} s, range {scans.range_min_m:g}-{scans.range_max_m:g} m, "
+          f"increment {scans.angle_increment_rad:.6g} rad")  # fmt: skip
     fit = lidar_from_scans(
         ranges,
         stamps,
-        float(first.angle_min),  # type: ignore[attr-defined]
-        float(first.angle_increment),  # type: ignore[attr-defined]
-        float(first.range_min),  # type: ignore[attr-defined]
-        float(first.range_max),  # type: ignore[attr-defined]
+        scans.angle_min_rad,
+        scans.angle_increment_rad,
+        scans.range_min_m,
+        scans.range_max_m,
         CalibrationSettings(bootstrap=200),
     )
     for key, est in scan_only_summary(fit):

@@ -3,7 +3,8 @@
 :func:`calibrate` reads one or more session recordings of the same scenario, smooths every robot's
 ground truth, and hands each estimator its data:
 
-- lidar: scans taken during stationary spans (:mod:`pipeline.calibration.lidar`);
+- lidar: scans taken during stationary spans, and the noise again from scans while driving
+  (:mod:`pipeline.calibration.lidar`);
 - actuation: commanded vs achieved velocity on contact-free stretches (:mod:`pipeline.calibration.actuation`);
 - odometry: odometry vs truth per robot and episode (:mod:`pipeline.calibration.odometry`);
 - odometry also gives the true wheel radii and separation (:mod:`pipeline.calibration.wheels`);
@@ -537,6 +538,56 @@ def _scan_spans(
     return spans
 
 
+MOVING_SCANS_PER_ROBOT = 600
+"""Scans while driving read per robot and recording for the noise (evenly over its driving; more add little)."""
+
+
+def _moving_scans(
+    tag: str, data: SessionData, trajectories: dict[str, Trajectory], settings: CalibrationSettings
+) -> list[ScanSpan]:
+    """Each robot's scans while it drives (outside its stationary spans), one `ScanSpan` per scan at the pose of
+    its time, labelled by robot and episode: the noise from scans against the map (:func:`estimate_lidar`)."""
+    out: list[ScanSpan] = []
+    for robot in data.robots:
+        scans = robot.scans
+        if scans is None or len(scans.ranges) == 0:
+            continue
+        t = scans.time.t_ns
+        moving = np.zeros(len(t), dtype=bool)
+        for track in trajectories[robot.name].tracks:
+            inside = (t >= track.start_ns) & (t <= track.end_ns)
+            for start, end in stationary_spans(
+                track, settings.stationary_speed_mps, settings.stationary_yaw_rate_radps, settings.stationary_min_s
+            ):
+                inside &= ~((t >= start) & (t <= end))
+            moving |= inside
+        sel = np.flatnonzero(moving)
+        if len(sel) == 0:
+            continue
+        sel = sel[np.unique(np.linspace(0, len(sel) - 1, min(len(sel), MOVING_SCANS_PER_ROBOT)).round().astype(int))]
+        pose, _ = trajectories[robot.name].at(t[sel])
+        others = _others(data, trajectories, robot.name, t[sel])
+        for j, i in enumerate(sel):
+            if not np.all(np.isfinite(pose[j])):
+                continue
+            angles = scans.angle_min_rad[i] + scans.angle_increment_rad[i] * np.arange(scans.beams)
+            out.append(
+                ScanSpan(
+                    robot.name,
+                    f"{tag}/{robot.name}/episode {_episode_of(data, int(t[i]))}",
+                    int(t[i]),
+                    int(t[i]),
+                    pose[j],
+                    angles,
+                    scans.ranges[i : i + 1],
+                    float(scans.range_min_m[i]),
+                    float(scans.range_max_m[i]),
+                    others[j : j + 1],
+                )
+            )
+    return out
+
+
 def _velocity_tracks(
     tag: str,
     data: SessionData,
@@ -711,7 +762,7 @@ def calibrate(
     effective: dict[str, EffectiveValue] = {}
     found = _Fits()
     if "lidar" in parts:
-        found.lidar = estimate_lidar(read.geometry, data.spans, settings, rng)
+        found.lidar = estimate_lidar(read.geometry, data.spans, settings, rng, data.moving)
         values.update(_lidar_values(found.lidar, data))
         if any(s.kind == "localized" for s in read.pose_sources):
             values.update(_localized_lidar_values(values, read.sessions))
@@ -783,6 +834,8 @@ class _Gathered:
     """What each part's estimator reads, pooled over the recordings."""
 
     spans: list[ScanSpan] = field(default_factory=list)
+    moving: list[ScanSpan] = field(default_factory=list)
+    """One per scan while driving (:func:`_moving_scans`)."""
     tracks: list[VelocityTrack] = field(default_factory=list)
     episodes: list[OdometryEpisode] = field(default_factory=list)
     streams: list[StampStream] = field(default_factory=list)
@@ -868,6 +921,7 @@ def _gather(
         trajectories = _trajectories(data, settings, source)
         if "lidar" in parts:
             out.spans += _scan_spans(tag, data, trajectories, settings)
+            out.moving += _moving_scans(tag, data, trajectories, settings)
             for robot in data.robots:
                 if robot.scans is not None and len(robot.scans.ranges):
                     out.beams.append(robot.scans.beams)

@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from pipeline.calibration.calibrate import Calibration
+from pipeline.calibration.calibrate import Calibration, Source
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import SPECTRUM_OUTLIER_M
 
@@ -38,6 +38,21 @@ def _row(key: str, est: Estimate) -> str:
     value = f"{_fmt(est.value)} {est.unit}" + (" (weak)" if est.weak else "")
     how = f"{est.method}, n = {est.n}" + (f"; {est.reason}" if est.weak else "")
     return f"| `{key}` | {value} | {_fmt(est.std_error)} | {interval} | {how} |"
+
+
+def source_line(source: Source) -> str:
+    """What the report says of one recording: its kind, episodes, world and reality profile where it names them,
+    and the first digits of its SHA-256."""
+    facts = [source.kind] if source.kind else []
+    if source.episodes:
+        facts.append(f"{source.episodes} episode{'s' if source.episodes != 1 else ''}")
+    if source.session.get("world"):
+        facts.append(f"world {source.session['world']}")
+    if source.session.get("profile"):
+        facts.append(f"reality profile `{source.session['profile']}`")
+    if source.sha256:
+        facts.append(f"SHA-256 {source.sha256[:16]}")
+    return ", ".join(facts) or "no metadata"
 
 
 def plot_lidar(calibration: Calibration, path: Path) -> bool:
@@ -203,8 +218,7 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
         "",
     ]
     for s in calibration.sources:
-        profile = s.session.get("profile", "")
-        lines.append(f"- `{s.path}`: {s.episodes} episode(s), world {s.session.get('world', '?')}, profile `{profile}`")
+        lines.append(f"- `{s.path}`: {source_line(s)}")
     lines += ["", "| key | estimate | std. error | 95 % interval | method / reason |", "|---|---|---|---|---|"]
     for key, est in calibration.values.items():
         lines.append(_row(key, est))

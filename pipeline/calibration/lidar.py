@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -153,6 +153,8 @@ class LidarFit:
     noise_correlation: float = math.nan
     no_return: str | None = None
     """The driver's convention for a beam without a return, as the recording shows it (inf, zero, max, nan)."""
+    noise_driving: NoiseFit | None = None
+    """The noise from scans while driving against the map (None where the recording had none)."""
 
 
 SPECTRUM_OUTLIER_M = 0.05
@@ -775,6 +777,26 @@ def _within_span_noise(
         reason = "no beam returned twice within a stationary span"
         return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
     d, R, owner, beam = np.concatenate(dev), np.concatenate(rng_of), np.concatenate(who), np.concatenate(beam_of)
+    return _noise_fit(d, R, owner, len(spans), lambda used: _Clusters.of(spans, used), rng, settings, step_m, beam=beam)
+
+
+def _noise_fit(
+    d: np.ndarray,
+    R: np.ndarray,
+    owner: np.ndarray,
+    n_owners: int,
+    clusters_of: Callable[[np.ndarray], _Clusters],
+    rng: np.random.Generator,
+    settings: CalibrationSettings,
+    step_m: float,
+    beam: np.ndarray | None = None,
+    at_m: float | None = None,
+    rel_sd: float = 0.0,
+) -> NoiseFit:
+    """The noise line from deviations `d` (m, each one return's, of variance noise(R)^2 + step^2 / 12) at true
+    ranges `R` (m), owned by `n_owners` spans or scans (`owner`) that `clusters_of` (their used mask) groups for the
+    bootstrap; the beams' spread where `beam` names each deviation's beam; the determined noise at `at_m` (default:
+    the median range seen)."""
     bins = np.floor(R / RANGE_BIN_M).astype(np.int64)
     labels = np.unique(bins)
     rows = []  # (bin, centre, half-width of the clip)
@@ -788,7 +810,7 @@ def _within_span_noise(
         reason = f"fewer than {MIN_BIN_SAMPLES} repeated returns in any {RANGE_BIN_M:g} m range bin"
         return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
     correction = truncation_correction(CLIP_SIGMAS)
-    n_spans = len(spans)
+    n_spans = n_owners
     # per span and bin: count, sum and sum of squares of the clipped deviations, and the sum of ranges
     sums = np.zeros((n_spans, len(rows), 4))
     loose = np.zeros(len(d), dtype=bool)  # gross outliers out, a noisy beam's tails in: the beams' spread
@@ -810,10 +832,10 @@ def _within_span_noise(
     slope = every.spans_range and float(np.ptp(every.range_m)) >= RANGE_BIN_M
     full = fit_noise(every, step_m, slope)
     phi = dispersion(every, full, step_m)
-    at_m = every.median_range()
+    at_m = every.median_range() if at_m is None else at_m
     curve = (every.range_m, np.sqrt(every.var))
     n_dev = int(total[:, 0].sum())
-    clusters = _Clusters.of(spans, sums[:, :, 0].sum(axis=1) > 0)
+    clusters = clusters_of(sums[:, :, 0].sum(axis=1) > 0)
     notes: list[str] = []
     values = [float(full[0]), float(full[1]), float(full[0]) + (float(full[1]) if slope else 0.0) * at_m]
     widen = math.sqrt(phi)
@@ -850,8 +872,14 @@ def _within_span_noise(
     if phi > 1.05:
         method += f"; widened for the bins' dispersion about the fit ({phi:.2f} x sampling)"
     # the noise differs per beam: the beams seen carry a mean square of their factors that the profile's is not
-    per_beam = beam_spread(
-        [(beam[loose], d[loose], R[loose])], lambda x: float(full[0]) + (float(full[1]) if slope else 0.0) * x, step_m
+    per_beam = (
+        beam_spread(
+            [(beam[loose], d[loose], R[loose])],
+            lambda x: float(full[0]) + (float(full[1]) if slope else 0.0) * x,
+            step_m,
+        )
+        if beam is not None
+        else (math.nan, math.nan, (math.nan, math.nan), 0)
     )
     spread_est = (
         Estimate.of(
@@ -865,10 +893,8 @@ def _within_span_noise(
         if math.isfinite(per_beam[0])
         else Estimate.unidentifiable(f"only {per_beam[3]} beams returned 20 times or more while still", "log-sd")
     )
-    rel_sd = 0.0
     if math.isfinite(per_beam[0]) and per_beam[3] > 0:
-        s_hi = per_beam[2][1]
-        rel_sd = math.sqrt(math.expm1(4 * s_hi**2)) / (2 * math.sqrt(per_beam[3]))
+        rel_sd = max(rel_sd, unit_spread(per_beam[2][1], per_beam[3]))
     ests = []
     for k, unit in ((0, "m"), (1, "m/m"), (2, "m")):
         value = values[k]
@@ -912,6 +938,140 @@ def _within_span_noise(
             "range is not determined"
         )
     return NoiseFit(ests[0], ests[1], curve, at_range, corr, phi, spread_est, tuple(notes))
+
+
+MOVING_MIN_COS = 0.95
+"""Scans while driving: beams this near square to their surface (cos of the incidence), where an angle error moves
+the range least."""
+MOVING_DEVIATION_SCALE = math.sqrt(1.5)
+"""A beam's residual less the mean of its neighbours' has 1.5 times a residual's variance (equal noise)."""
+
+
+def _moving_noise(
+    room: MapGeometry,
+    moving: Sequence[ScanSpan],
+    yaw: float,
+    mount_xy: tuple[float, float],
+    blocked: dict[int, np.ndarray],
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+    step_m: float,
+    at_m: float | None,
+    unit_rel_sd: float = 0.0,
+) -> tuple[NoiseFit, int]:
+    """The noise from scans while driving, against the fitted room: each scan's residual (range less the cast from
+    its pose) less the mean of its two neighbours' residuals, where the three beams meet one surface clear of edges
+    and robots. An error of the pose, the mounting or the map moves neighbouring beams' residuals alike and leaves
+    this out; what the still spans cannot see and this does is the beams' angle errors (a fixed error of a beam's
+    angle moves its range on a slanted surface): beams near square to their surface only, the lower bounds widened
+    for the rest. `unit_rel_sd`: the relative spread of the noise of the robots' lidars about the profile's (their
+    beams' factors, from the still spans). Bootstrap over robot-episodes. Returns the fit and the scans used."""
+    dev: list[np.ndarray] = []
+    rng_of: list[np.ndarray] = []
+    who: list[np.ndarray] = []
+    slant: list[np.ndarray] = []  # dr / dtheta = range x tan(incidence) (m/rad)
+    labels: dict[str, int] = {}
+    owner_label: list[int] = []
+    for k, span in enumerate(moving):
+        n = span.ranges.shape[1]
+        use = _usable(room, span, yaw, settings, settings.lidar_edge_rad, mount_xy)
+        use &= ~blocked.get(n, np.zeros(n, dtype=bool))
+        cast, surface, cos = _cast_span(room, span, np.array([yaw]), mount_xy)
+        free = _robot_free(span, yaw, cast[0], room.robot_radius_m, settings.lidar_robot_margin_m)[0]
+        r = span.ranges[0].astype(np.float64)
+        ok = use & free & valid_returns(span.ranges, span)[0] & (cos[0] >= MOVING_MIN_COS)
+        e = np.where(ok, np.where(ok, r, 0.0) - np.where(ok, cast[0], 0.0), 0.0)  # no arithmetic on inf
+        mid = ok[1:-1] & ok[:-2] & ok[2:] & (surface[0, 1:-1] == surface[0, :-2]) & (surface[0, 1:-1] == surface[0, 2:])
+        owner_label.append(labels.setdefault(span.label, len(labels)))
+        if not mid.any():
+            continue
+        d = (e[1:-1] - (e[:-2] + e[2:]) / 2)[mid] / MOVING_DEVIATION_SCALE
+        dev.append(d)
+        rng_of.append(cast[0, 1:-1][mid])
+        slant.append((cast[0, 1:-1] * np.sqrt(1.0 / np.maximum(cos[0, 1:-1], 1e-6) ** 2 - 1.0))[mid])
+        who.append(np.full(len(d), k))
+    if not dev:
+        reason = "no three neighbouring beams met one surface clear of edges and robots in the scans while driving"
+        return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m")), 0
+    label_of = np.array(owner_label)
+
+    def clusters_of(used: np.ndarray) -> _Clusters:
+        # a cluster per robot-episode: its scans share the robot's unit and the episode's map errors
+        present = np.unique(label_of[used])
+        index = np.full(len(labels), -1)
+        index[present] = np.arange(len(present))
+        cluster_of = np.where(used, index[label_of], -1)
+        return _Clusters(cluster_of, cluster_of, len(present), len(present), "robot-episodes driving")
+
+    owner = np.concatenate(who)
+    fit = _noise_fit(
+        np.concatenate(dev),
+        np.concatenate(rng_of),
+        owner,
+        len(moving),
+        clusters_of,
+        rng,
+        settings,
+        step_m,
+        at_m=at_m,
+        rel_sd=unit_rel_sd,
+    )
+    # beams off their stated angles add (dr/dtheta x angle error)^2 here and nowhere in the still spans: the lower
+    # bounds admit angle errors up to the bound real lidars state
+    angle_sd = BEAM_ANGLE_ERROR_RAD * float(np.sqrt(np.mean(np.concatenate(slant) ** 2)))
+
+    def lowered(est: Estimate) -> Estimate:
+        if not est.ok or est.interval is None:
+            return est
+        lo, hi = est.interval
+        return dataclasses.replace(est, interval=(math.sqrt(max(lo**2 - angle_sd**2, 0.0)), hi))
+
+    fit = dataclasses.replace(
+        fit,
+        sigma=lowered(fit.sigma),
+        at_range=(fit.at_range[0], lowered(fit.at_range[1])) if fit.at_range is not None else None,
+        notes=(
+            *fit.notes,
+            f"beams within {math.degrees(math.acos(MOVING_MIN_COS)):.0f} deg of square to their surface; the lower "
+            f"bound admits beam angle errors up to {BEAM_ANGLE_ERROR_RAD * 1e3:g} mrad ({angle_sd * 1e3:.2g} mm here)",
+        ),
+    )
+    return fit, len(np.unique(owner))
+
+
+def unit_spread(s_hi: float, beams: int) -> float:
+    """The relative spread of a lidar's noise about its profile's where `beams` beams carry factors exp(s z - s^2)
+    with s up to `s_hi`: their mean square's sampling spread, halved for the noise's scale."""
+    return math.sqrt(math.expm1(4 * s_hi**2)) / (2 * math.sqrt(beams)) if beams > 0 else 0.0
+
+
+def _noise_agreement(still: NoiseFit, driving: NoiseFit, scans: int) -> str:
+    """The note that says whether the noise from scans while driving agrees with the still spans' (at one range)."""
+    if driving.at_range is None or not driving.at_range[1].ok:
+        why = driving.at_range[1].reason if driving.at_range is not None else driving.sigma.reason
+        return f"noise from {scans} scans while driving against the map: not determined ({why})"
+    at_m, moved = driving.at_range
+    v, (lo, hi) = float(moved.value or 0.0), moved.interval or (math.nan, math.nan)
+    head = (
+        f"noise from {scans} scans while driving against the map (a beam against its neighbours): "
+        f"{v * 1e3:.3g} mm [{lo * 1e3:.3g}, {hi * 1e3:.3g}] at {at_m:.2f} m"
+    )
+    if still.at_range is None or not still.at_range[1].ok:
+        return head + "; the still spans give none to compare"
+    s_est = still.at_range[1]
+    s_v, (s_lo, s_hi) = float(s_est.value or 0.0), s_est.interval or (math.nan, math.nan)
+    if lo <= s_hi and s_lo <= hi:
+        return head + f": agrees with the still spans' {s_v * 1e3:.3g} mm [{s_lo * 1e3:.3g}, {s_hi * 1e3:.3g}]"
+    side = "more" if v > s_v else "less"
+    return (
+        head + f": DISAGREES with the still spans' {s_v * 1e3:.3g} mm [{s_lo * 1e3:.3g}, {s_hi * 1e3:.3g}] "
+        f"({v / s_v if s_v > 0 else math.inf:.2f} x); driving reads {side}"
+        + (
+            " (beams off their stated angles, a scan taken while turning, or a map unlike the room add to it)"
+            if side == "more"
+            else " (a still span whose returns moved: something moving in view, a robot that was not quite still)"
+        )
+    )
 
 
 def clipped_moments(
@@ -969,16 +1129,42 @@ def dropout_estimate(drops: np.ndarray, trials: np.ndarray) -> Estimate:
 
 
 def estimate_lidar(
-    geometry: MapGeometry, spans: Sequence[ScanSpan], settings: CalibrationSettings, rng: np.random.Generator
+    geometry: MapGeometry,
+    spans: Sequence[ScanSpan],
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+    moving: Sequence[ScanSpan] = (),
 ) -> LidarFit:
     """Noise (sigma m and growth m/m), dropout probability, bias (m), mounting (yaw rad, x and y m), blocked
-    sectors and the room's true walls and boxes from stationary `spans`."""
+    sectors and the room's true walls and boxes from stationary `spans`; the noise again from scans while driving
+    (`moving`, one scan each, at its pose), compared with the still spans' or, without still spans, alone."""
     min_s = settings.stationary_min_s
     spans = [s for s in spans if s.ranges.shape[0] > 0]
+    moving_rng = np.random.default_rng([settings.seed, 59])  # the still estimates' draws stay as they were
     if not spans:
-        return _unidentifiable(
-            f"robots never stood still for >= {min_s:g} s while scanning: the noise, bias, mounting and map are read "
-            "from still spans only (no estimate from scans while driving)"
+        reason = (
+            f"robots never stood still for >= {min_s:g} s while scanning: the bias, mounting and map are read from "
+            "still spans only"
+        )
+        fit = _unidentifiable(reason)
+        if not moving:
+            return fit
+        alone, used = _moving_noise(
+            geometry, moving, 0.0, (0.0, 0.0), blocked_beams(moving), settings, moving_rng, 0.0, None
+        )
+        note = (
+            f"no still span: the noise comes from {used} scans while driving against the map only (a beam against "
+            "its neighbours; at the nominal mounting; the range step is read from still scans, so not taken out)"
+        )
+        return dataclasses.replace(
+            fit,
+            noise_sigma_m=alone.sigma,
+            noise_per_m=alone.per_m,
+            noise_at_range=alone.at_range,
+            noise_correlation=alone.correlation,
+            noise_curve=alone.curve,
+            noise_driving=alone,
+            notes=(*fit.notes, note, *alone.notes),
         )
     stationary_s = float(sum(s.duration_s for s in spans))
     blocked = blocked_beams(spans)
@@ -1097,8 +1283,23 @@ def estimate_lidar(
     step = range_step(np.concatenate(changes) if changes else np.zeros(0))
     step_m = float(step.value) if step.ok and step.value else 0.0
     noise = _within_span_noise(spans, masks, rng, settings, bias_value, step_m)
-    sigma_est, per_m_est, noise_curve = noise.sigma, noise.per_m, noise.curve
     notes += list(noise.notes)
+    driving: NoiseFit | None = None
+    if moving:
+        at_m = noise.at_range[0] if noise.at_range is not None else None
+        spread = noise.beam_spread
+        unit_sd = (
+            unit_spread(spread.interval[1], spread.n) if spread.ok and spread.interval is not None and spread.n else 0.0
+        )
+        driving, used = _moving_noise(room, moving, yaw, mount_xy, blocked, settings, moving_rng, step_m, at_m, unit_sd)
+        notes.append(_noise_agreement(noise, driving, used))
+        notes += [n for n in driving.notes if n.startswith("beams within")]
+        if not noise.sigma.ok and driving.sigma.ok:
+            notes.append(
+                "the still spans tell no noise: noise_sigma_m and noise_per_m come from the scans while driving"
+            )
+            noise = dataclasses.replace(driving, beam_spread=noise.beam_spread, notes=noise.notes)
+    sigma_est, per_m_est, noise_curve = noise.sigma, noise.per_m, noise.curve
     no_return, convention_note = _no_return_convention(missing)
     notes.append(convention_note)
     spacing = float(np.median(np.abs(np.diff(spans[0].beam_angles_rad)))) if spans[0].beam_angles_rad.size > 1 else 0.0
@@ -1138,6 +1339,7 @@ def estimate_lidar(
         noise_at_range=noise.at_range,
         noise_correlation=noise.correlation,
         no_return=no_return,
+        noise_driving=driving,
     )
 
 

@@ -15,14 +15,21 @@ room) is not estimated.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from pipeline.calibration.calibrate import Calibration, Source
+from pipeline.calibration.errors import CalibrationError
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import (
     DEPTH_EDGE_M,
+    LidarFit,
     NoiseFit,
     ScanSpan,
     _no_return_convention,
@@ -30,6 +37,7 @@ from pipeline.calibration.lidar import (
     valid_returns,
 )
 from pipeline.calibration.lidar_noise import range_step
+from pipeline.calibration.localize import PoseSource
 from pipeline.calibration.network import rate_estimate, rate_wander_estimate
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.timebase import NS_PER_S
@@ -180,3 +188,149 @@ def scan_only_summary(fit: ScanOnlyLidar) -> list[tuple[str, Estimate]]:
         at_m, est = fit.noise.at_range
         out.append((f"noise at {at_m:.2f} m", est))
     return [(k, e.flagged(0.0) if k.startswith("lidar.") else e) for k, e in out]
+
+
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+DRIVE_TYPES = frozenset({"nav_msgs/msg/Odometry", "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"})
+"""A bag with any of these has odometry or commands: the whole calibration reads it, not the scans alone."""
+
+
+@dataclass(frozen=True)
+class ScanTopic:
+    """One LaserScan topic of a bag: (n, beams) `ranges` (m), (n,) header `stamps_ns`, the first scan's layout."""
+
+    topic: str
+    ranges: np.ndarray
+    stamps_ns: np.ndarray
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_min_m: float
+    range_max_m: float
+    skipped: int = 0
+    """Scans left out for another beam count than the first's."""
+
+
+def _reader(path: Path) -> Any:
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    return AnyReader([path], default_typestore=get_typestore(Stores.ROS1_NOETIC))
+
+
+def scans_only(path: Path) -> bool:
+    """Whether the bag at `path` (ROS 1 bag, rosbag2 folder) holds a LaserScan topic and no odometry or commands;
+    False for anything rosbags cannot open (an MCAP of this project's: the whole calibration reads it)."""
+    try:
+        with _reader(path) as reader:
+            types = {c.msgtype for c in reader.connections}
+    except Exception:  # rosbags' readers raise assertions and struct errors too: the importer names the problem
+        return False
+    return LASER_SCAN in types and not (types & DRIVE_TYPES)
+
+
+def read_scan_topic(path: Path, topic: str | None = None) -> ScanTopic:
+    """The scans of one LaserScan topic of the bag (the first, or `topic`), in recording order.
+
+    Raises:
+        CalibrationError: no such topic (the bag's topics named), or no scan in it.
+    """
+    with _reader(path) as reader:
+        scans = [c for c in reader.connections if c.msgtype == LASER_SCAN and (topic is None or c.topic == topic)]
+        if not scans:
+            found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
+            wanted = f"LaserScan topic {topic}" if topic else "LaserScan topic"
+            raise CalibrationError(str(path), f"no {wanted}; its topics: {found}")
+        chosen = scans[0].topic
+        ranges: list[np.ndarray] = []
+        stamps: list[int] = []
+        first: Any = None
+        skipped = 0
+        for conn, _, raw in reader.messages(connections=[c for c in scans if c.topic == chosen]):
+            msg = reader.deserialize(raw, conn.msgtype)
+            first = first or msg
+            if len(msg.ranges) != len(first.ranges):
+                skipped += 1
+                continue
+            ranges.append(np.asarray(msg.ranges, dtype=np.float64))
+            stamps.append(int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec))
+    if first is None or len(first.ranges) == 0:
+        raise CalibrationError(str(path), f"{chosen} holds no scan with beams")
+    return ScanTopic(
+        chosen,
+        np.array(ranges),
+        np.array(stamps, dtype=np.int64),
+        float(first.angle_min),
+        float(first.angle_increment),
+        float(first.range_min),
+        float(first.range_max),
+        skipped,
+    )
+
+
+NEEDS_POSES = ("lidar.dropout_prob", "lidar.bias_m", "lidar.mount_yaw_rad", "lidar.mixed_pixel_prob")
+"""Keys the scans alone do not tell: they need where the beams should have ended (a map and poses)."""
+
+
+def calibrate_scans(path: Path, settings: CalibrationSettings, topic: str | None = None) -> Calibration:
+    """The calibration a bag of scans alone gives: the lidar's keys of :func:`lidar_from_scans` (the rest named
+    unidentifiable, with the reason), its notes, the bag's own SHA-256 (a folder's: its files' in name order)."""
+    scans = read_scan_topic(path, topic)
+    fit = lidar_from_scans(
+        scans.ranges,
+        scans.stamps_ns,
+        scans.angle_min_rad,
+        scans.angle_increment_rad,
+        scans.range_min_m,
+        scans.range_max_m,
+        settings,
+    )
+    span_s = (scans.stamps_ns[-1] - scans.stamps_ns[0]) / NS_PER_S if len(scans.stamps_ns) > 1 else 0.0
+    head = (
+        f"scans alone: {scans.topic}, {len(scans.ranges)} scans of {scans.ranges.shape[1]} beams over {span_s:.1f} s "
+        f"(range {scans.range_min_m:g}-{scans.range_max_m:g} m); the bag has no odometry or commands, so no poses: "
+        "the actuation, odometry and network parts and what needs a map are not estimated"
+    )
+    notes = [head, *fit.notes]
+    if scans.skipped:
+        notes.append(f"{scans.skipped} scans with another beam count than the first's left out")
+    reason = "needs where the beams should end (poses in a map): the bag has scans alone"
+    values = {k: e for k, e in scan_only_summary(fit) if k.startswith("lidar.")}
+    for key in NEEDS_POSES:
+        values[key] = Estimate.unidentifiable(reason, "")
+    lidar = LidarFit(
+        noise_sigma_m=values["lidar.noise_sigma_m"],
+        dropout_prob=values["lidar.dropout_prob"],
+        bias_m=values["lidar.bias_m"],
+        mount_yaw_rad=values["lidar.mount_yaw_rad"],
+        noise_per_m=values["lidar.noise_per_m"],
+        notes=tuple(notes),
+        range_step_m=values["lidar.range_step_m"],
+        beam_noise_spread=values["lidar.beam_noise_spread"],
+        noise_at_range=fit.noise.at_range,
+        noise_correlation=fit.noise.correlation,
+        no_return=fit.no_return,
+        spans=len(fit.still_spans),
+        stationary_s=sum((b - a) / NS_PER_S for a, b, _ in fit.still_spans),
+    )
+    source = Source(str(path), {}, 0, "real", ("robot",), bag_sha256(path))
+    return Calibration(
+        settings.scenario,
+        (source,),
+        values,
+        lidar=lidar,
+        settings=dataclasses.replace(settings, parts=("lidar",)),
+        pose_source=PoseSource("none"),
+    )
+
+
+def bag_sha256(path: Path) -> str:
+    """SHA-256 of a bag file, or of a bag folder's files (their names and bytes, in name order)."""
+    digest = hashlib.sha256()
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    for f in files:
+        if path.is_dir():
+            digest.update(str(f.relative_to(path)).encode())
+        with f.open("rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    return digest.hexdigest()

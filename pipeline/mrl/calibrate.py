@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from pipeline.mrl.common import (
     BAG_HELP,
     OPTIONS_SOURCE,
+    CommandError,
     add_verb,
     bag_options,
     imported,
@@ -94,6 +96,7 @@ def _pose_options(calibrate: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate from the bags, write calibration.yaml and its report, print what could not be identified."""
     from pipeline.calibration import PARTS, calibrate, calibration_settings, write_calibration
+    from pipeline.calibration.scan_only import bag_sha256, scans_only
 
     output_folder(args.out)
     options: dict[str, Any] = {"parts": list(args.parts or PARTS), "scenario": args.scenario}
@@ -107,13 +110,20 @@ def run(args: argparse.Namespace) -> int:
         }
     )
     settings = calibration_settings(options, source=OPTIONS_SOURCE)
+    alone = [bag for bag in args.bags if scans_only(Path(bag))]
+    if alone:
+        return _scans_alone(args, alone, settings)
     with imported(args, args.bags) as bags:
         calibration = calibrate([bag.path for bag in bags], settings)
-        given = {str(bag.path): str(bag.source) for bag in bags}
-        sources = tuple(replace(s, path=given.get(s.path, s.path)) for s in calibration.sources)
+        given = {str(bag.path): bag for bag in bags}
+        sources = tuple(
+            replace(s, path=str(given[s.path].source), sha256=bag_sha256(given[s.path].source))
+            if s.path in given and given[s.path].converted
+            else replace(s, path=str(given[s.path].source) if s.path in given else s.path)
+            for s in calibration.sources
+        )  # a converted bag is named and hashed as the user has it, not as its temporary MCAP
         path = write_calibration(replace(calibration, sources=sources), args.out)
-    for key, reason in calibration.unidentified().items():
-        print(f"calibrate: {key} unidentifiable: {reason}")
+    _print_values(calibration)
     for limit in calibration.speed_limits():
         print(f"calibrate: {limit.sentence()}")
     for ambiguity in calibration.actuation.ambiguities if calibration.actuation else ():
@@ -129,6 +139,41 @@ def run(args: argparse.Namespace) -> int:
         print(f"calibrate: poses localized from scans and odometry in the {poses.map}, match score "
               f"{poses.median_score:.2f} (fraction of scan endpoints on the map)")  # fmt: skip
     print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
+    return 0
+
+
+def _print_values(calibration: Any) -> None:
+    """One line per key: the estimate with its interval and status, or why it is unidentifiable."""
+    for key, est in calibration.values.items():
+        if est.ok and est.value is not None and est.interval is not None:
+            lo, hi = est.interval
+            flag = f" ({est.reason})" if est.status != "ok" else ""
+            print(f"calibrate: {key} {est.value:.4g} {est.unit} [{lo:.4g}, {hi:.4g}]{flag}")
+    for key, reason in calibration.unidentified().items():
+        print(f"calibrate: {key} unidentifiable: {reason}")
+
+
+def _scans_alone(args: argparse.Namespace, alone: list[str], settings: Any) -> int:
+    """A bag of scans alone (no odometry, no commands): the lidar's keys the scans tell, the rest named."""
+    from pipeline.calibration import write_calibration
+    from pipeline.calibration.scan_only import calibrate_scans
+
+    if len(args.bags) > 1:
+        raise CommandError(
+            f"{alone[0]} holds scans alone (no odometry or commands): calibrate it by itself, not pooled with "
+            f"{', '.join(b for b in args.bags if b != alone[0])}"
+        )
+    if args.map:
+        print(
+            f"calibrate: --map {args.map} not used: localizing in a map needs odometry, and {alone[0]} has scans "
+            "alone (the noise, range step, rate and beams are read from the scans where the sensor stood still)"
+        )
+    calibration = calibrate_scans(Path(alone[0]), settings)
+    path = write_calibration(calibration, args.out)
+    _print_values(calibration)
+    for note in calibration.lidar.notes if calibration.lidar else ():
+        print(f"calibrate: {note}")
+    print(f"calibrate: {path} from {alone[0]} (scans alone)")
     return 0
 
 

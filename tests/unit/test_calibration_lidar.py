@@ -106,7 +106,86 @@ def test_without_stationary_spans_everything_is_unidentifiable():
     fit = estimate_lidar(GEOMETRY, [], SETTINGS, np.random.default_rng(0))
     for est in (fit.noise_sigma_m, fit.dropout_prob, fit.bias_m, fit.mount_yaw_rad):
         assert est.status == "unidentifiable"
-        assert est.reason.startswith("robots never stood still for >= 1 s while scanning: the noise")
+        assert est.reason.startswith("robots never stood still for >= 1 s while scanning: the bias")
+
+
+def driving(
+    rng: np.random.Generator,
+    sigma: float,
+    per_m: float,
+    scans: int = 240,
+    pose_error: tuple[float, float] = (0.03, 0.02),
+    angle_error_rad: float = 0.0,
+    episodes: int = 8,
+) -> list[ScanSpan]:
+    """One scan each at poses along the room, each stated with an error of the pose (m, rad) as a localization or a
+    smoothed ground truth has; each beam off its stated angle by a fixed error (per lidar unit)."""
+    out = []
+    offsets = {f"robot_{k}": rng.normal(0.0, angle_error_rad, BEAMS) for k in (1, 2, 3)}
+    while len(out) < scans:
+        x, y, yaw = rng.uniform(0.4, 5.6), rng.uniform(0.4, 3.6), rng.uniform(-math.pi, math.pi)
+        if GEOMETRY.clearance(np.array([[x, y]]))[0] < 0.35 or math.hypot(x - OTHER[0], y - OTHER[1]) < 0.5:
+            continue
+        robot = f"robot_{len(out) % 3 + 1}"
+        true = GEOMETRY.cast(np.array([x, y]), yaw + ANGLES + offsets[robot]).range_m
+        body, _ = cast_circles(np.array([x, y]), yaw + ANGLES, OTHER[None], SCENARIO.robot.radius_m)
+        true = np.minimum(true, body)
+        ranges = true + rng.normal(0, 1, BEAMS) * (sigma + per_m * true)
+        stated = np.array([x + rng.normal(0, pose_error[0]), y + rng.normal(0, pose_error[0]), yaw])
+        stated[2] += rng.normal(0, pose_error[1])
+        label = f"{robot}/episode {len(out) % episodes}"
+        out.append(ScanSpan(robot, label, 0, 0, stated, ANGLES, ranges[None], 0.12, 8.0, OTHER[None, None]))
+    return out
+
+
+def _driving_truth(fit, sigma: float, per_m: float) -> tuple[float, float, float, float]:
+    at, est = fit.noise_driving.at_range
+    lo, hi = est.interval
+    return sigma + per_m * at, float(est.value), lo, hi
+
+
+def test_noise_while_driving_agrees_with_the_still_spans_and_pose_errors_do_not_read_as_noise():
+    rng = np.random.default_rng(3)
+    still = spans(rng, 0.01, 0.0, 0.0, 0.0, per_m=0.004)
+    fit = estimate_lidar(GEOMETRY, still, SETTINGS, rng, driving(rng, 0.01, 0.004))
+    truth, value, lo, hi = _driving_truth(fit, 0.01, 0.004)
+    # 3 cm and 1 degree of pose error move a beam's range by centimetres; against its neighbours they cancel
+    assert value == pytest.approx(truth, rel=0.05)
+    assert lo <= truth <= hi and lo >= 0.0
+    (note,) = [n for n in fit.notes if n.startswith("noise from 240 scans while driving")]
+    assert ": agrees with the still spans'" in note
+    assert fit.noise_driving.at_range[0] == pytest.approx(fit.noise_at_range[0])  # compared at one range
+
+
+def test_the_still_spans_disagreeing_with_the_scans_while_driving_is_named():
+    rng = np.random.default_rng(4)
+    still = spans(rng, 0.03, 0.0, 0.0, 0.0)  # something moving in view: the still spans read three times the noise
+    fit = estimate_lidar(GEOMETRY, still, SETTINGS, rng, driving(rng, 0.01, 0.0))
+    (note,) = [n for n in fit.notes if n.startswith("noise from 240 scans while driving")]
+    assert "DISAGREES with the still spans'" in note and "driving reads less" in note
+
+
+def test_without_still_spans_the_noise_comes_from_the_scans_while_driving():
+    rng = np.random.default_rng(5)
+    fit = estimate_lidar(GEOMETRY, [], SETTINGS, rng, driving(rng, 0.008, 0.005))
+    assert fit.bias_m.status == "unidentifiable" and fit.mount_yaw_rad.status == "unidentifiable"
+    assert fit.noise_sigma_m.ok and fit.noise_per_m.ok
+    truth, value, lo, hi = _driving_truth(fit, 0.008, 0.005)
+    assert lo <= truth <= hi and value == pytest.approx(truth, rel=0.05)
+    assert fit.noise_sigma_m.interval[0] >= 0.0 and fit.noise_per_m.interval[0] >= 0.0
+    assert any(n.startswith("no still span: the noise comes from 240 scans while driving") for n in fit.notes)
+
+
+def test_beam_angle_errors_add_to_the_noise_while_driving_and_its_interval_admits_them():
+    covered = 0
+    for seed in range(4):
+        rng = np.random.default_rng(10 + seed)
+        moving = driving(rng, 0.004, 0.0, angle_error_rad=0.002)
+        fit = estimate_lidar(GEOMETRY, spans(rng, 0.004, 0.0, 0.0, 0.0), SETTINGS, rng, moving)
+        truth, value, lo, hi = _driving_truth(fit, 0.004, 0.0)
+        assert value >= truth * 0.97  # angle errors only add
+        covered += lo <= truth <= hi
+    assert covered >= 3
 
 
 def test_clipped_moments_ignore_outliers():
