@@ -312,7 +312,7 @@ COVERAGE_EXCITATION_FINE_40 = "calibration_coverage/excitation_fine_40"
 """The refined run's 20 robots and those 20 pooled (``--pool``): 40 drawn robots."""
 COVERAGE_POLICY_20 = "calibration_coverage/policy_20"
 COVERAGE_REAL_LIDAR = "calibration_coverage/real_lidar"
-COVERAGE_REAL_LIDAR_RESCORED = "calibration_coverage/real_lidar_rescored"
+COVERAGE_REAL_LIDAR_DRIVING = "calibration_coverage/real_lidar_driving"
 """The drawn realities with real lidars (range steps, per-beam noise, mixed pixels, no-return conventions...)."""
 LIDAR_LIKE_REAL = "lidar_like_real"
 """Twin recordings like a TurtleBot 4's bag (benchmarks/lidar_like_real.py)."""
@@ -393,7 +393,7 @@ def _coverage_line(name: str) -> str:
 
 def coverage() -> str:
     real = run_of(RESULTS / COVERAGE_REAL_LIDAR)
-    rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_RESCORED)
+    rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_DRIVING)
     return prose(
         "**Interval coverage on robots calibration was not drawn for** (realities drawn over the ranges of real "
         "robots, each deployed on the twin and its recording calibrated; [docs/calibration.md](docs/calibration.md"
@@ -401,8 +401,8 @@ def coverage() -> str:
         "per-beam noise, mixed pixels, no-return conventions, wandering sweeps, lost scans; 20 realities at "
         f"{real['commit']}: `{real['command']}`): "
         + _coverage_line(COVERAGE_REAL_LIDAR)
-        + f"; their lidar and network parts again at {rescored['commit']}: "
-        + _coverage_line(COVERAGE_REAL_LIDAR_RESCORED)
+        + f"; their lidar, odometry and network parts again at {rescored['commit']}: "
+        + _coverage_line(COVERAGE_REAL_LIDAR_DRIVING)
         + ". With ideal lidars, driven by the policy (20 realities, pooled): "
         + _coverage_line(COVERAGE_POLICY_20)
         + "; driven by the calibration drive with turns of every size (40 realities, pooled): "
@@ -441,7 +441,7 @@ def lidar_docs() -> str:
         table.append(f"| `{key}` | {len(judged)} of {len(mine)} | {weak} | {hits} of {len(judged)} |")
     recordings = len({r["recording"] for r in rows})
     coverage = run_of(RESULTS / COVERAGE_REAL_LIDAR)
-    rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_RESCORED)
+    rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_DRIVING)
     link = f"../benchmarks/results/{COVERAGE_REAL_LIDAR}"
     return "\n".join(
         [
@@ -468,15 +468,17 @@ def lidar_docs() -> str:
             coverage_docs(COVERAGE_REAL_LIDAR).split("\n", 2)[2],
             "",
             prose(
-                f"The same recordings, the lidar and network parts calibrated again at {rescored['commit']} "
-                f"(`{rescored['command']}`: mixed pixels counted per edge beam off its own surface, the geometry's "
-                "intervals at least a cluster-robust sandwich over the beams; the odometry topic is not read with "
-                f"these parts; [run.json]({link}_rescored/run.json)): "
-                + _coverage_line(COVERAGE_REAL_LIDAR_RESCORED)
+                f"The same recordings, the lidar, odometry and network parts calibrated again at "
+                f"{rescored['commit']} (`{rescored['command']}`: mixed pixels counted per edge beam off its own "
+                "surface, the geometry's intervals at least a cluster-robust sandwich over the beams, the noise "
+                "again from the scans while driving; `lidar.noise_at_range` and `lidar.noise_at_range_driving` are "
+                "the noise at the still spans' median range from the still spans and from the scans while driving; "
+                f"[run.json]({link}_driving/run.json)): "
+                + _coverage_line(COVERAGE_REAL_LIDAR_DRIVING)
                 + ":",
             ),
             "",
-            coverage_docs(COVERAGE_REAL_LIDAR_RESCORED).split("\n", 2)[2],
+            coverage_docs(COVERAGE_REAL_LIDAR_DRIVING).split("\n", 2)[2],
         ]
     )
 
