@@ -33,7 +33,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         source=f"{args.params} (calibrate)",
     )
     recording = Path(params.deploy.out_dir) / cfg.round / "session.mcap"
-    calibration = calibrate([recording], settings)
+    calibration = calibrate(
+        [recording], settings, progress=lambda stage: print(f"calibrate: {stage}", file=sys.stderr, flush=True)
+    )
     path = write_calibration(calibration, cfg.out_dir)
     write_residuals(params, calibration, recording, path)
     for key, reason in calibration.unidentified().items():

@@ -22,7 +22,8 @@ import contextlib
 import dataclasses
 import hashlib
 import math
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,7 @@ from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.floor import estimate_floor
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
-from pipeline.calibration.localize import OccupancyMap, PoseSource, localize_robot
+from pipeline.calibration.localize import MIN_INLIERS, OccupancyMap, PoseSource, localize_robot, map_agreement
 from pipeline.calibration.motors import MotorFit, WheelEpisode, estimate_motors, wheel_speeds
 from pipeline.calibration.network import (
     NetworkFit,
@@ -683,6 +684,29 @@ def _network_streams(tag: str, data: SessionData) -> list[StampStream]:
     return out
 
 
+def _checked_map(data: SessionData, map_file: str) -> PoseSource:
+    """A map given for a recording with motion capture: checked against the scans at the captured poses, refused
+    by name where they do not lie on it (another place, or another frame than the motion capture's)."""
+    grid = OccupancyMap.from_map_server(map_file)
+    scores = [
+        map_agreement(grid, r.truth.time.t_ns, r.truth.pose, r.scans, r.lidar_mount)
+        for r in data.robots
+        if r.truth is not None and r.scans is not None and len(r.truth.pose) > 1
+    ]
+    scores = [s for s in scores if math.isfinite(s)]
+    if not scores:
+        raise CalibrationError(map_file, f"cannot be checked: {data.path} has no scans at its motion capture's poses")
+    score = float(np.median(scores))
+    if score < MIN_INLIERS:
+        raise CalibrationError(
+            map_file,
+            f"not the room of {data.path}: at its motion capture's poses {100 * score:.0f} % of the scans' endpoints "
+            f"lie on this map (need {100 * MIN_INLIERS:.0f} %); a map of another place, or in another frame than the "
+            "motion capture's (poses come from the motion capture; the map is only checked)",
+        )
+    return PoseSource("ground_truth", Path(map_file).name, map_score=score)
+
+
 def _localized(
     data: SessionData, settings: CalibrationSettings, floor: OccupancyMap | None = None
 ) -> tuple[SessionData, PoseSource]:
@@ -734,13 +758,16 @@ def drive_record(
 
 
 def calibrate(
-    recordings: str | Path | Sequence[str | Path], settings: CalibrationSettings | None = None
+    recordings: str | Path | Sequence[str | Path],
+    settings: CalibrationSettings | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> Calibration:
     """Estimate the reality profile from session recordings (MCAP) of one scenario.
 
     Args:
         recordings: one recording or several of the same scenario (and fleet); their data are pooled.
         settings: what to estimate and how (defaults: every part, the recordings' scenario).
+        progress: told each stage as it starts, with the seconds so far (``"lidar (12 s)"``).
 
     Raises:
         MissingTopicError: a recording lacks a topic a requested part needs (it is named).
@@ -755,6 +782,13 @@ def calibrate(
         raise CalibrationError("<calibrate>", "no recording given")
     parts = tuple(dict.fromkeys(settings.parts))
     rng = np.random.default_rng(settings.seed)
+    began = time.perf_counter()
+
+    def stage(what: str) -> None:
+        if progress is not None:
+            progress(f"{what} ({time.perf_counter() - began:.0f} s)")
+
+    stage(f"reading {len(paths)} recording{'s' if len(paths) != 1 else ''}")
     read = _read_sessions(paths, parts, settings)
     tagged = [(f"recording {k}" if len(read.sessions) > 1 else "recording", d) for k, d in enumerate(read.sessions)]
     data = _gather(tagged, read.pose_sources, parts, settings, read.geometry)
@@ -762,11 +796,13 @@ def calibrate(
     effective: dict[str, EffectiveValue] = {}
     found = _Fits()
     if "lidar" in parts:
+        stage("lidar")
         found.lidar = estimate_lidar(read.geometry, data.spans, settings, rng, data.moving)
         values.update(_lidar_values(found.lidar, data))
         if any(s.kind == "localized" for s in read.pose_sources):
             values.update(_localized_lidar_values(values, read.sessions))
     if "actuation" in parts:
+        stage("actuation")
         found.actuation = estimate_actuation(data.tracks, settings, rng)
         values.update({f"actuation.{key}": getattr(found.actuation, key) for key in PROFILE_KEYS["actuation"]})
         values = within_physical_ranges(values)
@@ -776,8 +812,10 @@ def calibrate(
             if key is not None and values[key].ok:
                 values[key] = Estimate.unidentifiable(EFFECTIVE_REASON.format(name=name), values[key].unit)
     if "odometry" in parts:
+        stage("odometry and wheels")
         found.wheels, found.odometry = _odometry_fits(values, data, read.sessions, settings)
     if "odometry" in parts and "actuation" in parts:
+        stage("motors")
         wheel_episodes = [e for tag, d in tagged for e in _wheel_episodes(tag, d, data.tracks)]
         found.motors = estimate_motors(wheel_episodes, _odometry_period_s(data.odom_stamps), settings, rng)
         values["base.deadband_radps"] = found.motors.deadband_radps
@@ -791,16 +829,19 @@ def calibrate(
             if est.ok:
                 values[key] = est
     if "actuation" in parts:
+        stage("randomization ranges")
         found.randomization = _fitted_randomization(
             _randomization_start(values, effective, found.actuation), data.tracks, settings
         )
     if "network" in parts:
+        stage("network and clock")
         found.network, found.clock = _network_fits(values, data.streams, tagged, read.sessions, settings, rng)
     for key in ("lidar.rate_hz", "odometry.rate_hz"):
         if key in values:
             values[key] = _host_rate(values[key], values.get("clock.drift_ppm"))
     values = within_physical_ranges(values)
     values = {key: _flag_weak(key, est) for key, est in values.items()}
+    stage("done")
     return Calibration(
         read.scenario.name,
         _sources(read.sessions),
@@ -858,7 +899,12 @@ class _Fits:
     randomization: RandomizationFit | None = None
 
 
-def _read_sessions(paths: Sequence[str | Path], parts: tuple[Part, ...], settings: CalibrationSettings) -> _Sessions:
+def _read_sessions(
+    paths: Sequence[str | Path],
+    parts: tuple[Part, ...],
+    settings: CalibrationSettings,
+    before_localizing: Callable[[SessionData], None] | None = None,
+) -> _Sessions:
     """Read every recording (one scenario; poolable, checked before any long work) and localize the ones without
     motion capture. A map given without a scenario (a building of the user's) stands in for a recording that names
     none, and the lidar and contacts are fitted against the map's own faces."""
@@ -876,8 +922,12 @@ def _read_sessions(paths: Sequence[str | Path], parts: tuple[Part, ...], setting
             raise ScenarioMismatchError(str(path), data.scenario.name, scenario.name)
         scenario = data.scenario
         check_poolable([*sessions[:1], data], settings.pool)  # before any long work
+        if before_localizing is not None:
+            before_localizing(data)
         if data.pose_source == "scans":
             data, source = _localized(data, settings, floor)
+        elif settings.map_file and scenario is not fallback:
+            source = _checked_map(data, settings.map_file)
         else:
             source = PoseSource("ground_truth")
         sessions.append(data)
@@ -897,14 +947,16 @@ def localized_recordings(
     map_file: str | Path,
     scenario: str = "",
     initial_pose: Sequence[float] = (),
+    before_localizing: Callable[[SessionData], None] | None = None,
 ) -> tuple[list[SessionData], Scenario]:
     """The recordings as calibration reads them for their drive (commands, scans, odometry), each robot's poses
     localized in the map_server map `map_file` where the recording has no motion capture; and the scenario they
-    drove in (the map's stand-in room when none is named); `initial_pose` as for calibration."""
+    drove in (the map's stand-in room when none is named); `initial_pose` as for calibration. `before_localizing`
+    sees each recording as read, before the long localization (it raises to stop)."""
     settings = CalibrationSettings(
         map_file=str(map_file), parts=("actuation",), scenario=scenario, initial_pose=tuple(initial_pose)
     )
-    read = _read_sessions(recordings, ("actuation",), settings)
+    read = _read_sessions(recordings, ("actuation",), settings, before_localizing)
     return read.sessions, read.scenario
 
 
@@ -1148,7 +1200,8 @@ def _merged(sources: Sequence[PoseSource]) -> PoseSource:
     """One account of the recordings' pose sources: localized if any was, with every localized robot."""
     localized = [s for s in sources if s.kind == "localized"]
     if not localized:
-        return PoseSource("ground_truth")
+        checked = [s for s in sources if s.map]
+        return checked[0] if checked else PoseSource("ground_truth")
     maps = sorted({s.map for s in localized})
     return PoseSource("localized", ", ".join(maps), tuple(r for s in localized for r in s.robots))
 
@@ -1197,7 +1250,19 @@ def _flag_weak(key: str, est: Estimate) -> Estimate:
     except KeyError:
         return est
     low = bounds_of(meta)[0]
-    return est.flagged(low) if low >= 0 else est
+    return est.flagged(low, NEGLIGIBLE.get(key, 0.0)) if low >= 0 else est
+
+
+NEGLIGIBLE = {
+    "lidar.rate_wander": 0.001,
+    "lidar.range_step_m": 1e-5,
+    "lidar.scan_drop_prob": 0.001,
+    "lidar.dropout_prob": 0.001,
+    "lidar.mixed_pixel_prob": 0.001,
+    "network.loss_prob": 0.001,
+}
+"""Per key, a value this near its lower bound is as good as none (a period spread of 0.1 %, ranges finer than 10 um,
+one message in a thousand): an interval that lies wholly within it determines the key, it is not weak."""
 
 
 def scan_drop_estimate(scans: NetworkFit, wire: NetworkFit) -> Estimate:

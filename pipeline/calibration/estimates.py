@@ -47,10 +47,13 @@ class Estimate:
     def weak(self) -> bool:
         return self.status == "weak"
 
-    def flagged(self, low_bound: float) -> Estimate:
+    def flagged(self, low_bound: float, negligible: float = 0.0) -> Estimate:
         """This estimate, ``weak`` where its key cannot go below `low_bound` >= 0 (a scale, a probability, a rate)
-        and its interval is wider than its value above that bound."""
+        and its interval is wider than its value above that bound; not where the whole interval lies within
+        `negligible` of the bound (the key is determined: as good as none)."""
         if self.status != "ok" or self.value is None or self.interval is None or low_bound < 0:
+            return self
+        if self.interval[1] - low_bound <= negligible:
             return self
         width = self.interval[1] - self.interval[0]
         if width > abs(self.value - low_bound):

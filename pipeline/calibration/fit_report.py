@@ -219,6 +219,8 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
     ]
     for s in calibration.sources:
         lines.append(f"- `{s.path}`: {source_line(s)}")
+    if calibration.pose_source.sentence():
+        lines += ["", calibration.pose_source.sentence()[0].upper() + calibration.pose_source.sentence()[1:] + "."]
     lines += ["", "| key | estimate | std. error | 95 % interval | method / reason |", "|---|---|---|---|---|"]
     for key, est in calibration.values.items():
         lines.append(_row(key, est))

@@ -668,14 +668,34 @@ class PoseSource:
     kind: str
     map: str = ""
     robots: tuple[RobotLocalization, ...] = ()
+    map_score: float = math.nan
+    """With motion capture and a map given: the fraction of scan endpoints on the map at the captured poses."""
 
     @property
     def median_score(self) -> float:
         scores = [r.median_score for r in self.robots]
         return float(np.median(scores)) if scores else float("nan")
 
+    def sentence(self) -> str:
+        """What the poses were, for the report and the command's output ('' for motion capture alone)."""
+        if self.kind == "localized":
+            return (
+                f"poses localized from scans and odometry in the {self.map} (median match score "
+                f"{self.median_score:.2f}: the fraction of scan endpoints on the map), not motion capture"
+            )
+        if self.kind == "ground_truth" and self.map:
+            return (
+                f"poses from motion capture; the map {self.map} checked against them: {100 * self.map_score:.0f} % "
+                "of the scans' endpoints lie on it"
+            )
+        if self.kind == "none":
+            return "no poses: the bag has scans alone"
+        return ""
+
     def to_mapping(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind}
+        if self.kind == "ground_truth" and self.map:
+            out["map_checked"] = {"map": self.map, "endpoints_on_map": round(self.map_score, 4)}
         if self.kind == "localized":
             out["map"] = self.map
             out["match_score"] = round(self.median_score, 4)
@@ -758,3 +778,29 @@ def localize_robot(
         robot.name, len(sc), n_scans, float(np.median(sc)), (float(med[0]), float(med[1]), float(med[2])), tuple(starts)
     )
     return series, info
+
+
+MAP_CHECK_SCANS = 40
+"""Scans per robot, evenly over the recording, that check a map against the motion capture."""
+
+
+def map_agreement(grid: OccupancyMap, truth_t_ns: np.ndarray, truth: np.ndarray, scans: Any, mount: Any) -> float:
+    """The median over up to `MAP_CHECK_SCANS` scans of the fraction of their endpoints within `INLIER_M` of the
+    map's occupied cells, each scan put at the captured pose of its time (and the laser's mounting, where known):
+    near 1 for the map of the room the robot drove in, low for another place or another frame."""
+    t = scans.time.t_ns
+    inside = (t >= truth_t_ns[0]) & (t <= truth_t_ns[-1])
+    idx = np.flatnonzero(inside)
+    if len(idx) == 0:
+        return math.nan
+    idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), MAP_CHECK_SCANS)).round().astype(int))]
+    poses = interpolate_poses(t[idx], truth_t_ns, truth)
+    laser = np.asarray(mount if mount is not None else (0.0, 0.0, 0.0), dtype=np.float64)
+    fractions = []
+    for i, pose in zip(idx, poses, strict=True):
+        pts = scan_points(scans.ranges[i], float(scans.angle_min_rad[i]), float(scans.angle_increment_rad[i]), 200)
+        if len(pts) < 10:
+            continue
+        d = grid.distance_only(_transform(compose(pose, laser), pts))
+        fractions.append(float(np.mean(np.abs(d) < INLIER_M)))
+    return float(np.median(fractions)) if fractions else math.nan

@@ -26,6 +26,7 @@ import numpy as np
 from pipeline.calibration.calibrate import localized_recordings
 from pipeline.calibration.errors import CalibrationError
 from pipeline.calibration.localize import OccupancyMap
+from pipeline.calibration.recording import RobotData, SessionData
 from pipeline.params import RandomizeConfig, WorldConfig, world_config
 from pipeline.sim.open_loop import Track, open_loop_errors
 from pipeline.sim.world import SimWorld
@@ -90,20 +91,38 @@ def map_replay(
     Raises:
         CalibrationError: nothing to replay (no window of the longest horizon with a localized path and commands).
     """
-    sessions, scenario = localized_recordings(recordings, map_file, initial_pose=initial_pose)
     window_s = max(horizons_s)
     ticks = round(window_s / TICK_S)
     step = every_s if every_s is not None else window_s
+
+    def nothing(where: str) -> CalibrationError:
+        return CalibrationError(
+            where,
+            f"no {window_s:g} s stretch of path with commands to replay that starts with every robot standing still "
+            f"for {REST_S:g} s (commanded zero, or sent nothing for {COMMAND_TIMEOUT_S:g} s: the driver stops; the "
+            f"simulator starts at rest; gaps in the path over {MAX_GAP_S:g} s break a stretch); a shorter "
+            "--horizon-s may find one",
+        )
+
+    def has_window(data: SessionData) -> None:
+        """Before the long localization: a window's start exists in the commands (the path is checked after)."""
+        commands = command_tracks(data.robots)
+        if commands is None:
+            raise nothing(str(data.path))
+        last = max(int(t[-1]) for t in _stream_times(data.robots))
+        if not any(t0 + int(window_s * 1e9) <= last for t0 in rest_starts(commands).tolist()):
+            raise nothing(str(data.path))
+
+    sessions, scenario = localized_recordings(
+        recordings, map_file, initial_pose=initial_pose, before_localizing=has_window
+    )
     cases: list[tuple[np.ndarray, list[Track], list[Track], int, int]] = []
     for data in sessions:
-        robots = [r for r in data.robots if r.truth is not None and r.commands is not None]
-        if len(robots) != len(data.robots):
+        robots = [r for r in data.robots if r.truth is not None]
+        commands = command_tracks(data.robots)
+        if len(robots) != len(data.robots) or commands is None:
             continue
         poses = [Track(r.truth.time.t_ns, r.truth.pose) for r in robots]  # type: ignore[union-attr]
-        commands = [
-            Track(r.commands.t_ns, np.stack([r.commands.v, r.commands.w], axis=1))  # type: ignore[union-attr]
-            for r in robots
-        ]
         first = max(int(p.t_ns[0]) for p in poses)
         last = min(int(p.t_ns[-1]) for p in poses)
         tick_ns = round(TICK_S * 1e9)
@@ -119,12 +138,7 @@ def map_replay(
                 cases.append((start, commands, poses, t0, end))
             next_ns = t0 + int(step * 1e9)
     if not cases:
-        raise CalibrationError(
-            str(recordings[0]),
-            f"no {window_s:g} s stretch of localized path with commands to replay that starts with every robot "
-            f"commanded to stand still for {REST_S:g} s (the simulator starts at rest; gaps in the path over "
-            f"{MAX_GAP_S:g} s break a stretch)",
-        )
+        raise nothing(str(recordings[0]))
     floor = OccupancyMap.from_map_server(map_file)
     radii = np.asarray(scenario.radii, dtype=np.float64)
 
@@ -153,6 +167,48 @@ def map_replay(
     if all(d.pose_source != "scans" for d in sessions):
         where = "motion capture"
     return MapReplay(len(cases), window_s, tuple(drifts), where)
+
+
+COMMAND_TIMEOUT_S = 0.5
+"""A robot's driver stops it when no command came for this long (the twin's and ROS base drivers' rule): a silence
+longer than this is a command to stand still, from the timeout on."""
+
+
+def _stream_times(robots: Sequence[RobotData]) -> list[np.ndarray]:
+    """The recording's time lines (ns) of each robot's streams that have messages."""
+    out = []
+    for r in robots:
+        for series in (r.truth, r.odom, r.scans):
+            if series is not None and len(series.time.t_ns):
+                out.append(series.time.t_ns)
+        if r.commands is not None and len(r.commands.t_ns):
+            out.append(r.commands.t_ns)
+    return out
+
+
+def command_tracks(robots: Sequence[RobotData]) -> list[Track] | None:
+    """Each robot's commands as its driver applied them: a zero from the recording's start until the first
+    command and wherever none came for `COMMAND_TIMEOUT_S` (from the timeout on); None where a robot sent none."""
+    times = _stream_times(robots)
+    if not times or any(r.commands is None or len(r.commands.t_ns) == 0 for r in robots):
+        return None
+    begin = min(int(t[0]) for t in times)
+    timeout_ns = round(COMMAND_TIMEOUT_S * 1e9)
+    out = []
+    for r in robots:
+        cmd = r.commands
+        if cmd is None:
+            return None
+        t = np.asarray(cmd.t_ns, dtype=np.int64)
+        values = np.stack([cmd.v, cmd.w], axis=1).astype(np.float64)
+        stops = t[np.flatnonzero(np.diff(t) > timeout_ns)] + timeout_ns  # silences: the driver stops at timeout
+        stops = np.r_[stops, t[-1] + timeout_ns]
+        lead = np.array([begin], dtype=np.int64) if t[0] - begin > timeout_ns else np.zeros(0, dtype=np.int64)
+        all_t = np.r_[lead, t, stops]
+        all_v = np.r_[np.zeros((len(lead), 2)), values, np.zeros((len(stops), 2))]
+        order = np.argsort(all_t, kind="stable")
+        out.append(Track(all_t[order], all_v[order]))
+    return out
 
 
 def rest_starts(commands: Sequence[Track]) -> np.ndarray:

@@ -116,12 +116,9 @@ def _header(calibration: Calibration) -> str:
         "# profile: estimates in the reality-profile keys; uncertainty: standard errors and 95 % intervals;",
         "# world: overrides of params.yaml's world section for training (the calibrated round).",
     ]
-    poses = calibration.pose_source
-    if poses.kind == "localized":
-        lines.append(
-            f"# Poses: localized from scans and odometry in the {poses.map} (median match score "
-            f"{poses.median_score:.2f}: the fraction of scan endpoints on the map), not motion capture."
-        )
+    poses = calibration.pose_source.sentence()
+    if poses:
+        lines.append(f"# Poses: {poses}.")
     for limit in calibration.speed_limits():
         lines.append(f"# Saturation: {limit.sentence()}.")
     for ambiguity in calibration.actuation.ambiguities if calibration.actuation else ():

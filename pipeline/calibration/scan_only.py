@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.calibration.calibrate import Calibration, Source
+from pipeline.calibration.calibrate import NEGLIGIBLE, Calibration, Source
 from pipeline.calibration.errors import CalibrationError
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import (
@@ -187,7 +187,7 @@ def scan_only_summary(fit: ScanOnlyLidar) -> list[tuple[str, Estimate]]:
     if fit.noise.at_range is not None:
         at_m, est = fit.noise.at_range
         out.append((f"noise at {at_m:.2f} m", est))
-    return [(k, e.flagged(0.0) if k.startswith("lidar.") else e) for k, e in out]
+    return [(k, e.flagged(0.0, NEGLIGIBLE.get(k, 0.0)) if k.startswith("lidar.") else e) for k, e in out]
 
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"

@@ -4,6 +4,7 @@ file and its fit report (poses from motion capture, or localized in the map with
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     if alone:
         return _scans_alone(args, alone, settings)
     with imported(args, args.bags) as bags:
-        calibration = calibrate([bag.path for bag in bags], settings)
+        calibration = calibrate([bag.path for bag in bags], settings, progress=_progress)
         given = {str(bag.path): bag for bag in bags}
         sources = tuple(
             replace(s, path=str(given[s.path].source), sha256=bag_sha256(given[s.path].source))
@@ -134,12 +135,16 @@ def run(args: argparse.Namespace) -> int:
                 f"calibrate: effective.{name} {value.estimate.value:.3g} {value.estimate.unit} stands for "
                 f"{' + '.join(value.stands_for)} together (the simulator's drive model)"
             )
-    poses = calibration.pose_source
-    if poses.kind == "localized":
-        print(f"calibrate: poses localized from scans and odometry in the {poses.map}, match score "
-              f"{poses.median_score:.2f} (fraction of scan endpoints on the map)")  # fmt: skip
+    poses = calibration.pose_source.sentence()
+    if poses:
+        print(f"calibrate: {poses}")
     print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
     return 0
+
+
+def _progress(stage: str) -> None:
+    """Each stage of the calibration as it starts, on stderr (the results go to stdout)."""
+    print(f"calibrate: {stage}", file=sys.stderr, flush=True)
 
 
 def _print_values(calibration: Any) -> None:

@@ -113,5 +113,53 @@ def test_a_bag_without_a_window_to_replay_is_one_line_naming_it(tmp_path):
     start = ",".join(f"{v:.3f}" for v in run["pose"][0])
     done = mrl("replay", bag, "--map", map_yaml, f"--initial-pose={start}", "--out", tmp_path / "r", timeout=300)
     line = refused(done, "replay", str(bag))
-    assert "no 30 s stretch of localized path" in line and "stand still" in line
+    assert "no 30 s stretch of path with commands" in line and "standing still" in line
     assert not (tmp_path / "r" / "replay_map.md").exists()
+
+
+def test_a_teleoperated_robot_that_stood_still_before_its_first_command_has_a_window():
+    """Teleoperation sends commands only while the robot moves (the first at 10.3 s, then silence when released):
+    the 10 s before it and each silence past the driver's timeout are standing still, so windows start there."""
+    from pipeline.calibration.map_replay import COMMAND_TIMEOUT_S, command_tracks
+    from pipeline.calibration.recording import CommandSeries, MessageTimes, PoseSeries, RobotData
+
+    ns = 1_000_000_000
+    sent = np.r_[np.arange(10.3, 20.0, 0.1), np.arange(25.0, 40.0, 0.1)]  # released from 20 s to 25 s
+    t = (sent * ns).round().astype(np.int64)
+    commands = CommandSeries(t, np.full(len(t), 0.2), np.zeros(len(t)))
+    truth_t = np.arange(0, 40 * ns, ns // 8)
+    truth = PoseSeries(MessageTimes(truth_t, truth_t, truth_t, 0), np.zeros((len(truth_t), 3)))
+    (track,) = command_tracks([RobotData("robot_1", truth, None, None, commands)])
+    assert track.last_at(5 * ns).tolist() == [0.0, 0.0]  # before the first command: standing still
+    assert track.last_at(int(20.0 * ns + COMMAND_TIMEOUT_S * ns) + 1).tolist() == [0.0, 0.0]  # the driver stopped
+    assert track.last_at(int(15 * ns)).tolist() == [0.2, 0.0]
+    starts = rest_starts([track]) / ns
+    assert len(starts) == 2
+    assert starts[0] == pytest.approx(10.3 - TICK_S, abs=1e-6)  # the 10 s of standing before teleoperation
+    assert starts[1] == pytest.approx(25.0 - TICK_S, abs=1e-6)  # the silence after release
+
+
+def test_a_bag_without_a_window_is_refused_before_the_localization(tmp_path, monkeypatch):
+    """The windows' starts are looked for in the commands first: a bag with none is refused without localizing."""
+    import importlib
+
+    from pipeline.calibration.errors import CalibrationError
+    from pipeline.calibration.map_replay import map_replay
+    from pipeline.params import world_config
+
+    floor, corners = building(20.0, 0.05, 0)
+    map_yaml = floor.write_map_server(tmp_path / "building.yaml")
+    run = drive(corners, 15.0)
+    bag = tmp_path / "short.mcap"
+    write_bag(bag, floor, run, 0)
+
+    def localized(*args, **kwargs):
+        raise AssertionError("localized before the windows were checked")
+
+    calibrate_module = importlib.import_module("pipeline.calibration.calibrate")  # the module, not its function
+    monkeypatch.setattr(calibrate_module, "localize_robot", localized)
+    start = tuple(float(v) for v in run["pose"][0])
+    with pytest.raises(CalibrationError, match="no 30 s stretch of path with commands"):
+        map_replay([bag], map_yaml, {"nominal": world_config({})}, initial_pose=start)
+    with pytest.raises(AssertionError, match="localized before"):  # a shorter window exists: localization runs
+        map_replay([bag], map_yaml, {"nominal": world_config({})}, horizons_s=(5.0,), initial_pose=start)

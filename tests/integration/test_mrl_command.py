@@ -25,7 +25,7 @@ from pipeline.messages import message_store
 from pipeline.messages import topics as T
 from pipeline.record import McapLog, RawMessage
 from pipeline.record.results import EPISODES_CSV_COLUMNS, read_episodes_csv
-from tests.calibration_helpers import simulate_session
+from tests.calibration_helpers import TWIN_EPISODES, simulate_session
 from tests.golden.make_golden import GOLDEN_MCAP
 from tests.integration.test_calibration_inputs import MILD_WORLD
 from tests.unit.test_record_bags import STANDARD, golden_raw, write_plain_mcap, write_ros1, write_rosbag2
@@ -51,7 +51,8 @@ def refused(proc: subprocess.CompletedProcess[str], verb: str, *names: str) -> s
     """The one stderr line of a bad-input exit (rc 2); it names every one of `names`."""
     assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
     assert "Traceback" not in proc.stderr
-    lines = proc.stderr.strip().splitlines()
+    # progress lines ("calibrate: reading 1 recording (0 s)") may come first; the error is one line
+    lines = [line for line in proc.stderr.strip().splitlines() if not line.startswith(f"{verb}: ")]
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith(f"mrl {verb}: "), lines[0]
     for name in names:
@@ -257,6 +258,20 @@ def test_episodes_table_printed_and_written_as_csv_and_parquet(session, tmp_path
     )
 
 
+def test_episodes_of_a_twin_deployment_give_the_path_lengths_of_its_own_episodes_csv(twin_session, tmp_path):
+    """The harsh twin's ground truth comes at 50 Hz, lost and out of order; a path is measured one way, along the
+    poses at the control steps, so the table read back from the recording is the one the deployment wrote."""
+    recording = twin_session("harsh")
+    out = tmp_path / "episodes.csv"
+    proc = mrl("episodes", recording, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    written = {(r["episode"], r["robot"]): r for r in read_episodes_csv(recording.parent / "episodes.csv")}
+    read_back = {(r["episode"], r["robot"]): r for r in read_episodes_csv(out)}
+    assert len(written) == TWIN_EPISODES * 3 and read_back.keys() == written.keys()
+    assert sum(r["path_length_m"] for r in written.values()) > TWIN_EPISODES  # the robots drove
+    assert {k: r["path_length_m"] for k, r in read_back.items()} == {k: r["path_length_m"] for k, r in written.items()}
+
+
 # -- calibrate without motion capture -------------------------------------------------------------
 
 
@@ -407,3 +422,27 @@ def test_calibrate_a_single_robot_bag_without_namespace_ground_truth_or_scenario
     assert not data["speed_limits"]["angular"]["saturated"]
     assert data["uncertainty"]["actuation"]["linear_gain"]["value"] == pytest.approx(1.0, rel=0.05)
     assert data["world"]["actuation"]["max_linear_mps"] == pytest.approx(0.25, rel=0.03)
+
+
+def test_a_map_given_with_motion_capture_is_checked_and_a_wrong_one_refused(session, tmp_path):
+    """With ground truth the poses come from it; a map given is not ignored: the scans at the captured poses are
+    checked against it, and a map of another frame (its origin a metre off) is refused by name."""
+    from pipeline.calibration.localize import OccupancyMap
+    from pipeline.core.scenario import load_scenario
+
+    floor = OccupancyMap.from_scenario(load_scenario("obstacles")).write_map_server(tmp_path / "floor.yaml")
+    proc = mrl("calibrate", session, "--map", floor, "--parts", "lidar", "--bootstrap", "20", "--out", tmp_path / "c")
+    assert proc.returncode == 0, proc.stderr
+    assert "poses from motion capture; the map floor.yaml checked against them:" in proc.stdout
+    poses = yaml.safe_load((tmp_path / "c" / "calibration.yaml").read_text())["source"]["poses"]
+    assert poses["kind"] == "ground_truth" and poses["map_checked"]["map"] == "floor.yaml"
+    assert poses["map_checked"]["endpoints_on_map"] > 0.9
+    assert "the map floor.yaml checked against them" in (tmp_path / "c" / "calibration.md").read_text()
+    moved = yaml.safe_load(floor.read_text())
+    moved["origin"] = [moved["origin"][0] + 1.0, moved["origin"][1] - 0.7, 0.0]
+    other = tmp_path / "other.yaml"
+    other.write_text(yaml.safe_dump(moved))
+    assert (tmp_path / moved["image"]).exists()  # the moved map reads the same image
+    line = refused(mrl("calibrate", session, "--map", other, "--out", tmp_path / "d"), "calibrate", str(other))
+    assert "not the room of" in line and "of the scans' endpoints lie on this map (need 70 %)" in line
+    assert not (tmp_path / "d").exists()

@@ -184,6 +184,17 @@ def test_an_interval_wider_than_its_value_is_weak_not_ok():
     assert signed.flagged(-math.inf).status == "ok"  # a signed key near zero is not weak
 
 
+def test_a_key_determined_to_be_as_good_as_none_is_not_weak():
+    """A sweep that does not wander, continuous ranges: 0 with an interval within what counts as none is determined."""
+    from pipeline.calibration.calibrate import NEGLIGIBLE, _flag_weak
+
+    still = Estimate.of(0.0, 0.0, (0.0, 0.0001), "relative", "test", 27421)
+    assert _flag_weak("lidar.rate_wander", still).status == "ok"
+    assert _flag_weak("lidar.range_step_m", Estimate.of(0.0, 0.0, (0.0, 1e-5), "m", "test", 9)).status == "ok"
+    unsure = Estimate.of(0.0004, 0.001, (0.0, 2 * NEGLIGIBLE["lidar.rate_wander"]), "relative", "test", 50)
+    assert _flag_weak("lidar.rate_wander", unsure).status == "weak"  # beyond what counts as none: weak again
+
+
 @pytest.mark.parametrize("wander", [0.0, 0.005, 0.02])
 def test_the_sweep_period_s_wander_is_measured_from_the_stamps(wander):
     rng = np.random.default_rng(8)
