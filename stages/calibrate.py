@@ -81,7 +81,8 @@ def write_residuals(params: Params, calibration: Calibration, recording: Path, p
         r = fit.residuals_m
         spread = 1.4826 * float(np.median(np.abs(r - np.median(r))))
         lines.append(
-            f"Scans while standing still: residual to the map {spread:.4f} m (robust spread) against a sensor noise of "
+            f"Scans while standing still: residual to the calibrated map {spread:.4f} m (robust spread) against a "
+            f"sensor noise of "
             f"{fit.noise_sigma_m.value:.4f} m (+{(fit.noise_per_m.value or 0.0):.4f} per m of range)."
         )
     spectrum = calibration.lidar.residual_spectrum if calibration.lidar is not None else None

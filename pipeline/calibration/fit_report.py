@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from pipeline.calibration.calibrate import Calibration, Source
 from pipeline.calibration.estimates import Estimate
@@ -55,35 +56,59 @@ def source_line(source: Source) -> str:
     return ", ".join(facts) or "no metadata"
 
 
-def plot_lidar(calibration: Calibration, path: Path) -> bool:
-    """Histogram of the residuals (measured - cast, m) with the fitted Gaussian; False when there is nothing to plot."""
+def _value(calibration: Calibration, key: str) -> float | None:
+    """The tabled value of `key` (what calibration.yaml holds), None where it is not identified."""
+    est = calibration.values.get(key)
+    return float(est.value) if est is not None and est.ok and est.value is not None else None
+
+
+def lidar_figure(calibration: Calibration) -> Figure | None:
+    """Histogram of the still returns' residuals to the calibrated map, with the noise the table gives drawn over
+    it: N(bias, (noise_sigma_m + noise_per_m r)^2) averaged over the residuals' ranges r."""
     fit = calibration.lidar
-    if fit is None or len(fit.residuals_m) == 0 or not fit.noise_sigma_m.ok or not fit.bias_m.ok:
-        return False
-    sigma = float(fit.noise_sigma_m.value or 0.0)
-    bias = float(fit.bias_m.value or 0.0)
+    bias, sigma = _value(calibration, "lidar.bias_m"), _value(calibration, "lidar.noise_sigma_m")
+    if fit is None or len(fit.residuals_m) == 0 or bias is None or sigma is None:
+        return None
+    per_m = _value(calibration, "lidar.noise_per_m") or 0.0
     r = fit.residuals_m
-    lo, hi = bias - 6 * sigma, bias + 6 * sigma
+    ranges = fit.residual_ranges_m if len(fit.residual_ranges_m) == len(r) else np.zeros(len(r))
+    pick = np.linspace(0, len(r) - 1, min(len(r), 2000)).round().astype(int)
+    sigmas = np.maximum(sigma + per_m * ranges[pick], 1e-6)
+    at_median = float(np.median(sigmas))
+    lo = min(bias - 5 * at_median, float(np.percentile(r, 0.5)))
+    hi = max(bias + 5 * at_median, float(np.percentile(r, 99.5)))
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.hist(
-        r[(r > lo) & (r < hi)], bins=120, range=(lo, hi), density=True, color="0.7", label=f"residuals (n = {len(r)})"
-    )
+    shown = r[(r > lo) & (r < hi)]
+    ax.hist(shown, bins=100, range=(lo, hi), density=True, color="0.55", label=f"residuals (n = {len(r)})")
     x = np.linspace(lo, hi, 400)
-    ax.plot(
-        x,
-        np.exp(-0.5 * ((x - bias) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi)),
-        "C0",
-        label=f"N({bias:.4f}, {sigma:.4f}^2)",
+    density = np.mean(
+        np.exp(-0.5 * ((x[None, :] - bias) / sigmas[:, None]) ** 2) / (sigmas[:, None] * math.sqrt(2 * math.pi)),
+        axis=0,
     )
+    # the histogram is normalized over what is shown: the curve over the same share of the returns
+    ax.plot(x, density * len(r) / max(len(shown), 1), "C0", label=f"bias {bias:.4g} m, noise {sigma:.4g} m + "
+            f"{per_m:.4g} m/m (table)")  # fmt: skip
+    ax.axvline(bias, color="C0", lw=0.8, ls=":")
     ax.axvline(0.0, color="k", lw=0.5)
-    ax.set_xlabel("measured - cast range (m)")
-    ax.set_ylabel("density")
+    ax.set_xlabel("measured - cast range in the calibrated map (m)")
+    ax.set_ylabel("density (1/m)")
     ax.set_title("Lidar residuals during stationary spans")
-    ax.legend()
+    ax.legend(fontsize=8)
     fig.tight_layout()
+    return fig
+
+
+def _saved(fig: Figure | None, path: Path) -> bool:
+    if fig is None:
+        return False
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
+
+
+def plot_lidar(calibration: Calibration, path: Path) -> bool:
+    """:func:`lidar_figure` saved to `path`; False when there is nothing to plot."""
+    return _saved(lidar_figure(calibration), path)
 
 
 def plot_residual_spectrum(calibration: Calibration, path: Path) -> bool:
@@ -125,30 +150,35 @@ def spectrum_lines(calibration: Calibration) -> list[str]:
     return lines
 
 
-def plot_mount_yaw(calibration: Calibration, path: Path) -> bool:
-    """The robust cost of the mounting-yaw search near its minimum; False when there is nothing to plot."""
+def mount_yaw_figure(calibration: Calibration) -> Figure | None:
+    """The robust cost of the mounting-yaw search near its minimum, with the tabled mounting yaw."""
     fit = calibration.lidar
     if fit is None or fit.yaw_cost is None:
-        return False
+        return None
     yaw, cost = fit.yaw_cost
     finite = np.isfinite(cost)
     if not finite.any():
-        return False
+        return None
     best = float(yaw[finite][np.argmin(cost[finite])])
     near = finite & (np.abs(yaw - best) < math.radians(3))
     fig, ax = plt.subplots(figsize=(7, 3.5))
     order = np.argsort(yaw[near])
-    ax.plot(np.degrees(yaw[near][order]), cost[near][order], ".-", ms=3)
-    if fit.mount_yaw_rad.ok:
-        ax.axvline(math.degrees(float(fit.mount_yaw_rad.value or 0.0)), color="C3", label="estimate")
-        ax.legend()
+    ax.plot(np.degrees(yaw[near][order]), cost[near][order], ".-", ms=3, label="search over the still scans")
+    table = _value(calibration, "lidar.mount_yaw_rad")
+    if table is not None:
+        shown = best + math.remainder(table - best, 2 * math.pi)  # the table's angle on the search's turn
+        ax.axvline(math.degrees(shown), color="C3", label=f"table: {table:.4g} rad ({math.degrees(table):.2f} deg)")
+    ax.legend(fontsize=8)
     ax.set_xlabel("mounting yaw (deg)")
     ax.set_ylabel("mean truncated |residual| (m)")
     ax.set_title("Mounting-yaw search")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return True
+    return fig
+
+
+def plot_mount_yaw(calibration: Calibration, path: Path) -> bool:
+    """:func:`mount_yaw_figure` saved to `path`; False when there is nothing to plot."""
+    return _saved(mount_yaw_figure(calibration), path)
 
 
 def plot_actuation(calibration: Calibration, path: Path) -> bool:
@@ -178,28 +208,40 @@ def plot_actuation(calibration: Calibration, path: Path) -> bool:
     return True
 
 
-def plot_odometry(calibration: Calibration, path: Path) -> bool:
-    """Odometry position error vs distance travelled per robot-episode; False when there is nothing to plot."""
+RESET_JUMP_M = 0.5
+"""An odometry error that jumps by more than this between two samples is a reset inside the stretch: the curve
+is broken there, not drawn across."""
+
+
+def odometry_figure(calibration: Calibration) -> Figure | None:
+    """Odometry position error against distance travelled per robot-episode, with the tabled drift_per_m."""
     fit = calibration.odometry
     if fit is None or not fit.episodes:
-        return False
+        return None
     fig, ax = plt.subplots(figsize=(7, 4))
     longest = 0.0
     for e in fit.episodes:
-        dist, err = e.error_curve
+        dist, err = (np.asarray(a, dtype=np.float64) for a in e.error_curve)
+        if len(err) > 1:
+            jump = np.flatnonzero(np.abs(np.diff(err)) > RESET_JUMP_M) + 1
+            dist, err = np.insert(dist, jump, np.nan), np.insert(err, jump, np.nan)
         ax.plot(dist, err, lw=0.8, alpha=0.7)
-        longest = max(longest, float(dist[-1]) if len(dist) else 0.0)
-    if fit.drift_per_m.ok and longest > 0:
+        longest = max(longest, float(np.nanmax(dist)) if np.isfinite(dist).any() else 0.0)
+    drift = _value(calibration, "odometry.drift_per_m")
+    if drift is not None and longest > 0:
         d = np.linspace(0, longest, 50)
-        ax.plot(d, float(fit.drift_per_m.value or 0.0) * d, "k--", label="drift_per_m x distance")
-        ax.legend()
+        ax.plot(d, drift * d, "k--", label=f"drift_per_m x distance ({drift:.4g} per m, table): the random part")
+        ax.legend(fontsize=8)
     ax.set_xlabel("distance travelled (m)")
     ax.set_ylabel("odometry position error (m)")
-    ax.set_title("Odometry error per robot-episode")
+    ax.set_title("Odometry error per robot-episode (wheels' systematic error included)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return True
+    return fig
+
+
+def plot_odometry(calibration: Calibration, path: Path) -> bool:
+    """:func:`odometry_figure` saved to `path`; False when there is nothing to plot."""
+    return _saved(odometry_figure(calibration), path)
 
 
 def write_report(calibration: Calibration, out_dir: Path) -> Path:

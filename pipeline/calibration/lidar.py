@@ -131,6 +131,9 @@ class LidarFit:
     bias_m: Estimate
     mount_yaw_rad: Estimate
     residuals_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Still returns less their cast in the calibrated map (mounting, walls and boxes as fitted)."""
+    residual_ranges_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """The cast range of each residual (m): the noise it carries is noise_sigma_m + noise_per_m x this."""
     noise_per_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m/m"))
     mount_x_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m"))
     mount_y_m: Estimate = field(default_factory=lambda: Estimate.unidentifiable("not estimated", "m"))
@@ -1198,6 +1201,7 @@ def estimate_lidar(
     )
     # per-scan residuals and dropouts at the fitted mounting over the clean, unblocked beams
     per_span_res: list[np.ndarray] = []
+    per_span_rng: list[np.ndarray] = []
     span_means: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     room = _Design.of(geometry).moved(geometry, np.where(np.isfinite(geo.params), geo.params, 0.0))
     masks: list[np.ndarray] = []
@@ -1220,10 +1224,11 @@ def estimate_lidar(
         valid = valid_returns(r, span)
         trials[k] = mask.sum()
         drops[k] = (mask & ~valid).sum()
-        per_span_res.append((r - cast[None, :])[mask & valid])
         kept = mask & valid
         count = kept.sum(axis=0)
         fitted, fitted_surface, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
+        per_span_res.append((r - fitted[0][None, :])[kept])  # against the calibrated map: what is left is noise
+        per_span_rng.append(np.broadcast_to(fitted[0][None, :], r.shape)[kept])
         with np.errstate(invalid="ignore", divide="ignore"):
             span_mean = np.where(count > 0, np.where(kept, r - fitted[0][None, :], 0.0).sum(axis=0) / count, np.nan)
         span_means.append((span_mean, count, fitted[0]))
@@ -1321,6 +1326,7 @@ def estimate_lidar(
         bias_m=bias_geo,
         mount_yaw_rad=yaw_est,
         residuals_m=residuals,
+        residual_ranges_m=np.concatenate(per_span_rng),
         spans=len(spans),
         stationary_s=stationary_s,
         beams_used=n_trials,
