@@ -33,10 +33,32 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print what each bag holds."""
-    with imported(args, args.bags) as bags:
-        print("\n\n".join(describe(bag) for bag in bags))
+    """Print what each bag holds; a bag without robot topics is described, not refused."""
+    from pipeline.record.errors import NoRobotsError
+
+    texts = []
+    for path in args.bags:
+        try:
+            with imported(args, [path]) as (bag,):
+                texts.append(describe(bag))
+        except NoRobotsError as exc:
+            texts.append(_robotless(path, exc))
+    print("\n\n".join(texts))
     return 0
+
+
+def _robotless(path: str, exc: Any) -> str:
+    """A bag whose topics name no robot: its topics, and what would make the verbs read it."""
+    lines = [f"bag: {path}", "  robots: none (no /<robot>/scan LaserScan or /<robot>/odom Odometry topic)", "  topics:"]
+    topics: dict[str, str] = exc.topics
+    width = max((len(t) for t in topics), default=0)
+    lines += [f"    {name:<{width}}  {typename}" for name, typename in sorted(topics.items())] or ["    none"]
+    lines += [
+        "  what the verbs can do with it:",
+        "    nothing as it is: map the robot's topics with --topic (e.g. --topic scan=/base_scan, "
+        "--topic odom=/wheel_odom) where they have other names",
+    ]
+    return "\n".join(lines)
 
 
 def describe(bag: ImportedBag) -> str:
@@ -169,5 +191,13 @@ def _verb_lines(robots: Sequence[str], topics: dict[str, str], episodes: int) ->
     if not agreement and not open_loop:
         lines.append("    replay: policy re-run on the observations and open-loop commands (needs --policy)")
     else:
-        lines.append(f"    replay: needs {', '.join(dict.fromkeys(agreement + open_loop))}")
+        lines.append(f"    replay --policy: needs {', '.join(dict.fromkeys(agreement + open_loop))}")
+    driven = [f"/{r}/{k}" for r in robots for k in ("cmd_vel", "scan", "odom") if f"/{r}/{k}" not in topics]
+    if not driven:
+        lines.append(
+            "    replay --map FLOOR.yaml: the commands open loop against the path localized in the map from scans "
+            "and odometry (ground truth where recorded)"
+        )
+    else:
+        lines.append(f"    replay --map FLOOR.yaml: needs {', '.join(driven)}")
     return lines

@@ -169,6 +169,22 @@ def test_info_on_a_bag_of_standard_topics_says_what_calibrate_needs(bags):
     assert topic_line(text, "/robot_2/odom", T.ODOMETRY, EPISODES * STEPS * 5)
     assert "calibrate: lidar, actuation, odometry, network (ground truth present); needs --scenario" in text
     assert "episodes: needs /mrl/episode" in text
+    # no observations to re-run a policy on, but commands, scans and odometry: the map's route is named
+    assert "replay --policy: needs /mrl/observation, /mrl/action" in text
+    assert "replay --map FLOOR.yaml: the commands open loop against the path localized in the map" in text
+
+
+def test_info_describes_a_bag_without_robot_topics_instead_of_refusing_it(tmp_path):
+    """A bag of /tf and /clock alone (a robot's topics under names of its own) is described: its topics, and how
+    to map them; beside it a bag with robots is described as usual."""
+    tf_only = write_ros1(tmp_path / "tf.bag", golden_raw(["/tf", "/clock"]))
+    proc = mrl("info", tf_only, GOLDEN_MCAP)
+    assert proc.returncode == 0, proc.stderr
+    first, second = proc.stdout.split("\n\n")
+    assert f"bag: {tf_only}" in first and "robots: none" in first
+    assert "/tf     tf2_msgs/msg/TFMessage" in first and "/clock  rosgraph_msgs/msg/Clock" in first
+    assert "--topic scan=/base_scan" in first
+    assert "robots: robot_1, robot_2 (2)" in second
 
 
 # -- calibrate ------------------------------------------------------------------------------------
