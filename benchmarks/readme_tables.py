@@ -473,9 +473,7 @@ def lidar_docs() -> str:
                 "surface, the geometry's intervals at least a cluster-robust sandwich over the beams, the noise "
                 "again from the scans while driving; `lidar.noise_at_range` and `lidar.noise_at_range_driving` are "
                 "the noise at the still spans' median range from the still spans and from the scans while driving; "
-                f"[run.json]({link}_driving/run.json)): "
-                + _coverage_line(COVERAGE_REAL_LIDAR_DRIVING)
-                + ":",
+                f"[run.json]({link}_driving/run.json)): " + _coverage_line(COVERAGE_REAL_LIDAR_DRIVING) + ":",
             ),
             "",
             coverage_docs(COVERAGE_REAL_LIDAR_DRIVING).split("\n", 2)[2],

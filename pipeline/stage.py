@@ -1,8 +1,9 @@
 """The dvc stage scripts' plumbing, which the ``mrl`` verbs run through too: arguments, signals, exit codes.
 
-Exit codes: 0 success, 2 bad input (an MrlError: its message names the file, key or topic), 3 runtime fault
-(a RuntimeFault: a twin or driver gone, a robot blind past its outage limit, a clash on the domain), 130
-interrupted (Ctrl-C or SIGTERM; what was recorded so far is kept).
+Exit codes (:data:`EXIT_CODES`, which ``mrl --help`` lists): 0 success, 1 no result (``mrl sweep`` whose trials
+all failed), 2 bad input (an MrlError: its message names the file, key or topic), 3 runtime fault (a RuntimeFault:
+a twin or driver gone, a robot blind past its outage limit, a clash on the domain), 130 interrupted (Ctrl-C or
+SIGTERM; what was recorded so far is kept).
 """
 
 from __future__ import annotations
@@ -16,9 +17,22 @@ from types import FrameType
 from pipeline.errors import MrlError, RuntimeFault
 
 ROUNDS = ("nominal", "calibrated")
+EXIT_DONE = 0
+EXIT_NO_RESULT = 1
 EXIT_BAD_INPUT = 2
 EXIT_RUNTIME_FAULT = 3
 EXIT_INTERRUPTED = 130
+EXIT_CODES: dict[int, str] = {
+    EXIT_DONE: "done",
+    EXIT_NO_RESULT: "no result: every trial of an mrl sweep failed, nothing to report (a program error, with its "
+    "traceback, exits 1 too)",
+    EXIT_BAD_INPUT: "bad input: one line on stderr naming the file, key, option or topic (after the verb's usage "
+    "for a mistyped, missing or malformed option)",
+    EXIT_RUNTIME_FAULT: "runtime fault: a twin or driver gone, robots that never answered, a robot blind past its "
+    "outage limit that ended the run, a clash on the DDS domain; the episodes run are kept",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); what was recorded so far is kept",
+}
+"""Every exit code of the stages and the ``mrl`` verbs, with its meaning."""
 
 
 def stage_arguments(description: str, argv: Sequence[str] | None = None, rounds: bool = True) -> argparse.Namespace:

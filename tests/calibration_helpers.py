@@ -139,8 +139,9 @@ def record_twin_session(
     mode: str = "excite",
     max_steps: int = 150,
 ) -> Path:
-    """Deploy the excitation runtime against the hardware twin (DDS on loopback); the recording's path."""
-    from pipeline.rollout.deployment import DeployRequest, deploy_policy
+    """Deploy the excitation runtime against the hardware twin (DDS on loopback) into `out` as the deploy stage does
+    (session.mcap beside the deployment's own episodes.csv and metrics.json); the recording's path."""
+    from pipeline.rollout.deployment import DeployRequest, deploy_session
     from pipeline.ros.fleet import load_fleet
     from tests.integration.conftest import write_fleet
 
@@ -152,7 +153,7 @@ def record_twin_session(
     runtime = ExcitationRuntime(load_scenario(scenario), seed=seed, mode=mode, max_steps=max_steps)
     recording = out / "session.mcap"
     request = DeployRequest(episodes=episodes, seed=seed * 100 + 1, recording=recording, progress=False)
-    deploy_policy(runtime, fleet, str(fleet_file), request)  # type: ignore[arg-type]
+    deploy_session(runtime, fleet, str(fleet_file), request, out)  # type: ignore[arg-type]
     return recording
 
 

@@ -2,7 +2,8 @@
 
 Input are episodes tables (:func:`pipeline.analysis.tables.episodes_table`, one row per episode and
 robot), several sessions of one world concatenated, keyed by a label (e.g. ``nominal`` and
-``calibrated`` rounds). Each label present in both worlds is compared sim against real.
+``calibrated`` rounds). Each label present in both worlds is compared sim against real, or the
+(sim label, real label) pairs given (e.g. two recordings labelled by their names).
 
 Trials: every episode. An aborted episode (a robot blind past the outage limit, a driver or twin gone,
 an operator's stop, a recording that stops inside it) is a trial like any other: a robot succeeds only
@@ -17,7 +18,7 @@ Differences are sim - real (a positive success gap: sim is more optimistic than 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -49,9 +50,10 @@ class Comparison:
         gaps: one row per (label, metric) compared in both worlds: sim and real values, the
             difference sim - real with its 95 % interval (Newcombe for rates, Welch t for the mean
             time to goal) and p-values (Fisher exact and two-proportion z for rates, Mann-Whitney
-            U for time to goal).
+            U for time to goal). The label of a pair of two labels is :func:`pair_label`'s.
         metrics: flat ``{key: value}`` for dvc metrics: ``<world>[/<label>]/<metric>`` and
-            ``gap[/<label>]/<metric>[_p_value|_z_p_value|_ci_low|_ci_high]``; NaN where undefined.
+            ``gap[/<label>]/<metric>[_p_value|_z_p_value|_ci_low|_ci_high]`` (:func:`metric_key`);
+            NaN where undefined.
     """
 
     groups: pl.DataFrame
@@ -207,22 +209,44 @@ def _welch_interval(a: np.ndarray, b: np.ndarray, z: float) -> tuple[float, floa
     return d - half, d + half
 
 
-def _key(*parts: str) -> str:
-    return "/".join(p for p in parts if p)
+def metric_key(*parts: str) -> str:
+    """A metrics key: the non-empty `parts` joined by one ``/`` (``metric_key("real", "", "x")`` is ``real/x``)."""
+    return "/".join(p for part in parts for p in part.split("/") if p)
 
 
-def compare(sim: Tables | None, real: Tables | None, *, z: float = Z_95) -> Comparison:
+def pair_label(sim_label: str, real_label: str) -> str:
+    """The label of the comparison of sim label `sim_label` with real label `real_label`: the label they share, or
+    ``<sim_label> vs <real_label>``."""
+    return sim_label if sim_label == real_label else f"{sim_label} vs {real_label}"
+
+
+def compare(
+    sim: Tables | None,
+    real: Tables | None,
+    *,
+    z: float = Z_95,
+    pairs: Sequence[tuple[str, str]] | None = None,
+) -> Comparison:
     """Compare sim and real episodes tables, label by label (see the module docstring).
 
     Args:
         sim, real: each a table (label '') or ``{label: table}``; None or ``{}`` for a world
             without sessions (its groups are absent and nothing is compared).
         z: the normal quantile of the intervals (1.96: 95 %).
+        pairs: the (sim label, real label) pairs to compare; by default each label of both worlds with itself.
 
     Raises:
-        TableError: a table lacks a needed column.
+        TableError: a table lacks a needed column, or a pair names a label without a table.
     """
     worlds = {"sim": _labelled(sim), "real": _labelled(real)}
+    if pairs is None:
+        pairs = [(label, label) for label in worlds["sim"] if label in worlds["real"]]
+    for sim_label, real_label in pairs:
+        for world, label in (("sim", sim_label), ("real", real_label)):
+            if label not in worlds[world]:
+                raise TableError(
+                    f"{world} label {label!r}", f"is compared but has no table (labels: {sorted(worlds[world])})"
+                )
     group_rows: list[dict[str, Any]] = []
     robot_rows: list[dict[str, Any]] = []
     metrics: dict[str, float] = {}
@@ -235,7 +259,7 @@ def compare(sim: Tables | None, real: Tables | None, *, z: float = Z_95) -> Comp
             summary = {"episodes": episodes, "aborted_episodes": aborted, **_abort_kinds(table), **_summary(c, z)}
             group_rows.append({"world": world, "label": label, **summary})
             for name, value in summary.items():
-                metrics[_key(world, label, name)] = float(value)
+                metrics[metric_key(world, label, name)] = float(value)
             for robot in sorted(table["robot"].unique().to_list()):
                 rc, _, _ = _counts(table.filter(pl.col("robot") == robot))
                 row = _summary(rc, z, team=False)
@@ -245,19 +269,18 @@ def compare(sim: Tables | None, real: Tables | None, *, z: float = Z_95) -> Comp
                     else 0.0
                 )
                 robot_rows.append({"world": world, "label": label, "robot": robot, **row})
-                metrics[_key(world, label, f"{robot}_success")] = float(row["robot_success"])
-                metrics[_key(world, label, f"{robot}_stale_s")] = float(row["stale_s"])
+                metrics[metric_key(world, label, f"{robot}_success")] = float(row["robot_success"])
+                metrics[metric_key(world, label, f"{robot}_stale_s")] = float(row["stale_s"])
     gap_rows: list[dict[str, Any]] = []
-    for label in worlds["sim"]:
-        if label not in worlds["real"]:
-            continue
-        s, r = counts[("sim", label)], counts[("real", label)]
-        pairs = {
+    for sim_label, real_label in pairs:
+        label = pair_label(sim_label, real_label)
+        s, r = counts[("sim", sim_label)], counts[("real", real_label)]
+        proportions = {
             "robot_success": (s.robot_k, s.robot_n, r.robot_k, r.robot_n),
             "team_success": (s.team_k, s.team_n, r.team_k, r.team_n),
             "collision_rate": (s.collision_k, s.robot_n, r.collision_k, r.robot_n),
         }
-        for metric, (ks, ns, kr, nr) in pairs.items():
+        for metric, (ks, ns, kr, nr) in proportions.items():
             low, high = newcombe_interval(ks, ns, kr, nr, z)
             _, z_p = two_proportion_z_test(ks, ns, kr, nr)
             sim_rate = ks / ns if ns else math.nan
@@ -294,7 +317,7 @@ def compare(sim: Tables | None, real: Tables | None, *, z: float = Z_95) -> Comp
             }
         )
         for row in gap_rows[-4:]:
-            base = _key("gap", label, row["metric"])
+            base = metric_key("gap", label, row["metric"])
             metrics[base] = row["difference"]
             metrics[f"{base}_ci_low"] = row["ci_low"]
             metrics[f"{base}_ci_high"] = row["ci_high"]

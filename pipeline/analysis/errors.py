@@ -1,4 +1,4 @@
-"""Errors of the analysis: recordings, tables and replays that cannot be analysed."""
+"""Errors of the analysis: recordings, tables and replays that cannot be analysed; warnings of comparisons."""
 
 from __future__ import annotations
 
@@ -20,3 +20,8 @@ class TableError(AnalysisError):
 
 class ReplayError(MrlError):
     """A recording cannot be replayed (a needed topic is missing, robots differ); names the file and topic."""
+
+
+class ComparisonWarning(UserWarning):
+    """A comparison that runs but may not mean what it seems: a recording compared with itself, a recording whose
+    metadata names another world than it was given as."""

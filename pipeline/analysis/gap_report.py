@@ -8,7 +8,8 @@ markdown section written elsewhere (e.g. the calibration results), and writes in
   tests, per-robot rates, the deployments' timing (:mod:`pipeline.analysis.timing`), and the
   figures below;
 - ``metrics.json``: the flat metrics of :func:`pipeline.analysis.compare.compare` (NaN as null)
-  and each deployment's timing figures (``real/<label>/tick_jitter_p99_ms``, ...);
+  and each deployment's timing figures (``real/<label>/tick_jitter_p99_ms``, ``real/tick_jitter_p99_ms``
+  for label '', ...);
 - ``success_rates.png``, ``trajectories.png`` and, given curves, ``learning_curves.png``.
 """
 
@@ -24,7 +25,7 @@ from typing import Any
 
 import polars as pl
 
-from pipeline.analysis.compare import WORLDS, Comparison, compare
+from pipeline.analysis.compare import WORLDS, Comparison, compare, metric_key
 from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.plots import plot_learning_curves, plot_success_rates, plot_trajectories, success_panels
 from pipeline.analysis.tables import Recording
@@ -77,6 +78,8 @@ def write_report(
     title: str = "Sim-to-real report",
     extra_title: str = "Calibration",
     trajectory_episodes: int = 3,
+    pairs: Sequence[tuple[str, str]] | None = None,
+    warnings: Sequence[str] = (),
 ) -> Report:
     """Analyse `sessions` and write ``report.md``, ``metrics.json`` and the figures into `out_dir`.
 
@@ -87,10 +90,13 @@ def write_report(
         curves: training-curve CSVs, ``{label: path}`` or a list (labelled by file stem).
         extra_markdown: a markdown section appended under `extra_title` (skipped when empty).
         trajectory_episodes: episodes drawn per session in ``trajectories.png``.
+        pairs: the (sim label, real label) pairs compared; by default each label with itself.
+        warnings: lines shown under "Warnings" at the top of ``report.md`` (e.g. a recording compared with itself).
 
     Raises:
-        AnalysisError: no sessions, a world other than sim/real, or a recording that cannot be
-            analysed (missing topics, see :func:`pipeline.analysis.tables.episodes_table`).
+        AnalysisError: no sessions, a world other than sim/real, a pair naming a label without sessions, sessions
+            compared with each other from different scenarios, or a recording that cannot be analysed (missing
+            topics, see :func:`pipeline.analysis.tables.episodes_table`).
         LogReadError: a recording cannot be read.
     """
     items = [_session(s) for s in sessions]
@@ -105,9 +111,12 @@ def write_report(
         table = recording.episodes_table().with_columns(pl.lit(item.label).alias("label"))
         tables[item.world].setdefault(item.label, []).append(table)
         recordings.append((item, recording))
-    _check_scenarios(recordings)
+    if pairs is None:
+        pairs = [(label, label) for label in tables["sim"] if label in tables["real"]]
+    _check_pairs(out, pairs, tables)
+    _check_scenarios(recordings, pairs)
     pooled = {w: {label: pl.concat(parts) for label, parts in by_label.items()} for w, by_label in tables.items()}
-    comparison = compare(pooled["sim"], pooled["real"])
+    comparison = compare(pooled["sim"], pooled["real"], pairs=pairs)
     episodes = pl.concat([t for by_label in pooled.values() for t in by_label.values()], how="diagonal_relaxed")
 
     figures: dict[str, Path] = {}
@@ -117,7 +126,7 @@ def write_report(
         shown.setdefault((item.label, item.world), recording)
     order = sorted(shown, key=lambda key: (_label_order(items, key[0]), WORLDS.index(key[1])))
     figures["trajectories"] = plot_trajectories(
-        [(" ".join(p for p in (world, label) if p), shown[(label, world)]) for label, world in order],
+        [(_session_name(world, label), shown[(label, world)]) for label, world in order],
         out / "trajectories.png",
         trajectory_episodes,
     )
@@ -129,29 +138,54 @@ def write_report(
     for item, recording in recordings:
         if item.world == "real" and TIMING_TOPIC in recording.topics():
             figures_of = timing_figures(recording)
-            timing.append((f"{item.world} {item.label}", figures_of))
-            metrics.update(figures_of.as_metrics(f"{item.world}/{item.label}"))
+            timing.append((_session_name(item.world, item.label), figures_of))
+            metrics.update(figures_of.as_metrics(metric_key(item.world, item.label)))
 
     metrics_path = out / METRICS_NAME
     metrics_path.write_text(json.dumps(_json_safe(metrics), indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    markdown = _markdown(title, recordings, comparison, figures, out, extra_title, extra_markdown, timing)
+    markdown = _markdown(title, recordings, comparison, figures, out, extra_title, extra_markdown, timing, warnings)
     report_path = out / REPORT_NAME
     report_path.write_text(markdown, encoding="utf-8")
     return Report(report_path, metrics_path, figures, comparison, episodes)
 
 
-def _check_scenarios(recordings: Sequence[tuple[LabelledSession, Recording]]) -> None:
-    """Sessions compared under one label must come from one scenario."""
-    first: dict[str, tuple[str, Path]] = {}
-    for item, recording in recordings:
-        scenario = recording.info.scenario
-        seen = first.setdefault(item.label, (scenario, item.path))
-        if seen[0] != scenario:
-            raise AnalysisError(
-                str(item.path),
-                f"recorded in scenario {scenario!r}, but {seen[1]} (label {item.label!r}) is from {seen[0]!r}; "
-                "the sim and real sessions of one label must share a scenario",
-            )
+def _session_name(world: str, label: str) -> str:
+    """A session's name in figures and tables: its world, then its label if it has one."""
+    return " ".join(p for p in (world, label) if p)
+
+
+def _check_pairs(
+    out: Path, pairs: Sequence[tuple[str, str]], tables: Mapping[str, Mapping[str, list[pl.DataFrame]]]
+) -> None:
+    for sim_label, real_label in pairs:
+        for world, label in (("sim", sim_label), ("real", real_label)):
+            if label not in tables[world]:
+                raise AnalysisError(
+                    str(out), f"{world} label {label!r} is to be compared, but no {world} session has it"
+                )
+
+
+def _check_scenarios(
+    recordings: Sequence[tuple[LabelledSession, Recording]], pairs: Sequence[tuple[str, str]] = ()
+) -> None:
+    """Sessions compared under one label, or in one pair of labels, must come from one scenario."""
+    groups = [{(label, w) for w in WORLDS} for label in dict.fromkeys(item.label for item, _ in recordings)]
+    groups += [{(sim_label, "sim"), (real_label, "real")} for sim_label, real_label in pairs]
+    for members in groups:
+        seen: tuple[str, LabelledSession] | None = None
+        for item, recording in recordings:
+            if (item.label, item.world) not in members:
+                continue
+            scenario = recording.info.scenario
+            if seen is None:
+                seen = (scenario, item)
+            elif seen[0] != scenario:
+                first = seen[1]
+                raise AnalysisError(
+                    str(item.path),
+                    f"recorded in scenario {scenario!r}, but {first.path} (label {first.label!r}) is from {seen[0]!r}; "
+                    "compared sim and real sessions must share a scenario",
+                )
 
 
 def _label_order(items: Sequence[LabelledSession], label: str) -> int:
@@ -204,8 +238,11 @@ def _markdown(
     extra_title: str,
     extra_markdown: str,
     timing: Sequence[tuple[str, TimingFigures]] = (),
+    warnings: Sequence[str] = (),
 ) -> str:
     parts = [f"# {title}", ""]
+    if warnings:
+        parts += ["## Warnings", "", *[f"- **Warning:** {line}" for line in warnings], ""]
     parts += _sessions_section(recordings)
     parts += _success_section(comparison, figures, out)
     parts += _gaps_section(comparison)

@@ -153,7 +153,7 @@ def plot_success_rates(
 
 
 def draw_room(ax: Axes, scenario: Scenario) -> None:
-    """The room's walls, obstacles, goal squares and start poses of `scenario` on `ax` (metres)."""
+    """The room's walls, obstacles, goal squares and start poses of `scenario` on `ax`, axes labelled in metres."""
     room = scenario.room
     ax.add_patch(
         Rectangle(
@@ -177,6 +177,8 @@ def draw_room(ax: Axes, scenario: Scenario) -> None:
     ax.set_xlim(room.x_min_m - margin, room.x_max_m + margin)
     ax.set_ylim(room.y_min_m - margin, room.y_max_m + margin)
     ax.set_aspect("equal")
+    ax.set_xlabel("x (m)", fontsize="x-small")
+    ax.set_ylabel("y (m)", fontsize="x-small")
     ax.tick_params(labelsize="x-small")
 
 
@@ -190,10 +192,18 @@ def plot_trajectories(
     `sessions` are (label, recording) pairs, e.g. ``[("sim nominal", sim_path), ("real nominal",
     real_path)]``; `episodes` is a count (the first episodes of each session) or episode numbers.
     Paths come from ground truth where recorded, else odometry; a star marks a robot that reached
-    its goal, a cross one that collided. The room comes from each recording's scenario metadata.
+    its goal, a cross one that collided. The room comes from each recording's scenario metadata;
+    axes are x and y in metres.
     """
     if not sessions:
         raise AnalysisError(str(path), "no sessions to draw")
+    return _save(trajectories_figure(sessions, episodes), path)
+
+
+def trajectories_figure(sessions: Sequence[tuple[str, Source]], episodes: int | Sequence[int] = 3) -> Figure:
+    """The figure :func:`plot_trajectories` saves (one axes per session and episode row)."""
+    if not sessions:
+        raise AnalysisError("trajectories", "no sessions to draw")
     opened: list[tuple[str, Recording]] = [(label, open_recording(source)) for label, source in sessions]
     chosen: list[list[int]] = []
     for _, recording in opened:
@@ -244,4 +254,4 @@ def plot_trajectories(
                 ax.legend(fontsize="x-small", loc="upper right")
     fig.suptitle(f"Trajectories ({', '.join(label for label, _ in opened)})")
     fig.tight_layout()
-    return _save(fig, path)
+    return fig

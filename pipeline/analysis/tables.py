@@ -27,6 +27,7 @@ import polars as pl
 
 from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat, decode
 from pipeline.analysis.errors import AnalysisError
+from pipeline.core.episode import path_lengths_m, path_times_ns
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import MrlError
@@ -425,26 +426,32 @@ class Recording:
                 sources[robot] = ("odom", odom)
         windows = self._episode_windows()
         period = self.info.control_period_s
-        lengths: dict[str, np.ndarray] = {}
+        period_ns = round(period * NS_PER_S) if period else None
+        tracks: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         last_t: dict[str, np.ndarray] = {}
         for robot, (_, topic) in sources.items():
             frame = self.topic_frame(topic)
-            lengths[robot], last_t[robot] = _path_lengths(
-                frame["t_ns"].to_numpy(),
-                frame["x_m"].to_numpy(),
-                frame["y_m"].to_numpy(),
-                self._window_index(frame["t_ns"].to_numpy()),
-                len(windows),
-            )
-        info = self.info
-        rows: list[tuple[Any, ...]] = []
+            t_ns = frame["t_ns"].to_numpy()
+            tracks[robot] = (t_ns, frame.select("x_m", "y_m").to_numpy())
+            last_t[robot] = _last_times(t_ns, self._window_index(t_ns), len(windows))
+        steps_of: list[int] = []
         for k, e in enumerate(windows):
             w = e.window
             steps = w.end_step
             if steps is None:
                 latest = max((int(last_t[r][k]) for r in self.robots if last_t[r][k] >= 0), default=w.start_ns)
-                by_time = (latest - w.start_ns) // round(period * NS_PER_S) if period else 0
+                by_time = (latest - w.start_ns) // period_ns if period_ns else 0
                 steps = max(e.max_step, int(by_time))
+            steps_of.append(steps)
+        lengths = {
+            robot: _path_lengths(t_ns, xy, [e.window for e in windows], steps_of, period_ns)
+            for robot, (t_ns, xy) in tracks.items()
+        }
+        info = self.info
+        rows: list[tuple[Any, ...]] = []
+        for k, e in enumerate(windows):
+            w = e.window
+            steps = steps_of[k]
             for robot in self.robots:
                 events = e.robot_events.get(robot, {})
                 goal = events.get("goal")
@@ -491,23 +498,42 @@ class Recording:
         return pl.DataFrame(rows, schema=EPISODES_SCHEMA, orient="row")
 
 
-def _path_lengths(
-    t_ns: np.ndarray, x: np.ndarray, y: np.ndarray, window: np.ndarray, n_windows: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """(n_windows,) path length (m) summed over consecutive poses inside each window, and the last
-    pose's log time per window (-1 where a window has no pose)."""
-    lengths: np.ndarray
-    if len(t_ns) < 2:
-        lengths = np.zeros(n_windows)
-    else:
-        step = np.hypot(np.diff(x), np.diff(y))
-        same = (window[1:] == window[:-1]) & (window[1:] >= 0)
-        lengths = np.bincount(window[1:][same], weights=step[same], minlength=n_windows)[:n_windows]
+def _last_times(t_ns: np.ndarray, window: np.ndarray, n_windows: int) -> np.ndarray:
+    """(n_windows,) the log time of the last pose inside each window (-1 where a window has none)."""
     last = np.full(n_windows, -1, dtype=np.int64)
     inside = window >= 0
     if inside.any():
-        last[window[inside]] = t_ns[inside]  # log times ascend, so the last write per window is its latest
-    return np.asarray(lengths, dtype=np.float64), last
+        np.maximum.at(last, window[inside], t_ns[inside])
+    return last
+
+
+def _path_lengths(
+    t_ns: np.ndarray, xy: np.ndarray, windows: Sequence[EpisodeWindow], steps: Sequence[int], period_ns: int | None
+) -> np.ndarray:
+    """(n_windows,) one robot's path length (m) in each episode, as the episode's own result counts it
+    (:func:`~pipeline.core.episode.path_lengths_m`): through its newest pose logged at or before each control step's
+    time (:func:`~pipeline.core.episode.path_times_ns`; logged = received, on a fleet), never one logged before the
+    previous episode ended (a pose from before the reset starts no path). Poses `xy` (n, 2) at log times `t_ns` (n,).
+    Without a control period (a recording without session metadata), every pose logged inside the episode is a step.
+    """
+    order = np.argsort(t_ns, kind="stable")  # a salvaged file is read in file order
+    t_ns, xy = t_ns[order], xy[order]
+    out = np.zeros(len(windows))
+    floor = 0  # index of the first pose logged after the previous episode's end
+    for k, w in enumerate(windows):
+        if period_ns:
+            times = path_times_ns(w.start_ns, period_ns, steps[k], w.end_ns)
+        else:
+            end = _INT64_MAX if w.end_ns is None else w.end_ns
+            times = t_ns[(t_ns >= w.start_ns) & (t_ns <= end)]
+        newest = np.searchsorted(t_ns, times, side="right") - 1
+        samples = np.full((len(times), 1, 2), np.nan)
+        known = newest >= floor
+        samples[known, 0] = xy[newest[known]]
+        out[k] = path_lengths_m(samples)[0]
+        if w.end_ns is not None:
+            floor = int(np.searchsorted(t_ns, w.end_ns, side="right"))
+    return out
 
 
 def _yaw(qx: np.ndarray, qy: np.ndarray, qz: np.ndarray, qw: np.ndarray) -> np.ndarray:
@@ -596,8 +622,9 @@ def episodes_table(source: Source) -> pl.DataFrame:
     success (reached its goal without colliding), reached, collided, timeout, aborted (the episode
     saw an abort event, ended ``aborted``, or has no end event), time_to_goal_s (the goal event's
     control step x control period; null if not reached), time_to_goal_clock_s (log time from start
-    to goal), path_length_m (over the ground-truth poses inside the episode; over odometry where
-    the robot has no ground truth, as ``path_source`` says), steps (control steps of the end or
+    to goal), path_length_m (along the robot's ground-truth poses at the episode's control steps, as the
+    episode's own result counts it: :func:`pipeline.core.episode.path_lengths_m`; over odometry where the robot
+    has no ground truth, as ``path_source`` says), steps (control steps of the end or
     abort event; without either, estimated from the last pose), team_success (all robots reached
     their goals and the episode was not aborted), end (the end event's detail, ``aborted`` after a
     team-level abort, empty when the file stops inside the episode), abort_reason, abort_kind (outage,

@@ -15,6 +15,7 @@ import numpy as np
 import polars as pl
 import yaml
 
+from pipeline.analysis.compare import metric_key
 from pipeline.analysis.errors import AnalysisError
 from pipeline.analysis.tables import Recording
 from pipeline.core.timebase import NS_PER_S
@@ -54,11 +55,12 @@ class TimingFigures:
     """The first few stale records as "<robot> <reason>"."""
 
     def as_metrics(self, prefix: str) -> dict[str, float]:
+        """The figures as metrics under `prefix` (e.g. ``real/nominal``; '' for none), one ``/`` between parts."""
         return {
-            f"{prefix}/tick_jitter_p99_ms": self.tick_jitter_p99_ms,
-            f"{prefix}/send_skew_p99_ms": self.skew_p99_ms,
-            f"{prefix}/state_age_p99_ms": self.age_p99_ms,
-            f"{prefix}/stale_records": float(self.stale),
+            metric_key(prefix, "tick_jitter_p99_ms"): self.tick_jitter_p99_ms,
+            metric_key(prefix, "send_skew_p99_ms"): self.skew_p99_ms,
+            metric_key(prefix, "state_age_p99_ms"): self.age_p99_ms,
+            metric_key(prefix, "stale_records"): float(self.stale),
         }
 
 

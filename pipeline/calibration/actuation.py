@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from pipeline.calibration.estimates import Estimate, bootstrap, spread
+from pipeline.calibration.estimates import Estimate, bootstrap, counted, spread
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.timebase import NS_PER_S
 
@@ -166,6 +166,8 @@ class SpeedLimit:
     commanded_max: float
     achieved_max: float
     saturated_share: float = 0.0
+    achieved_p99: float = math.nan
+    """The 99th percentile of the achieved speed: what the base held (the peak is a transient, a turn's overshoot)."""
 
     @property
     def saturated(self) -> bool:
@@ -175,6 +177,8 @@ class SpeedLimit:
         out: dict[str, object] = {"saturated": self.saturated, **self.limit.as_mapping()}
         out["commanded_max"] = float(f"{self.commanded_max:.6g}")
         out["achieved_max"] = float(f"{self.achieved_max:.6g}")
+        if math.isfinite(self.achieved_p99):
+            out["achieved_p99"] = float(f"{self.achieved_p99:.6g}")
         out["saturated_share"] = float(f"{self.saturated_share:.4g}")
         return out
 
@@ -183,10 +187,16 @@ class SpeedLimit:
         if self.saturated and self.limit.value is not None:
             iv = self.limit.interval
             within = f" [{iv[0]:.3g}, {iv[1]:.3g}]" if iv is not None else ""
+            held = (
+                f"achieved {self.achieved_p99:.3g} {unit} at the 99th percentile (peak {self.achieved_max:.3g}, a "
+                "transient)"
+                if math.isfinite(self.achieved_p99)
+                else f"achieved up to {self.achieved_max:.3g} {unit}"
+            )
             return (
                 f"{self.channel} speed limit {self.limit.value:.3g}{within} {unit}: commanded up to "
-                f"{self.commanded_max:.3g} {unit}, never above the limit ({self.saturated_share:.0%} of the samples "
-                "commanded beyond it); the gain is fitted below it"
+                f"{self.commanded_max:.3g} {unit}, {held}; {self.saturated_share:.0%} of the samples commanded "
+                "beyond the limit, and the gain is fitted below it"
             )
         return f"{self.channel}: no speed limit up to {self.achieved_max:.3g} {unit} achieved ({self.limit.reason})"
 
@@ -475,7 +485,9 @@ def estimate_actuation(
         known = not math.isnan(se)
         se_r, interval_r = reach.widen(4, delay + tau, se if known else None, interval if known else None)
         response = Estimate.of(delay + tau, se_r, interval_r, "s", method + reach.words, len(fine.y))
-    notes: tuple[str, ...] = (f"{len(tracks)} contact-free tracks, {duration:.1f} s, {n_clusters} robot-episodes",)
+    notes: tuple[str, ...] = (
+        f"{counted(len(tracks), 'contact-free track')}, {duration:.1f} s, from {counted(n_clusters, 'robot-episode')}",
+    )
     notes += tuple(limit.sentence() for limit in limits if limit is not None)
     notes += tuple(f"ambiguous: {a.sentence()}" for a in ambiguities)
     return ActuationFit(
@@ -609,13 +621,13 @@ def _gain_or_limit(
     ambiguity = Ambiguity(
         (f"actuation.{channel}_gain", f"speed_limits.{channel}"),
         (
-            f"a {channel} gain of {gain:.3g} without a speed limit",
+            f"{'an' if channel[0] in 'aeiou' else 'a'} {channel} gain of {gain:.3g} without a speed limit",
             f"the nominal gain up to a limit of {top:.3g} {unit}",
         ),
         f"the limit ({top:.3g} {unit}): it changes the simulator least, commands below it acting as nominal",
         f"commands at several {channel} speeds, some below {top:.3g} {unit} and some above it",
     )
-    return ambiguity, SpeedLimit(channel, estimate, limit.commanded_max, limit.achieved_max, 1.0)
+    return ambiguity, SpeedLimit(channel, estimate, limit.commanded_max, limit.achieved_max, 1.0, limit.achieved_p99)
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -707,6 +719,7 @@ def _speed_limits(
     gain_draws: dict[int, np.ndarray] = {}
     for c in channels:
         achieved_max = float(np.abs(problem.y[:, c]).max())
+        achieved_p99 = float(np.percentile(np.abs(problem.y[:, c]), 99))
         position, gain, least, plain = _knee_of(sums.sum(axis=1), c)
         share_at = float(np.interp(position, np.arange(len(KNEE_SHARES)), KNEE_SHARES))
         knee = peak[c] * share_at
@@ -727,7 +740,7 @@ def _speed_limits(
                 estimate = Estimate.of(gain * knee, se, interval, unit, method, len(problem.y))
             else:
                 estimate = Estimate.of(gain * knee, None, None, unit, "knee of the command, one robot-episode", 1)
-            limits[c] = SpeedLimit(CHANNELS[c], estimate, float(peak[c]), achieved_max, beyond)
+            limits[c] = SpeedLimit(CHANNELS[c], estimate, float(peak[c]), achieved_max, beyond, achieved_p99)
             knees[c] = knee
         else:
             why = (

@@ -141,3 +141,8 @@ def spread(samples: np.ndarray) -> tuple[float, tuple[float, float]]:
         return math.nan, (math.nan, math.nan)
     low, high = np.percentile(good, [2.5, 97.5])
     return float(np.std(good, ddof=1)), (float(low), float(high))
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``"1 robot-episode"``, ``"3 robot-episodes"``: a count with its noun in the right number."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"

@@ -285,6 +285,13 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
     if ranges:
         lines += ["", "Training on this calibration randomizes (per episode, uniform):", ""]
         lines += [f"- `{g}.{k}`: [{lo:g}, {hi:g}]" for g, kv in ranges.items() for k, (lo, hi) in kv.items()]
+        lines += [
+            "",
+            "Each range is its key's 95 % interval widened to at least +-10 % of the value; the actuation keys' "
+            "ranges also hold the spread the recorded velocity transitions ask for (the randomization fit in the "
+            "notes), and the gains are centred on the wheel chain's gains where the motors were fitted. A range far "
+            "wider than the interval is that spread of the robot's behaviour, not uncertainty of the value.",
+        ]
     notes: list[str] = []
     fits = (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network)
     for part in (*fits, calibration.wheels, calibration.clock, calibration.motors, calibration.randomization):

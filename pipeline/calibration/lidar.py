@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, binomial_estimate, bootstrap, spread
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, binomial_estimate, bootstrap, counted, spread
 from pipeline.calibration.lidar_noise import (
     NOISE_BOUNDS,
     NoiseBins,
@@ -1227,7 +1227,8 @@ def estimate_lidar(
         kept = mask & valid
         count = kept.sum(axis=0)
         fitted, fitted_surface, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
-        per_span_res.append((r - fitted[0][None, :])[kept])  # against the calibrated map: what is left is noise
+        cast_kept = np.where(kept, fitted[0][None, :], 0.0)  # no arithmetic on the casts of beams not kept (inf)
+        per_span_res.append((np.where(kept, r, 0.0) - cast_kept)[kept])  # against the calibrated map: noise left
         per_span_rng.append(np.broadcast_to(fitted[0][None, :], r.shape)[kept])
         with np.errstate(invalid="ignore", divide="ignore"):
             span_mean = np.where(count > 0, np.where(kept, r - fitted[0][None, :], 0.0).sum(axis=0) / count, np.nan)
@@ -1275,7 +1276,10 @@ def estimate_lidar(
             )
     n_trials = int(trials.sum())
     yaw_est = _with_beam_angle_errors(yaw_est, masks)
-    notes = [f"{len(spans)} stationary spans, {stationary_s:.1f} s, {sum(s.ranges.shape[0] for s in spans)} scans"]
+    notes = [
+        f"{counted(len(spans), 'stationary span')}, {stationary_s:.1f} s, "
+        f"{counted(sum(s.ranges.shape[0] for s in spans), 'scan')}"
+    ]
     if sectors:
         shown = ", ".join(f"[{a:.2f}, {b:.2f}]" for a, b in sectors)
         notes.append(f"beams blocked by the robot itself in {shown} rad (left out)")

@@ -17,7 +17,8 @@ a floor under every drift.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -85,6 +86,7 @@ def map_replay(
     every_s: float | None = None,
     max_windows: int = 60,
     initial_pose: Sequence[float] = (),
+    progress: Callable[[str], None] | None = None,
 ) -> MapReplay:
     """Each simulator of `worlds` driven open loop with the recordings' commands, against their localized path.
 
@@ -113,8 +115,20 @@ def map_replay(
         if not any(t0 + int(window_s * 1e9) <= last for t0 in rest_starts(commands).tolist()):
             raise nothing(str(data.path))
 
+    began = time.perf_counter()
+
+    def stage(what: str) -> None:
+        if progress is not None:
+            progress(f"{what} ({time.perf_counter() - began:.0f} s)")
+
+    def checked(data: SessionData) -> None:
+        has_window(data)
+        if data.pose_source == "scans":
+            stage(f"localizing {len(data.robots)} robot(s) of {data.path} in {Path(map_file).name}")
+
+    stage(f"reading {len(recordings)} recording(s)")
     sessions, scenario = localized_recordings(
-        recordings, map_file, initial_pose=initial_pose, before_localizing=has_window
+        recordings, map_file, initial_pose=initial_pose, before_localizing=checked
     )
     cases: list[tuple[np.ndarray, list[Track], list[Track], int, int]] = []
     for data in sessions:
@@ -148,6 +162,7 @@ def map_replay(
 
     drifts = []
     for name, world in worlds.items():
+        stage(f"{len(cases)} windows of {window_s:g} s in the {name} simulator")
         sim = SimWorld(scenario, _replay_world(world))
         runs = [open_loop_errors(sim, start, c, p, t0, end, ticks, TICK_S, blocked) for start, c, p, t0, end in cases]
         errors = np.stack([e for e, _ in runs])  # (windows, ticks, robots)

@@ -51,7 +51,7 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from pipeline.calibration.actuation import CommandTimeline
-from pipeline.calibration.estimates import Estimate, bootstrap
+from pipeline.calibration.estimates import Estimate, bootstrap, counted
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
 from pipeline.core.timebase import NS_PER_S
@@ -496,7 +496,7 @@ def estimate_motors(
     """Deadband and acceleration limit of the wheel motors from the contact-free odometry of `episodes`."""
     used = [e for e in episodes if int(e.free.sum()) >= 3]
     if len(used) < MIN_EPISODES:
-        reason = f"{len(used)} robot-episodes with contact-free odometry; the fit needs {MIN_EPISODES}"
+        reason = f"{counted(len(used), 'robot-episode')} with contact-free odometry; the fit needs {MIN_EPISODES}"
         return _unfitted(reason)
     moving = [e for e in used if np.any(np.abs(np.concatenate(_parts(e.commands.values), axis=1)) > MOVING_RADPS)]
     if len(moving) < MIN_EPISODES:
@@ -580,7 +580,8 @@ def estimate_motors(
             else f"; {motor.reason}"
         )
     notes = (
-        f"motors: {len(used)} robot-episodes; {n_steady} steady samples give the deadband and the wheel chain's "
+        f"motors: {counted(len(used), 'robot-episode')}; {n_steady} steady samples give the deadband and the wheel "
+        "chain's "
         f"gains {g_lin:.3f} (linear), {g_ang:.3f} (angular); {n_free} samples of {len(transient)} of them give "
         f"delay {d:.2f} s, total lag {lag:.3f} s ({share:.0%} after the limit)"
         + (

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, chi_interval
+from pipeline.calibration.estimates import MAD_TO_SIGMA, Z_95, Estimate, chi_interval, counted
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import pose_jumps
 from pipeline.core.timebase import NS_PER_S
@@ -339,7 +339,8 @@ def estimate_odometry(
     n = len(draws)
     disturbed = sum(d.disturbed_chunks for d in drifts)
     notes: tuple[str, ...] = (
-        f"{len(drifts)} robot-episodes, {n} draws; {disturbed} chunks left out as pushes or spinning wheels",
+        f"{counted(len(drifts), 'robot-episode')}, {counted(n, 'draw')}; {counted(disturbed, 'chunk')} left out as "
+        "pushes or spinning wheels",
     )
     if far.any():
         left = ", ".join(f"{key} {value:+.3f}" for (key, value, _), out in zip(entries, far, strict=True) if out)

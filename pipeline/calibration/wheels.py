@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from pipeline.calibration.estimates import Estimate, bootstrap, spread
+from pipeline.calibration.estimates import Estimate, bootstrap, counted, spread
 from pipeline.calibration.odometry import CHUNK_S, OdometryEpisode, chunk_bounds, continuous_stretches, pose_increments
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
@@ -366,7 +366,8 @@ def _problems(chunks: Sequence[WheelChunks], nominal_separation_m: float) -> lis
     n = sum(len(c.distance_m) for c in chunks)
     if g < MIN_CLUSTERS:
         problems.append(
-            f"only {g} robot-episodes with motion (need {MIN_CLUSTERS}): the intervals rest on the spread between them"
+            f"only {counted(g, 'robot-episode')} with motion (need {MIN_CLUSTERS}): the intervals rest on the spread "
+            "between them"
         )
     if n < MIN_CHUNKS:
         problems.append(f"only {n} chunks of {CHUNK_S:g} s (need {MIN_CHUNKS})")
@@ -412,7 +413,7 @@ def estimate_wheels(
     chunks = [c for c in chunks if np.any(c.travel != 0.0)]
     g = len(chunks)
     n = sum(len(c.distance_m) for c in chunks)
-    notes = [f"{g} robot-episodes, {n} chunks of {CHUNK_S:g} s"]
+    notes = [f"{counted(g, 'robot-episode')} with motion, {counted(n, 'chunk')} of {CHUNK_S:g} s"]
     problems = _problems(chunks, nominal_separation_m)
     weight = nominal_separation_m / 2
     fitted = None
@@ -447,7 +448,7 @@ def estimate_wheels(
     notes.append(
         f"drove {float(np.abs(travel.mean(axis=1)).sum()):.1f} m, turned "
         f"{float(np.abs(travel @ _SPIN).sum()) / nominal_separation_m:.1f} rad; weighted rms residual per chunk "
-        f"{rms[0]:.2g} m, {rms[1] / weight:.2g} rad; {int(np.sum(w == 0.0))} chunks left out as slip"
+        f"{rms[0]:.2g} m, {rms[1] / weight:.2g} rad; {counted(int(np.sum(w == 0.0)), 'chunk')} left out as slip"
     )
     tau2, split_notes = _condition_variance(chunks, weights, weight, theta, nominal_radius_m)
     notes += split_notes

@@ -5,10 +5,17 @@ twin gone, a foreign writer on the domain, an operator's stop, a recording cut i
 like any other: its robots succeed only if they had reached their goal without colliding before the
 abort, and its team fails. The rates over the completed episodes alone stand beside the headline
 rates under names that say so (``*_completed``).
+
+A robot's path length is measured one way wherever it is reported (an episode's result, its
+session's episodes.csv, the analysis of its recording): along its poses at the episode's control
+steps (:func:`path_times_ns`, :func:`path_lengths_m`). The control grid is the one resolution a
+simulated and a real episode share; summing motion capture at its own rate would count its noise
+and every message the network delivered out of order as distance travelled.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,9 +37,11 @@ class EpisodeResult:
     reached: np.ndarray
     collided: np.ndarray
     time_to_goal_s: np.ndarray  # nan where the goal was not reached
-    path_length_m: np.ndarray
+    path_length_m: np.ndarray  # :func:`path_lengths_m` of the trajectory
     team_success: bool
-    trajectory: np.ndarray  # (steps + 1, n_robots, 3) ground-truth poses
+    trajectory: np.ndarray
+    """(n_samples, n_robots, 3) poses at control steps 0, 1, ... (ground truth where there is one): steps + 1 of
+    them, or one more when an abort stopped the episode in a step the judge did not finish."""
     aborted: bool = False
     abort_reason: str = ""
     abort_kind: str = ""
@@ -60,6 +69,29 @@ class EpisodeResult:
     def stale_per_robot_s(self) -> np.ndarray:
         """(n_robots,) stale seconds, zeros where none were measured."""
         return self.stale_s if self.stale_s.size else np.zeros(len(self.reached))
+
+
+def path_times_ns(start_ns: int, period_ns: int, steps: int, end_ns: int | None = None) -> np.ndarray:
+    """(steps + 1,) int64 times (ns) of an episode's control steps 0..steps, where its path is sampled (each robot's
+    newest pose received at or before the time): step k at ``start_ns + k * period_ns`` (the grid the control loop
+    keeps, not the moment a late step ran), none after `end_ns` (an episode cut short inside a step samples that
+    step at its end)."""
+    times = int(start_ns) + int(period_ns) * np.arange(max(int(steps), 0) + 1, dtype=np.int64)
+    return times if end_ns is None else np.minimum(times, np.int64(end_ns))
+
+
+def path_lengths_m(poses: np.ndarray) -> np.ndarray:
+    """(n_robots,) metres travelled along `poses` (n_samples, n_robots, >= 2; x, y in metres first): the straight
+    steps between a robot's consecutive samples, summed exactly (``math.fsum``, so the result does not depend on
+    the array's layout). A sample with a NaN coordinate (no pose known at that step) is skipped."""
+    xy = np.asarray(poses, dtype=np.float64)[..., :2]
+    out = np.zeros(xy.shape[1])
+    for i in range(xy.shape[1]):
+        track = xy[:, i]
+        track = track[np.isfinite(track).all(axis=1)]
+        if len(track) > 1:
+            out[i] = math.fsum(np.hypot(np.diff(track[:, 0]), np.diff(track[:, 1])).tolist())
+    return out
 
 
 def _rates(prefix: str, k: int, n: int, out: dict[str, float]) -> None:

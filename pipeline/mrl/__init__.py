@@ -24,14 +24,17 @@ A BAG is an MCAP file, a rosbag2 folder (``metadata.yaml`` with mcap or sqlite3 
 a temporary folder (:func:`pipeline.record.import_bag`), removed when the command ends. Messages
 about an imported bag name the bag as given, not the temporary copy.
 
-Exit codes (:mod:`pipeline.stage`): 0 done, 2 bad input (one line ``mrl <verb>: <message>`` on stderr),
-130 interrupted.
+Exit codes (:data:`pipeline.stage.EXIT_CODES`, listed by ``mrl --help``): 0 done, 1 no result (a sweep whose
+trials all failed), 2 bad input (one line ``mrl <verb>: <message>`` on stderr), 3 runtime fault (a twin or driver
+gone, a clash on the domain), 130 interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
+import textwrap
 import warnings
 from collections.abc import Callable, Sequence
 from types import ModuleType
@@ -39,9 +42,9 @@ from typing import TextIO
 
 from pipeline.errors import MrlError, RuntimeFault
 from pipeline.mrl import calibrate, compare, deploy, episodes, evaluate, info, replay, sweep, twin
-from pipeline.mrl.common import CommandError, output_folder
+from pipeline.mrl.common import CommandError, VerbParser, output_folder
 from pipeline.mrl.info import describe
-from pipeline.stage import run_stage
+from pipeline.stage import EXIT_CODES, run_stage
 
 __all__ = ["PROG", "VERBS", "CommandError", "build_parser", "describe", "main", "output_folder"]
 
@@ -51,19 +54,43 @@ VERBS: tuple[ModuleType, ...] = (info, episodes, compare, calibrate, replay, twi
 (``run(args)``; the twin's ``run(rest)`` takes the arguments it parses itself)."""
 
 
+def _help_width() -> int:
+    """The width argparse wraps help text to (the terminal's, less a margin)."""
+    return max(shutil.get_terminal_size().columns - 2, 40)
+
+
+def _exit_codes_text() -> str:
+    """Every exit code of the verbs with its meaning, one per entry (the epilog of ``mrl --help``)."""
+    width = max(len(str(code)) for code in EXIT_CODES) + 2
+    lines = ["exit codes:"]
+    for code, meaning in EXIT_CODES.items():
+        lines += textwrap.wrap(
+            meaning, _help_width(), initial_indent=f"  {code:<{width}}", subsequent_indent=" " * (width + 2)
+        )
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``mrl`` argument parser with every verb."""
+    return _parsers()[0]
+
+
+def _parsers() -> tuple[argparse.ArgumentParser, dict[str, VerbParser]]:
+    """The ``mrl`` argument parser, and each verb's parser by name."""
+    description = (
+        "Recordings of multi-robot sessions (ROS 2 bags, ROS 1 bags, MCAP): inspect, tabulate, compare, calibrate "
+        "the simulator, replay; run the hardware twin and deploy policies."
+    )
     parser = argparse.ArgumentParser(
         prog=PROG,
-        description="Recordings of multi-robot sessions (ROS 2 bags, ROS 1 bags, MCAP): inspect, tabulate, compare, "
-        "calibrate the simulator, replay; run the hardware twin and deploy policies.",
-        epilog="Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted. "
-        "`mrl VERB --help` for a verb's options.",
+        description=textwrap.fill(description, _help_width()),
+        epilog=f"{_exit_codes_text()}\n\n`mrl VERB --help` for a verb's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    subparsers = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+    subparsers = parser.add_subparsers(dest="verb", metavar="VERB", required=True, parser_class=VerbParser)
     for verb in VERBS:
         verb.add_parser(subparsers)
-    return parser
+    return parser, dict(subparsers.choices)
 
 
 def _warning_line(verb: str, stream: TextIO) -> Callable[..., None]:
@@ -100,13 +127,13 @@ def _one_line(verb: str, body: Callable[[], int]) -> Callable[[], int]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``mrl`` with `argv` (default: the command line); the exit code."""
-    parser = build_parser()
+    parser, verbs = _parsers()
     args, rest = parser.parse_known_args(argv)
     verb: str = args.verb
     if verb == twin.NAME:
         return run_stage("mrl twin", lambda: twin.run(rest))
     if rest:
-        parser.parse_args(argv)  # reports the unknown arguments and exits 2
+        verbs[verb].refuse_unrecognized(rest)  # the verb's usage and the nearest option; exits 2
     warnings.showwarning = _warning_line(verb, sys.stderr)
     return run_stage(f"mrl {verb}", _one_line(verb, lambda: _run_of(verb)(args)))
 

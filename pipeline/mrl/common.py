@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import difflib
 import math
 import os
+import sys
 import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 from pipeline.errors import MrlError
 
@@ -34,9 +36,67 @@ class CommandError(MrlError):
         super().__init__(message)
 
 
-def add_verb(subparsers: Any, name: str, summary: str, description: str, **kwargs: Any) -> argparse.ArgumentParser:
+class VerbParser(argparse.ArgumentParser):
+    """A verb's parser (``mrl`` makes every verb's one): it keeps the option strings given to its ``add_argument``,
+    so that any error it reports (an unknown argument, a missing one, a bad value) names the nearest of its options
+    to each option it was given that it does not know, under its own usage."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.option_names: list[str] = []
+        """Every option string of the verb (``--map``, ``-h``, ...), in the order added."""
+        self.given: list[str] = []
+        """The arguments of the last parse."""
+        super().__init__(*args, **kwargs)
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        self.option_names.extend(action.option_strings)
+        return action
+
+    def parse_known_args(self, args: Iterable[str] | None = None, namespace: Any = None) -> tuple[Any, list[str]]:
+        self.given = list(args) if args is not None else sys.argv[1:]
+        return super().parse_known_args(self.given, namespace)
+
+    def unknown_options(self, arguments: Sequence[str]) -> dict[str, str | None]:
+        """``{option: the nearest of the verb's options, or None}`` for each argument of `arguments` that looks like
+        an option (not a negative number) and is neither one of the verb's nor an abbreviation argparse takes."""
+        out: dict[str, str | None] = {}
+        for argument in arguments:
+            name = argument.split("=", 1)[0]
+            if not name.startswith(self.prefix_chars) or name in self.option_names or name in out or _number(name):
+                continue
+            if name.startswith("--") and len(name) > 2 and any(o.startswith(name) for o in self.option_names):
+                continue
+            nearest = difflib.get_close_matches(name, self.option_names, n=1)
+            out[name] = nearest[0] if nearest else None
+        return out
+
+    def error(self, message: str) -> NoReturn:
+        """The verb's usage and ``<prog>: error: <message>`` on stderr, the nearest option named for each unknown one
+        it was given (``--mpa: did you mean --map?``); exit 2."""
+        hints = [
+            f"{name}: did you mean {nearest}?" if nearest else f"{name}: not an option of {self.prog}"
+            for name, nearest in self.unknown_options(self.given).items()
+        ]
+        super().error(message + (f" ({'; '.join(hints)})" if hints else ""))
+
+    def refuse_unrecognized(self, arguments: Sequence[str]) -> NoReturn:
+        """Exit 2 through :meth:`error` for the arguments of the last parse that the verb did not recognize."""
+        self.error(f"unrecognized arguments: {' '.join(arguments)}")
+
+
+def _number(text: str) -> bool:
+    """`text` is a number, or numbers separated by commas (a value such as -1,2,0, not an option)."""
+    try:
+        [float(part) for part in text.split(",")]
+    except ValueError:
+        return False
+    return True
+
+
+def add_verb(subparsers: Any, name: str, summary: str, description: str, **kwargs: Any) -> VerbParser:
     """The parser of verb `name`: `summary` in ``mrl --help``, `description` (kept as written) in its own help."""
-    parser: argparse.ArgumentParser = subparsers.add_parser(
+    parser: VerbParser = subparsers.add_parser(
         name, help=summary, description=description, formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs
     )
     return parser

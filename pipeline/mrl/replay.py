@@ -5,6 +5,8 @@ motion capture, its commands open loop against its path localized in the map."""
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +23,8 @@ from pipeline.mrl.common import (
 )
 
 NAME = "replay"
+MAP_HORIZONS_S = (5.0, 10.0, 30.0)
+"""With --map: the horizons the drift is read at (the longest is the window, --horizon-s replaces it)."""
 
 
 def add_parser(subparsers: Any) -> None:
@@ -58,7 +62,13 @@ def add_parser(subparsers: Any) -> None:
         "--calibration", default=None, metavar="FILE", help="calibration.yaml: also replay in the calibrated simulator"
     )
     replay.add_argument(
-        "--horizon-s", type=float, default=defaults.horizon_s, metavar="S", help="seconds replayed per episode"
+        "--horizon-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"seconds replayed per episode (default: {defaults.horizon_s:g}); with --map the window's length "
+        f"(default: {MAP_HORIZONS_S[-1]:g}), the drift also read at the shorter of "
+        f"{', '.join(f'{h:g}' for h in MAP_HORIZONS_S)} s",
     )
     replay.add_argument(
         "--max-episodes", type=int, default=defaults.max_episodes, metavar="N", help="episodes replayed"
@@ -79,12 +89,21 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.params import ReplayConfig, calibrated_world
     from pipeline.policy.runtime import PolicyRuntime
 
-    if (args.policy is None) == (args.map is None):
-        raise CommandError("replay: give --policy DIR (a session with observations) or --map MAP (a bag), not both")
+    if args.policy is None and args.map is None:
+        raise CommandError(
+            "one of --policy DIR (a session with observations: the policy re-run on them) or --map MAP (a bag "
+            "without motion capture: its commands replayed against its path localized in the map) is needed"
+        )
+    if args.policy is not None and args.map is not None:
+        raise CommandError(
+            f"--policy {args.policy} and --map {args.map}: give one of them, not both (--policy for a session "
+            "with observations, --map for a bag without motion capture)"
+        )
     if args.map is not None:
         return _map_run(args)
     out = output_folder(args.out)
-    options = {"horizon_s": args.horizon_s, "max_episodes": args.max_episodes, "tolerance": args.tolerance}
+    horizon = args.horizon_s if args.horizon_s is not None else ReplayConfig().horizon_s
+    options = {"horizon_s": horizon, "max_episodes": args.max_episodes, "tolerance": args.tolerance}
     cfg = config_from_options(ReplayConfig, options)
     runtime = PolicyRuntime(args.policy)
     scenario = runtime.spec.scenario
@@ -125,7 +144,18 @@ def _map_run(args: argparse.Namespace) -> int:
     if args.calibration:
         worlds["calibrated"] = calibrated_world(worlds["nominal"], Path(args.calibration))
     with imported(args, [args.recording]) as (bag,):
-        result = map_replay([bag.path], args.map, worlds, initial_pose=args.initial_pose or ())
+        longest = args.horizon_s if args.horizon_s is not None else MAP_HORIZONS_S[-1]
+        if not (math.isfinite(longest) and longest > 0):
+            raise CommandError(f"--horizon-s {args.horizon_s}: give a number of seconds above 0")
+        horizons = (*(h for h in MAP_HORIZONS_S if h < longest), longest)
+        result = map_replay(
+            [bag.path],
+            args.map,
+            worlds,
+            horizons_s=horizons,
+            initial_pose=args.initial_pose or (),
+            progress=lambda stage: print(f"replay: {stage}", file=sys.stderr, flush=True),
+        )
     table = result.lines()
     text = "\n".join(
         [
@@ -146,7 +176,8 @@ def _map_run(args: argparse.Namespace) -> int:
     try:
         out.mkdir(parents=True, exist_ok=True)
         (out / "replay_map.md").write_text(text, encoding="utf-8")
-        (out / "replay_map.json").write_text(json.dumps({"windows": result.windows, **figures}, indent=2) + "\n")
+        summary = {"windows": result.windows, "window_s": result.window_s, **figures}
+        (out / "replay_map.json").write_text(json.dumps(summary, indent=2) + "\n")
     except OSError as exc:
         raise CommandError(f"--out {out}: cannot write ({exc.strerror or exc})") from exc
     for line in table:

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from pipeline.errors import ConfigError, ConfigProblem
 from pipeline.mrl.common import add_verb, output_folder
+from pipeline.stage import EXIT_DONE, EXIT_NO_RESULT
 
 if TYPE_CHECKING:
     from pipeline.bench.trials import Trial
@@ -113,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         rows = outcome.rows
     if rows.is_empty():
         print("sweep: no finished trial yet: nothing to report")
-        return 0 if args.report_only else 1
+        return EXIT_DONE if args.report_only else EXIT_NO_RESULT
     stats = cell_stats(rows, reps=args.bootstrap)
     print(markdown_table(stats), end="")
     report = write_report(out, rows, stats, command)

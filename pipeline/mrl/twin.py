@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pipeline.mrl.common import add_verb
+from pipeline.mrl.common import VerbParser, add_verb
 
 NAME = "twin"
 
@@ -21,7 +21,14 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(rest: list[str]) -> int:
-    """Run the twin with the arguments after ``mrl twin``."""
+    """Run the twin with the arguments after ``mrl twin``; an argument it does not know is refused with the twin's
+    usage and the nearest of its options (exit 2) before anything starts."""
+    from pipeline.twin.__main__ import build_parser
     from pipeline.twin.__main__ import main as twin_main
 
-    return twin_main(rest, prog="mrl twin")
+    parser = build_parser(f"mrl {NAME}", VerbParser)
+    assert isinstance(parser, VerbParser)
+    _, unknown = parser.parse_known_args(rest)
+    if unknown:
+        parser.refuse_unrecognized(unknown)
+    return twin_main(rest, prog=f"mrl {NAME}")

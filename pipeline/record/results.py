@@ -159,7 +159,9 @@ EPISODES_CSV_COLUMNS = (
 )
 """The columns of every episodes.csv (sim evaluation, scripted evaluation, deployment), in order. success: the robot
 reached its goal without colliding (before the abort, in an aborted episode); team_success: every robot did and the
-episode was not aborted; stale_s: the seconds the robot stood still for want of fresh data."""
+episode was not aborted; stale_s: the seconds the robot stood still for want of fresh data; path_length_m: metres
+along its poses at the episode's control steps (:func:`pipeline.core.episode.path_lengths_m`, which ``mrl episodes``
+reads back from the recording the same way)."""
 
 
 def write_episodes(path: Path, results: list[EpisodeResult]) -> None:

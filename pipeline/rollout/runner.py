@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.core.episode import EpisodeResult
+from pipeline.core.episode import EpisodeResult, path_times_ns
 from pipeline.core.layouts import draw_layout
 from pipeline.core.network import observed_scans, stand_still
 from pipeline.core.scan import uncovered_beams
@@ -41,7 +41,7 @@ from pipeline.rollout.handshake import ResetHandshake
 from pipeline.rollout.link import FleetLink, LatestSamples, odom_sample, scan_sample
 from pipeline.rollout.tally import EpisodeTally
 from pipeline.rollout.watch import OdometryFrame, StalenessWatch
-from pipeline.ros.buffers import ScanSample, TimingEvent
+from pipeline.ros.buffers import PoseSample, ScanSample, TimingEvent
 from pipeline.ros.clock import Clock, ScaledClock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Transport
@@ -86,6 +86,7 @@ class DeployRunner:
         self.namespaces = [r.namespace for r in fleet.robots]
         self._episode = 0
         self._step = 0
+        self._t_start = 0
         self.mdp = mdp_parts(scenario, runtime.spec.world)  # the MDP the policy was trained in
         self.builder = self.mdp.observer
         self.judge = self.mdp.judge
@@ -303,10 +304,22 @@ class DeployRunner:
         k = -((origin - now_ns) // self.period_ns)
         return origin + k * self.period_ns
 
+    def _path_poses(self, at_ns: int, previous: np.ndarray) -> np.ndarray:
+        """(n_robots, 3) the episode's path at a control step: each robot's newest ground truth (odometry in the map
+        frame, for a fleet without motion capture) received at or before `at_ns`, as the recording's analysis reads it
+        back; `previous` stands in for a robot whose ring holds nothing that old."""
+        found = [self.receiver.latest("truth" if self.use_truth else "odom", ns, at_ns) for ns in self.namespaces]
+        have = np.array([isinstance(s, PoseSample) for s in found])
+        raw = np.stack([s.pose if isinstance(s, PoseSample) else np.zeros(3) for s in found])
+        poses = np.array(previous, dtype=float, copy=True)
+        poses[have] = (raw if self.use_truth else self.odometry.to_map(raw))[have]
+        return poses
+
     def run_episode(self, episode: int, seed: int) -> EpisodeResult:
         self._episode, self._step = episode, 0
         self._reset(episode, seed)
         t_start = self.next_control_time(self.clock.now_ns())
+        self._t_start = t_start
         self.clock.sleep_until(t_start)
         self.log.start_episode(t_start, episode, seed)
         self.log.map(t_start, self.layout)
@@ -333,6 +346,8 @@ class DeployRunner:
             if not self.clock.sleep_until(next_t):
                 break
             t = self.clock.now_ns()
+            if step > 0:  # the path at this step's time on the control grid, whatever happens in the step
+                tally.stepped(self._path_poses(next_t, tally.poses[-1]))
             self.link.timing(TimingEvent("control", "", "", t, tick=step))
             problem, kind = self.fleet_alive(), "fault"
             if problem is None and self.emitter.error is not None:
@@ -375,7 +390,7 @@ class DeployRunner:
             if step > 0:
                 judged = self.judge.step(odom, truth, observed.ranges)
                 tally.log_events(self.log, t, step, judged)
-                tally.judged(judged, self.judge.steps, truth if truth is not None else odom)
+                tally.judged(judged, self.judge.steps)
                 done = judged.done
                 if judged.done.all() or judged.truncated:
                     break
@@ -406,6 +421,9 @@ class DeployRunner:
         if tally is None:
             return None
         t = self.clock.now_ns()
+        while tally.sampled_steps < self._step:  # the step it stopped in: at its time, or now if that comes first
+            at = int(path_times_ns(self._t_start, self.period_ns, tally.sampled_steps + 1, t)[-1])
+            tally.stepped(self._path_poses(at, tally.poses[-1]))
         self.log.event(t, self._episode, self._step, "abort", detail=why)
         self.log.event(t, self._episode, self._step, "end", detail="aborted")
         return tally.result(self.judge, True, why, kind, self.staleness.stale_s(t))

@@ -108,7 +108,8 @@ def run_episode(
                     log.event(t_ns + period_ns, episode, step, "fresh", names[i], f"{seconds:.3f} s stale")
         was_stale = sim.stale.copy()
         obs = result.obs
-        tally.judged(result.judge, sim.judge.steps, sim.world.truth)
+        tally.stepped(sim.world.truth)  # the pose recorded at this step's time
+        tally.judged(result.judge, sim.judge.steps)
         if result.judge.done.all() or result.judge.truncated:
             break
     if log is not None:

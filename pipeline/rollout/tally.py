@@ -1,8 +1,9 @@
 """One episode's bookkeeping, the same in the simulated world and on a fleet.
 
 The loops differ in where observations come from; what they count does not: the pose of every robot
-at the start and after each judged control step, the time each robot reached its goal, path
-lengths, the judge's events in the recording, and the episode's result.
+at each control step (its start, then every step the episode reached: the samples of its path,
+:func:`pipeline.core.episode.path_times_ns`), the time each robot reached its goal, path lengths,
+the judge's events in the recording, and the episode's result.
 """
 
 from __future__ import annotations
@@ -11,13 +12,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pipeline.core.episode import EpisodeResult
+from pipeline.core.episode import EpisodeResult, path_lengths_m
 from pipeline.core.judge import EpisodeJudge, JudgeStep
 from pipeline.record.session import SessionLog
 
 
 class EpisodeTally:
-    """Counts one episode: `start` with the first poses, `judged` after each judged step, `result` at the end."""
+    """Counts one episode: `start` with the first poses, `stepped` with the poses at each later control step,
+    `judged` after each judged step, `result` at the end."""
 
     def __init__(self, episode: int, seed: int, names: Sequence[str], control_period_s: float) -> None:
         self.episode = episode
@@ -29,14 +31,22 @@ class EpisodeTally:
         self.last: JudgeStep | None = None
 
     def start(self, poses: np.ndarray) -> None:
-        """The poses (n_robots, 3) the episode starts from (ground truth where there is one)."""
+        """The poses (n_robots, 3) the episode starts from, at control step 0 (ground truth where there is one)."""
         self.poses = [np.array(poses, dtype=float)]
 
-    def judged(self, judged: JudgeStep, steps: int, poses: np.ndarray) -> None:
-        """After the judge's `steps`-th step: arrivals (at `steps` control periods) and the robots' poses."""
+    def stepped(self, poses: np.ndarray) -> None:
+        """The poses (n_robots, 3) at the next control step (the path's next sample)."""
+        self.poses.append(np.array(poses, dtype=float))
+
+    @property
+    def sampled_steps(self) -> int:
+        """The control steps whose poses are counted after the start."""
+        return len(self.poses) - 1
+
+    def judged(self, judged: JudgeStep, steps: int) -> None:
+        """After the judge's `steps`-th step: arrivals (at `steps` control periods)."""
         new = judged.reached & np.isnan(self.arrival)
         self.arrival[new] = steps * self.control_period_s
-        self.poses.append(np.array(poses, dtype=float))
         self.last = judged
 
     def log_events(self, log: SessionLog | None, t_ns: int, step: int, judged: JudgeStep) -> None:
@@ -66,7 +76,6 @@ class EpisodeTally:
     ) -> EpisodeResult:
         """The episode's result; an aborted one keeps the goals reached before the abort, and its team fails."""
         traj = np.stack(self.poses)
-        steps_xy = np.diff(traj[:, :, :2], axis=0)
         return EpisodeResult(
             episode=self.episode,
             seed=self.seed,
@@ -74,7 +83,7 @@ class EpisodeTally:
             reached=judge.reached.copy(),
             collided=judge.collided.copy(),
             time_to_goal_s=self.arrival.copy(),
-            path_length_m=np.hypot(steps_xy[..., 0], steps_xy[..., 1]).sum(axis=0),
+            path_length_m=path_lengths_m(traj),
             team_success=self.team_success and not aborted,
             trajectory=traj,
             aborted=aborted,

@@ -31,7 +31,14 @@ from pipeline.twin.twin import STALL_JUMP_NS, HardwareTwin, Silence
 
 
 def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    return build_parser(prog).parse_args(argv)
+
+
+def build_parser(
+    prog: str = "python -m pipeline.twin", parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser
+) -> argparse.ArgumentParser:
+    """The twin's options; `parser_class` builds the parser (``mrl twin`` gives its verbs' own)."""
+    parser = parser_class(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("--fleet", default="twin", help="bundled fleet name or fleet YAML (default: twin)")
     parser.add_argument("--profile", default=None, help="bundled profile name or profile YAML (default: the fleet's)")
     parser.add_argument(
@@ -59,7 +66,7 @@ def parse(argv: Sequence[str] | None, prog: str = "python -m pipeline.twin") -> 
         action="store_true",
         help="stop when standard input closes (the starting process holds the other end of the pipe)",
     )
-    return parser.parse_args(argv)
+    return parser
 
 
 def watch_lifeline(stop: threading.Event) -> None:

@@ -109,8 +109,9 @@ def tiny_params(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def twin_session(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path]:
     """The recording of one session of the excitation drive against the twin playing a bundled profile (mild,
-    harsh), made once per test run: the twin calibration and the plain-bag tests read the same recording, and
-    neither writes into its folder."""
+    harsh), made once per test run, in its deployment's folder (the episodes.csv and metrics.json the deployment
+    wrote beside it): the twin calibration, the plain-bag and the ``mrl episodes`` tests read the same recording,
+    and none writes into its folder."""
     from tests.calibration_helpers import TWIN_EPISODES, TWIN_STEPS, TWIN_TIME_SCALE, record_twin_session
 
     made: dict[str, Path] = {}

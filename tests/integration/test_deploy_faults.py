@@ -17,11 +17,12 @@ import psutil
 import pytest
 import yaml
 
+from pipeline.analysis.tables import episodes_table
 from pipeline.core.timebase import NS_PER_S
 from pipeline.messages.convert import EVENT_NAMES
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
-from pipeline.record.results import STAGING
+from pipeline.record.results import STAGING, read_episodes_csv
 from pipeline.rollout.deployment import DeployRequest, deploy_session
 from pipeline.rollout.errors import DeployAborted, FleetConflict, FleetNotReady
 from pipeline.ros.fleet import load_fleet
@@ -86,6 +87,15 @@ def summary_span(path: Path) -> tuple[int, int]:
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics is not None
     return summary.statistics.message_start_time, summary.statistics.message_end_time
+
+
+def check_paths_read_back(out: Path) -> None:
+    """The path lengths of the deployment's episodes.csv are those its recording gives back, the episode cut short
+    included (one definition: pipeline.core.episode.path_lengths_m at the control steps)."""
+    written = {(r["episode"], r["robot"]): r["path_length_m"] for r in read_episodes_csv(out / "episodes.csv")}
+    table = episodes_table(out / "session.mcap")
+    read_back = {(r["episode"], r["robot"]): round(r["path_length_m"], 4) for r in table.iter_rows(named=True)}
+    assert written and {k: read_back.get(k) for k in written} == written
 
 
 def digests(folder: Path) -> dict[str, str]:
@@ -210,6 +220,7 @@ def test_a_deployment_that_stops_partway_publishes_its_finished_episodes(tiny_po
     assert not log.salvaged
     events = [(EVENT_NAMES[m.msg.event], m.msg.episode, m.msg.step) for m in log.messages(["/mrl/episode"])]
     assert ("start", 0, 0) in events and ("end", 0) in {(e, ep) for e, ep, _ in events}
+    check_paths_read_back(out)
 
 
 def test_an_interrupted_deploy_records_the_step_it_stopped_at(tiny_policy, tmp_path):
@@ -245,6 +256,7 @@ def test_an_interrupted_deploy_records_the_step_it_stopped_at(tiny_policy, tmp_p
     # the abort names the step the interrupted episode was at: its last recorded control step or the next
     steps = [m.msg.step for m in log.messages(["/mrl/action"]) if m.msg.episode == starts[-1]]
     assert aborts[-1][1] in ({max(steps), max(steps) + 1} if steps else {0})
+    check_paths_read_back(out)
 
 
 def test_a_world_scenario_other_than_the_fleets_is_refused_not_ignored(tiny_policy, tmp_path):

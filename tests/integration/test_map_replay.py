@@ -67,6 +67,13 @@ def test_replay_needs_a_policy_or_a_map_not_both(building_bag, tmp_path):
     refused(mrl("replay", bag, "--map", map_yaml, "--policy", tmp_path, "--out", tmp_path / "r"), "replay", "--map")
 
 
+def test_the_command_s_map_horizons_are_the_replay_s():
+    from pipeline.calibration.map_replay import HORIZONS_S
+    from pipeline.mrl.replay import MAP_HORIZONS_S
+
+    assert MAP_HORIZONS_S == HORIZONS_S
+
+
 def test_windows_start_where_every_robot_has_stood_still_for_a_second():
     ns = 1_000_000_000
     t = np.arange(0, 10 * ns, ns // 10)
@@ -115,6 +122,16 @@ def test_a_bag_without_a_window_to_replay_is_one_line_naming_it(tmp_path):
     line = refused(done, "replay", str(bag))
     assert "no 30 s stretch of path with commands" in line and "standing still" in line
     assert not (tmp_path / "r" / "replay_map.md").exists()
+    # --horizon-s is the window: 5 s windows fit in the 15 s drive, and the drift is read at 5 s alone
+    done = mrl(
+        "replay", bag, "--map", map_yaml, f"--initial-pose={start}", "--horizon-s", "5", "--out", tmp_path / "r5",
+        timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    figures = json.loads((tmp_path / "r5" / "replay_map.json").read_text())
+    assert figures["window_s"] == 5 and "nominal/drift_5s_mean_m" in figures
+    assert not [k for k in figures if "30s" in k or "10s" in k]
+    assert "replay: localizing 1 robot(s)" in done.stderr  # long work says where it is
 
 
 def test_a_teleoperated_robot_that_stood_still_before_its_first_command_has_a_window():

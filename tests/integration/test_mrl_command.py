@@ -8,6 +8,7 @@ plain MCAP file, a rosbag2 folder with MCAP storage and one with sqlite3 storage
 
 from __future__ import annotations
 
+import hashlib
 import re
 import subprocess
 import sys
@@ -32,6 +33,7 @@ from tests.unit.test_record_bags import STANDARD, golden_raw, write_plain_mcap, 
 
 pytestmark = pytest.mark.integration
 
+ROOT = Path(__file__).resolve().parents[2]
 MRL = Path(sys.executable).parent / "mrl"
 VERBS = ("info", "episodes", "compare", "calibrate", "replay", "twin", "deploy")
 ROBOT_KINDS = ("scan", "odom", "cmd_vel", "ground_truth")
@@ -127,6 +129,46 @@ def test_help_lists_every_verb_and_each_verb_has_usage():
         assert option in mrl("calibrate", "--help").stdout
 
 
+def test_help_lists_every_exit_code_the_verbs_use_with_its_meaning():
+    top = mrl("--help")
+    assert top.returncode == 0 and "\nexit codes:\n" in top.stdout
+    section = top.stdout.split("\nexit codes:\n", 1)[1]
+    listed = {int(m[1]): m[2] for m in re.finditer(r"^  (\d+)\s+(\S.*)$", section, re.MULTILINE)}
+    assert listed.keys() == {0, 1, 2, 3, 130}
+    assert listed[0] == "done" and listed[1].startswith("no result") and listed[2].startswith("bad input")
+    assert listed[3].startswith("runtime fault") and listed[130].startswith("interrupted")
+    # every code the verbs, the twin they start and the stages' plumbing return is among them
+    import pipeline.stage
+
+    used = {v for k, v in vars(pipeline.stage).items() if k.startswith("EXIT_") and isinstance(v, int)}
+    for path in [*(ROOT / "pipeline" / "mrl").glob("*.py"), ROOT / "pipeline" / "twin" / "__main__.py"]:
+        used |= {int(n) for n in re.findall(r"\b(?:return|exit\()\s*(\d+)\b", path.read_text())}
+    assert used and used <= listed.keys(), used - listed.keys()
+
+
+def mistyped(proc: subprocess.CompletedProcess[str], verb: str) -> str:
+    """The error line of an argument the verb does not know: exit 2, the verb's own usage first, nothing on stdout."""
+    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
+    assert proc.stdout == "" and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"usage: mrl {verb} "), proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"mrl {verb}: error: "), last
+    return last
+
+
+def test_a_mistyped_option_gets_the_verbs_usage_and_the_nearest_option(tmp_path):
+    assert "did you mean --map?" in mistyped(mrl("calibrate", "--mpa"), "calibrate")
+    line = mistyped(mrl("calibrate", GOLDEN_MCAP, "--mpa", tmp_path / "floor.yaml"), "calibrate")
+    assert "unrecognized arguments: --mpa" in line and "--mpa: did you mean --map?" in line
+    line = mistyped(mrl("episodes", GOLDEN_MCAP, "--outt=table.csv", "--robts", "robot_1"), "episodes")
+    assert "--outt: did you mean --out?" in line and "--robts: did you mean --robots?" in line
+    assert not (tmp_path / "table.csv").exists()
+    line = mistyped(mrl("info", GOLDEN_MCAP, "--xyzzy"), "info")
+    assert "--xyzzy: not an option of mrl info" in line
+    # the twin's options are its own: refused before a twin starts
+    assert "--profle: did you mean --profile?" in mistyped(mrl("twin", "--profle", "harsh", timeout=60), "twin")
+
+
 # -- info -----------------------------------------------------------------------------------------
 
 
@@ -202,6 +244,19 @@ def test_calibrate_recovers_lidar_noise_and_linear_gain(calibrations, bags, kind
     assert [r["path"] for r in data["source"]["recordings"]] == [str(bags[kind])]  # the bag as given
 
 
+@pytest.mark.parametrize("kind", BAG_KINDS)
+def test_a_converted_bag_is_named_and_hashed_as_the_user_has_it(calibrations, bags, kind):
+    """The recording calibration.yaml names is the user's bag (file or folder) with its own SHA-256, not the
+    temporary MCAP it was read through."""
+    from pipeline.calibration.scan_only import bag_sha256
+
+    (recording,) = calibrations[kind]["source"]["recordings"]
+    assert recording["path"] == str(bags[kind])
+    assert recording["sha256"] == bag_sha256(bags[kind])
+    if bags[kind].is_file():
+        assert recording["sha256"] == hashlib.sha256(bags[kind].read_bytes()).hexdigest()
+
+
 def test_the_three_bag_formats_calibrate_to_the_same_values(calibrations):
     first = calibrations["mcap"]
     for kind in BAG_KINDS[1:]:
@@ -241,6 +296,14 @@ def test_bad_input_is_one_line_naming_the_path_or_option(tmp_path, bags):
     assert str(bags["rosbag2-sqlite3"]) in line and "mrl-" not in line  # the bag as given, not the imported copy
     refused(mrl("episodes", bags["mcap"]), "episodes", str(bags["mcap"]), "/mrl/episode")
     refused(mrl("episodes", bags["mcap"], "--out", tmp_path / "table.txt"), "episodes", "--out", ".csv or .parquet")
+
+
+def test_replay_without_policy_or_map_says_that_one_of_them_is_needed(tmp_path):
+    line = refused(mrl("replay", GOLDEN_MCAP, "--out", tmp_path / "r"), "replay", "--policy DIR", "--map MAP")
+    assert "is needed" in line and "not both" not in line
+    both = mrl("replay", GOLDEN_MCAP, "--policy", tmp_path / "p", "--map", tmp_path / "m.yaml")
+    assert "not both" in refused(both, "replay", "--policy", "--map")
+    assert not (tmp_path / "r").exists()
 
 
 # -- episodes -------------------------------------------------------------------------------------

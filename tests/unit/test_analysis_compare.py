@@ -9,7 +9,7 @@ import polars as pl
 import pytest
 from scipy import stats as sps
 
-from pipeline.analysis.compare import compare
+from pipeline.analysis.compare import compare, metric_key
 from pipeline.analysis.errors import TableError
 from pipeline.core.stats import newcombe_interval, two_proportion_z_test, wilson_interval
 
@@ -141,6 +141,23 @@ def test_labels_key_the_metrics_and_only_shared_labels_are_compared():
     assert set(out.gaps["label"]) == {"nominal"}
     only_sim = compare(sim, None)
     assert only_sim.gaps.is_empty() and only_sim.groups.height == 2
+
+
+def test_pairs_of_two_labels_are_compared_under_both_names(result):
+    sim, real = {"simrun": table(SIM, SIM_TIMES)}, {"fleet": table(REAL, REAL_TIMES, aborted=(18, 19))}
+    out = compare(sim, real, pairs=[("simrun", "fleet")])
+    assert set(out.gaps["label"]) == {"simrun vs fleet"}
+    assert out.metrics["gap/simrun vs fleet/robot_success"] == result.metrics["gap/robot_success"] == 35 / 40 - 0.5
+    assert out.metrics["sim/simrun/robot_success"] == 35 / 40 and out.metrics["real/fleet/robot_success"] == 0.5
+    assert compare(sim, real).gaps.is_empty()  # by default only shared labels are compared
+    with pytest.raises(TableError, match=r"real label 'nominal': is compared but has no table \(labels: \['fleet'\]\)"):
+        compare(sim, real, pairs=[("simrun", "nominal")])
+
+
+def test_metric_keys_have_one_separator():
+    assert metric_key("real", "", "send_skew_p99_ms") == "real/send_skew_p99_ms"
+    assert metric_key("real/", "x") == metric_key("real", "/x") == "real/x"
+    assert metric_key("gap", "nominal", "robot_success") == "gap/nominal/robot_success"
 
 
 def test_degenerate_groups():

@@ -12,7 +12,13 @@ from PIL import Image
 
 from pipeline.analysis.errors import AnalysisError, TableError
 from pipeline.analysis.gap_report import LabelledSession, markdown_table, write_report
-from pipeline.analysis.plots import Rate, plot_learning_curves, plot_success_rates, plot_trajectories
+from pipeline.analysis.plots import (
+    Rate,
+    plot_learning_curves,
+    plot_success_rates,
+    plot_trajectories,
+    trajectories_figure,
+)
 from tests.unit.test_analysis_tables import write_session
 
 
@@ -104,6 +110,48 @@ def test_report_shows_deployment_timing(recordings, tmp_path):
         f"real/nominal/{name}"
         for name in ("tick_jitter_p99_ms", "send_skew_p99_ms", "state_age_p99_ms", "stale_records")
     }
+
+
+def test_timing_metrics_of_an_unlabelled_session_have_one_separator(recordings, tmp_path):
+    sim, _ = recordings
+    real = write_session(tmp_path / "timed.mcap", ground_truth=False, timing=True)
+    report = write_report(tmp_path / "report", [("", "sim", sim), ("", "real", real)])
+    metrics = json.loads(report.metrics.read_text())
+    assert not [key for key in metrics if "//" in key]
+    assert metrics["real/send_skew_p99_ms"] == pytest.approx(0.05) and metrics["real/stale_records"] == 0
+    assert "| real |" in report.markdown.read_text()  # the timing row names the session without a trailing blank
+
+
+def test_a_pair_of_labels_is_compared_and_must_share_a_scenario(recordings, tmp_path):
+    sim, real = recordings
+    pair = [("simrun", "sim", sim), ("fleet", "real", real)]
+    report = write_report(tmp_path / "pair", pair, pairs=[("simrun", "fleet")])
+    metrics = json.loads(report.metrics.read_text())
+    assert metrics["gap/simrun vs fleet/robot_success"] == 0.0
+    assert "| simrun vs fleet | robot_success |" in report.markdown.read_text()
+    other = write_session(tmp_path / "boxes.mcap", ground_truth=False, scenario_name="obstacles")
+    with pytest.raises(AnalysisError, match=r"boxes\.mcap: recorded in scenario 'obstacles', but .*sim\.mcap"):
+        write_report(tmp_path / "out", [("simrun", "sim", sim), ("boxes", "real", other)], pairs=[("simrun", "boxes")])
+    with pytest.raises(AnalysisError, match="real label 'nominal' is to be compared, but no real session has it"):
+        write_report(tmp_path / "out", pair, pairs=[("simrun", "nominal")])
+
+
+def test_warnings_head_the_report(recordings, tmp_path):
+    sim, _ = recordings
+    report = write_report(tmp_path / "out", [("", "sim", sim)], warnings=["both inputs are the same file (x.mcap)"])
+    text = report.markdown.read_text()
+    assert text.index("## Warnings") < text.index("## Sessions")
+    assert "- **Warning:** both inputs are the same file (x.mcap)" in text
+    assert "## Warnings" not in write_report(tmp_path / "plain", [("", "sim", sim)]).markdown.read_text()
+
+
+def test_trajectory_axes_are_labelled_in_metres(recordings):
+    sim, real = recordings
+    figure = trajectories_figure([("sim", sim), ("real", real)], episodes=2)
+    shown = [ax for ax in figure.axes if ax.axison]
+    assert len(shown) == 4
+    for ax in shown:
+        assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (m)", "y (m)")
 
 
 def test_sessions_of_one_label_from_different_scenarios_are_refused(recordings, tmp_path):

@@ -58,8 +58,10 @@ def write_session(
     timing: bool = False,
     scenario_name: str = "empty",
     legacy_seeds: bool = False,
+    world: str = "real",
 ) -> Path:
-    """Two robots moving +0.1 m in x per control step; the events of `episodes` (EPISODES by default).
+    """Two robots moving +0.1 m in x per control step; the events of `episodes` (EPISODES by default), recorded
+    as a session of `world` (its session metadata's ``world``).
 
     With `legacy_seeds`, start events carry their seed as recordings made before the seed field
     did: the text ``seed=<n>`` of their detail, the seed field left at -1.
@@ -69,7 +71,7 @@ def write_session(
     arrived.
     """
     scenario = load_scenario(scenario_name, n_robots=2)
-    session = session_metadata("real", scenario_name, ROBOTS, 0.1, profile="mild")
+    session = session_metadata(world, scenario_name, ROBOTS, 0.1, profile="mild")  # type: ignore[arg-type]
     docs = {"scenario": dumps(to_mapping(scenario))}
     with SessionLog(path, ROBOTS, session, docs, chunk_size=chunk_size) as log:
         for k, (seed, steps, robot_events, team_events) in enumerate(episodes):
@@ -292,3 +294,26 @@ def test_an_open_log_and_a_recording_are_accepted(recording_path):
     rec = Recording(recording_path, session="round_1")
     assert from_log.drop("session").equals(episodes_table(rec).drop("session"))
     assert set(episodes_table(rec)["session"]) == {"round_1"}
+
+
+def test_paths_are_read_at_the_control_steps_not_at_the_rate_or_order_ground_truth_arrived_in(tmp_path):
+    """Motion capture at 50 Hz, two of its messages delivered out of order: the path goes through the newest pose
+    received at each control step (0.5 m at 0.5 m/s for 1 s), not to and fro between the swapped ones. Where a
+    robot's first poses of an episode are lost, its path starts at its first pose after the start, not at the
+    previous episode's last (a jump back to the start across the reset)."""
+    path = tmp_path / "mocap.mcap"
+    tick_ns = 20_000_000
+    with SessionLog(path, ROBOTS, session_metadata("real", "empty", ROBOTS, 0.1, profile="mild")) as log:
+        for k, t0 in enumerate((0, 2 * NS)):
+            log.start_episode(t0, k, k)
+            for j in range(51):
+                arrives = t0 + {22: 23, 23: 22}.get(j, j) * tick_ns if k == 0 else t0 + j * tick_ns
+                if k == 0 or j >= 10:  # the second episode's first 0.2 s of robot_1 are lost
+                    log.ground_truth(arrives, "robot_1", np.array([1.0 + 0.5 * j * tick_ns / NS, 1.0, 0.0]))
+                log.ground_truth(t0 + j * tick_ns, "robot_2", np.array([2.0, 2.0, 0.0]))
+            log.event(t0 + 10 * PERIOD_NS, k, 10, "end", detail="incomplete")
+    table = episodes_table(path)
+    lengths = {(r["episode"], r["robot"]): r["path_length_m"] for r in table.iter_rows(named=True)}
+    assert lengths[(0, "robot_1")] == pytest.approx(0.5, abs=1e-12)
+    assert lengths[(1, "robot_1")] == pytest.approx(0.4, abs=1e-12)
+    assert lengths[(0, "robot_2")] == lengths[(1, "robot_2")] == 0.0

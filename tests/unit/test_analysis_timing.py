@@ -81,6 +81,8 @@ def test_figures_match_the_planted_timing(tmp_path: Path) -> None:
     assert f.stale == 1 and f.stale_robots == ("robot_2",)
     assert f.stale_examples == ("robot_2 odom: 0.4 s old",)
     assert f.as_metrics("real/nominal")["real/nominal/stale_records"] == 1.0
+    names = ("tick_jitter_p99_ms", "send_skew_p99_ms", "state_age_p99_ms", "stale_records")
+    assert set(f.as_metrics("real")) == set(f.as_metrics("real/")) == {f"real/{name}" for name in names}
     table = timing_markdown([("real nominal", f)])
     assert "| real nominal | 100 |" in table and "(robot_2)" in table
 

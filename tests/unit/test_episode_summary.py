@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.core.episode import EpisodeResult, summarize
+from pipeline.core.episode import EpisodeResult, path_lengths_m, path_times_ns, summarize
 from pipeline.core.stats import wilson_interval
 
 
@@ -69,3 +69,26 @@ def test_an_aborted_team_fails_even_when_its_flag_says_otherwise():
         EpisodeResult(
             0, 0, 1, np.ones(1, bool), np.zeros(1, bool), np.ones(1), np.ones(1), True, np.zeros((2, 1, 3)), True
         )
+
+
+def test_a_path_is_sampled_on_the_control_grid_up_to_the_episodes_end():
+    assert path_times_ns(1_000, 100, 3).tolist() == [1_000, 1_100, 1_200, 1_300]
+    assert path_times_ns(1_000, 100, 3, end_ns=1_250).tolist() == [1_000, 1_100, 1_200, 1_250]
+    assert path_times_ns(1_000, 100, 0).tolist() == [1_000]
+
+
+def test_path_lengths_skip_unknown_poses_and_do_not_depend_on_the_array_layout():
+    poses = np.array(
+        [
+            [[0.0, 0.0, 0.0], [2.0, 2.0, 0.0]],
+            [[3.0, 4.0, 1.0], [2.0, 2.0, 0.5]],
+            [[np.nan, np.nan, np.nan], [2.0, 2.0, 0.0]],  # robot_1's pose unknown at this step
+            [[3.0, 8.0, 0.0], [2.0, 2.0, 0.0]],
+        ]
+    )
+    assert path_lengths_m(poses).tolist() == [9.0, 0.0]  # turning in place travels nothing
+    rng = np.random.default_rng(3)
+    walk = np.cumsum(rng.normal(0.0, 0.01, size=(351, 3, 3)), axis=0)
+    each = [path_lengths_m(walk[:, i : i + 1, :2].copy())[0] for i in range(3)]
+    assert path_lengths_m(walk).tolist() == each == path_lengths_m(np.asfortranarray(walk)).tolist()
+    assert path_lengths_m(walk[:1]).tolist() == [0.0, 0.0, 0.0]

@@ -154,10 +154,12 @@ def test_the_tally_counts_arrivals_paths_and_the_outcome():
         direction = goals[0] - poses[0, :2]
         poses[0, :2] += 0.1 * direction / np.linalg.norm(direction)
         judged = judge.step(poses, poses, np.full((scenario.n_robots, 15), 5.0))
-        tally.judged(judged, judge.steps, poses)
+        tally.stepped(poses)
+        tally.judged(judged, judge.steps)
     poses[0, :2] = goals[0]
     judged = judge.step(poses, poses, np.full((scenario.n_robots, 15), 5.0))
-    tally.judged(judged, judge.steps, poses)
+    tally.stepped(poses)
+    tally.judged(judged, judge.steps)
     result = tally.result(judge)
     assert result.seed == 11 and result.steps == 4
     assert result.time_to_goal_s[0] == pytest.approx(0.4) and np.isnan(result.time_to_goal_s[1:]).all()
