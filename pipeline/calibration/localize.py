@@ -538,6 +538,15 @@ def track_episode(
             rivals = (found.match, found.runner_up)
             followed = [_follow(grid, scans, usable, odom_at_scan, mount, m.pose) for m in rivals]
             best = int(np.argmax(followed))
+            if len(usable) > 3 and followed[best] < MIN_INLIERS:  # neither start carries the next scans: no place
+                raise CalibrationError(
+                    where,
+                    f"the scans do not match the map: the first scan fits it at {_fmt(found.match.pose)} and at "
+                    f"{_fmt(found.runner_up.pose)} (inliers {found.match.score:.2f} and {found.runner_up.score:.2f}), "
+                    f"and the next {FOLLOW_SCANS} scans, carried by the odometry, keep {followed[0]:.0%} and "
+                    f"{followed[1]:.0%} of their endpoints on it (at least {MIN_INLIERS:.0%} needed); is this the map "
+                    "of the building the robot drove in?",
+                )
             if followed[best] - followed[1 - best] < AMBIGUOUS_MARGIN:
                 raise CalibrationError(
                     where,

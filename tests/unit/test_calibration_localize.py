@@ -151,6 +151,24 @@ def test_a_first_scan_that_fits_two_poses_is_told_apart_by_the_next_scans():
     assert track.start.startswith("global over")
 
 
+def test_a_first_scan_that_fits_two_poses_of_a_map_the_rest_do_not_fit_is_a_wrong_map_not_an_ambiguity():
+    """A narrow first scan fits the obstacle room at two poses (inliers over 70 %), but the scans after it fit it
+    nowhere (another place): the map is named as not matching, not an ambiguity to settle with --initial-pose."""
+    rng = np.random.default_rng(5)
+    grid = OccupancyMap.from_scenario(load_scenario("obstacles"))
+    truth = np.array([1.5, 2.0, 0.0])
+    angles = -math.pi + np.arange(BEAMS) * 2 * math.pi / BEAMS
+    first = synthetic_scan("obstacles", truth, 0.01, rng)
+    first = np.where(np.abs(angles) <= math.radians(30), first, np.nan)
+    n = 41
+    elsewhere = [rng.uniform(0.5, 5.0, BEAMS) for _ in range(1, n)]  # ranges of a place the map does not hold
+    pts = [scan_points(r, -math.pi, 2 * math.pi / BEAMS, 180) for r in [first, *elsewhere]]
+    t = np.arange(n, dtype=np.int64) * 10**8
+    odom = np.stack([0.01 * np.arange(n), np.zeros(n), np.zeros(n)], axis=1)
+    with pytest.raises(CalibrationError, match=r"do not match the map: the first scan fits it at .* is this the map"):
+        track_episode(grid, t, pts, t, odom, np.zeros(3), None, "bag")
+
+
 def corridor() -> OccupancyMap:
     """A 10 x 1.6 m corridor with pillars every 2 m: another building than the reference room."""
     occupied = np.ones((100, 520), dtype=bool)
