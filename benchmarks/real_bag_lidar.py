@@ -15,8 +15,9 @@ import sys
 from pathlib import Path
 
 from pipeline.calibration.options import CalibrationSettings
-from pipeline.calibration.scan_only import bag_sha256, lidar_from_scans, read_scan_topic, scan_only_summary
+from pipeline.calibration.scan_only import lidar_from_scans, read_scan_topic, scan_only_summary
 from pipeline.errors import MrlError
+from pipeline.record.bags import bag_sha256
 
 
 def main() -> int:

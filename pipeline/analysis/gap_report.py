@@ -43,6 +43,8 @@ class LabelledSession:
     label: str
     world: str
     path: Path
+    shown: Path | None = None
+    """The file as the user gave it, where `path` is a copy read in its place (a converted bag)."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,7 @@ def _session(item: LabelledSession | tuple[str, str, str | os.PathLike[str]]) ->
         raise AnalysisError(
             str(session.path), f"world {session.world!r} of session {session.label!r} is not sim or real"
         )
-    return LabelledSession(session.label, session.world, Path(session.path))
+    return LabelledSession(session.label, session.world, Path(session.path), session.shown)
 
 
 def write_report(
@@ -263,7 +265,7 @@ def _sessions_section(recordings: Sequence[tuple[LabelledSession, Recording]]) -
             {
                 "label": item.label,
                 "world": item.world,
-                "file": str(item.path),
+                "file": str(item.shown or item.path),
                 "scenario": rec.info.scenario,
                 "policy": rec.info.policy,
                 "profile": rec.info.profile,

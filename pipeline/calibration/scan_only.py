@@ -16,7 +16,6 @@ room) is not estimated.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +40,7 @@ from pipeline.calibration.localize import PoseSource
 from pipeline.calibration.network import rate_estimate, rate_wander_estimate
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.core.timebase import NS_PER_S
+from pipeline.record.bags import bag_sha256
 
 STILL_FACTOR = 2.0
 LEVEL_PERCENTILE = 2.0
@@ -321,16 +321,3 @@ def calibrate_scans(path: Path, settings: CalibrationSettings, topic: str | None
         settings=dataclasses.replace(settings, parts=("lidar",)),
         pose_source=PoseSource("none"),
     )
-
-
-def bag_sha256(path: Path) -> str:
-    """SHA-256 of a bag file, or of a bag folder's files (their names and bytes, in name order)."""
-    digest = hashlib.sha256()
-    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    for f in files:
-        if path.is_dir():
-            digest.update(str(f.relative_to(path)).encode())
-        with f.open("rb") as handle:
-            for block in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(block)
-    return digest.hexdigest()

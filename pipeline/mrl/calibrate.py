@@ -97,7 +97,8 @@ def _pose_options(calibrate: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate from the bags, write calibration.yaml and its report, print what could not be identified."""
     from pipeline.calibration import PARTS, calibrate, calibration_settings, write_calibration
-    from pipeline.calibration.scan_only import bag_sha256, scans_only
+    from pipeline.calibration.scan_only import scans_only
+    from pipeline.record.bags import bag_sha256
 
     output_folder(args.out)
     options: dict[str, Any] = {"parts": list(args.parts or PARTS), "scenario": args.scenario}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import hashlib
 import math
 import warnings
 from collections.abc import Sequence
@@ -79,12 +78,14 @@ def recorded_world(bag: ImportedBag, role: str) -> tuple[str, str]:
 
 def same_input(first: Path, second: Path) -> str:
     """A warning line when `first` and `second` are one file (one path once resolved, or one SHA-256); else ''."""
+    from pipeline.record.bags import bag_sha256
+
     if first.resolve() == second.resolve():
         return f"both inputs are the same file ({first.resolve()}): the report compares a recording with itself"
     if _size(first) != _size(second):
         return ""
-    digest = _sha256(first)
-    if digest != _sha256(second):
+    digest = bag_sha256(first)
+    if digest != bag_sha256(second):
         return ""
     return (
         f"both inputs are the same file: {first} and {second} have the same content (SHA-256 {digest[:16]}), "
@@ -98,18 +99,6 @@ def _files(path: Path) -> list[Path]:
 
 def _size(path: Path) -> int:
     return sum(f.stat().st_size for f in _files(path))
-
-
-def _sha256(path: Path) -> str:
-    """SHA-256 of a bag file, or of a bag folder's files (their names and bytes, in name order)."""
-    digest = hashlib.sha256()
-    for f in _files(path):
-        if path.is_dir():
-            digest.update(str(f.relative_to(path)).encode())
-        with f.open("rb") as handle:
-            for block in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(block)
-    return digest.hexdigest()
 
 
 def input_labels(bags: Sequence[ImportedBag], worlds: Sequence[str]) -> list[str]:
@@ -151,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     """Write the report of the two sessions and print the gaps of the success and collision rates."""
     from pipeline.analysis.compare import metric_key, pair_label
     from pipeline.analysis.errors import ComparisonWarning
-    from pipeline.analysis.gap_report import write_report
+    from pipeline.analysis.gap_report import LabelledSession, write_report
 
     out = output_folder(args.out)
     with imported(args, [args.sim, args.real]) as bags:
@@ -162,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         pairs = [(by_world["sim"].label, by_world["real"].label)] if len(by_world) == 2 else []
         report = write_report(
             out,
-            [(item.label, item.world, item.path) for item in inputs],
+            [LabelledSession(item.label, item.world, item.path, item.source) for item in inputs],
             trajectory_episodes=args.trajectory_episodes,
             pairs=pairs,
             warnings=notes,

@@ -26,6 +26,7 @@ Remapping says where the bag keeps a topic of the contract: ``OURS=BAG``, OURS b
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import shutil
@@ -802,3 +803,17 @@ def _write(
     if end_ns < 0:
         raise EmptyBagError(where, "no message of the bag could be imported")
     return ImportedBag(mcap, path, source_format, True, plan.robots, topics, start_ns, end_ns, skipped, salvaged)
+
+
+def bag_sha256(path: Path) -> str:
+    """SHA-256 of a bag file, or of a bag folder's files (their names relative to it and their bytes, in name
+    order): the user's own bag as given, whatever it was read through."""
+    digest = hashlib.sha256()
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    for f in files:
+        if path.is_dir():
+            digest.update(str(f.relative_to(path)).encode())
+        with f.open("rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    return digest.hexdigest()

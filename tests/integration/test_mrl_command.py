@@ -248,7 +248,7 @@ def test_calibrate_recovers_lidar_noise_and_linear_gain(calibrations, bags, kind
 def test_a_converted_bag_is_named_and_hashed_as_the_user_has_it(calibrations, bags, kind):
     """The recording calibration.yaml names is the user's bag (file or folder) with its own SHA-256, not the
     temporary MCAP it was read through."""
-    from pipeline.calibration.scan_only import bag_sha256
+    from pipeline.record.bags import bag_sha256
 
     (recording,) = calibrations[kind]["source"]["recordings"]
     assert recording["path"] == str(bags[kind])
