@@ -132,15 +132,28 @@ def run(args: argparse.Namespace) -> int:
         print(f"calibrate: ambiguous: {ambiguity.sentence()}")
     for name, value in calibration.effective.items():
         if value.estimate.ok and value.estimate.value is not None:
-            print(
-                f"calibrate: effective.{name} {value.estimate.value:.3g} {value.estimate.unit} stands for "
-                f"{' + '.join(value.stands_for)} together (the simulator's drive model)"
-            )
+            print(f"calibrate: {_effective_sentence(calibration, name, value)}")
     poses = calibration.pose_source.sentence()
     if poses:
         print(f"calibrate: {poses}")
     print(f"calibrate: {path} from {', '.join(str(bag.source) for bag in bags)}")
     return 0
+
+
+def _effective_sentence(calibration: Any, name: str, value: Any) -> str:
+    """What an effective value is, beside the values of the keys it stands for that were measured apart."""
+    parts = []
+    for key in value.stands_for:
+        est = calibration.values.get(key)
+        if est is not None and est.ok and est.value is not None:
+            parts.append(f"{key} {est.value:.3g} {est.unit}, measured at the wheels")
+        else:
+            parts.append(f"{key} (not measured apart)")
+    return (
+        f"effective.{name} {value.estimate.value:.3g} {value.estimate.unit}: the simulator's drive model as the body "
+        f"moved, from each command's time in the recording (the command path's latency included); it stands for "
+        f"{'; '.join(parts)}"
+    )
 
 
 def _progress(stage: str) -> None:
