@@ -21,7 +21,7 @@ from pathlib import Path
 
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario, load_scenario
-from pipeline.errors import MrlError
+from pipeline.errors import MrlError, RuntimeFault
 from pipeline.mappings import to_mapping
 from pipeline.messages import topics as T
 from pipeline.messages.topics import TopicSpec
@@ -35,6 +35,7 @@ from pipeline.record.session import SessionLog, clock_metadata, dumps, session_m
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
 from pipeline.rollout.runner import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
+from pipeline.ros.domains import NoFreeDomainError, lease_free_domain, lock_path, pinned_domain_is_free, try_lease
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.ros1 import private_master
 from pipeline.ros.transport import NetworkSettings, Transport, open_transport
@@ -218,7 +219,7 @@ def check_domain_is_free(transport: Transport, fleet: Fleet, watch_s: float = ST
             sub.close()
     if seen:
         raise FleetConflict(
-            fleet.network.domain_id,
+            fleet.network.domain,
             [f"{n} publisher(s) on {topic}" for topic, n in sorted(seen.items())],
             "robots this deployment did not start (a twin left running, or another user on this domain); stop "
             "them, or give the fleet file another network.domain_id",
@@ -232,7 +233,7 @@ def check_one_publisher_each(transport: Transport, fleet: Fleet) -> None:
     crowded = {k: n for k, n in _publishers(transport, specs).items() if n > 1}
     if crowded:
         raise FleetConflict(
-            fleet.network.domain_id,
+            fleet.network.domain,
             [f"{n} publishers on {topic}" for topic, n in sorted(crowded.items())],
             "each robot's topics must have one publisher; another robot or twin on this domain uses the same "
             "namespaces: stop it, or give the fleet file another network.domain_id",
@@ -258,8 +259,13 @@ def deploy_policy(
     # a thread that wants the interpreter waits at most this long: the emitter's tick stays on time
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     check_policy_fits_fleet(runtime, fleet, scenario)
-    settings = fleet.network_settings(fleet_source)
     with ExitStack() as stack:
+        pinned = fleet.network.domain_id is not None
+        fleet = _leased_domain(fleet, stack)
+        if request.progress and fleet.transport != "ros1":
+            how = "the fleet file's" if pinned else "a free one of this machine's"
+            print(f"deploy: DDS domain {fleet.network.domain} ({how}), held for this run", file=sys.stderr, flush=True)
+        settings = fleet.network_settings(fleet_source)
         if _needs_own_master(fleet, settings):
             # a ROS 1 twin fleet without a master brings its own, as it brings its twin; the twin process and this
             # one find it through ROS_MASTER_URI
@@ -267,6 +273,47 @@ def deploy_policy(
             stack.enter_context(_environment("ROS_MASTER_URI", uri))
             settings = replace(settings, master_uri=uri)
         return _deploy(runtime, fleet, fleet_source, request, scenario, settings, confirm_reset, twin_extra_args, live)
+
+
+def check_pinned_domain(fleet: Fleet, fleet_source: str) -> None:
+    """Before work that ends in a deployment (a training): refuse a fleet whose pinned DDS domain another
+    deployment on this machine holds now, so the clash is not found only when the deployment starts."""
+    if fleet.transport == "ros1" or fleet.network.domain_id is None:
+        return
+    if not pinned_domain_is_free(fleet.network.domain_id):
+        raise FleetConflict(
+            fleet.network.domain_id,
+            [f"another deployment on this machine (its lease: {lock_path(fleet.network.domain_id)})"],
+            f"the fleet {fleet_source} pins it; give the fleet file another network.domain_id, or none (a twin "
+            "then takes a free domain)",
+        )
+
+
+def _leased_domain(fleet: Fleet, stack: ExitStack) -> Fleet:
+    """`fleet` on the DDS domain this deployment holds for as long as it runs (:mod:`pipeline.ros.domains`): a
+    free one where the fleet file gives none and the twin plays the robots, else the file's. Another deployment on
+    this machine holding a pinned domain is refused by name before anything starts. ROS 1 has no domains."""
+    if fleet.transport == "ros1":
+        return fleet
+    pinned = fleet.network.domain_id
+    if pinned is None and fleet.target == "twin":
+        try:
+            lease = lease_free_domain()
+        except NoFreeDomainError as exc:
+            raise RuntimeFault(str(exc)) from exc
+    else:
+        domain = 0 if pinned is None else pinned
+        held = try_lease(domain)
+        if held is None:
+            raise FleetConflict(
+                domain,
+                [f"another deployment on this machine (its lease: {lock_path(domain)})"],
+                "wait for it to finish, or give the fleet file another network.domain_id (mrl deploy --domain-id); "
+                "a twin fleet without one takes a free domain",
+            )
+        lease = held
+    stack.callback(lease.release)
+    return replace(fleet, network=replace(fleet.network, domain_id=lease.domain_id))
 
 
 def _needs_own_master(fleet: Fleet, settings: NetworkSettings) -> bool:
@@ -329,6 +376,7 @@ def _deploy(
             extra={
                 "target": fleet.target,
                 "transport": fleet.transport,
+                **({"domain_id": str(fleet.network.domain)} if fleet.transport != "ros1" else {}),
                 "time_scale": repr(scale),
                 "fleet": fleet_source,
                 **clock_metadata(scale),

@@ -191,7 +191,7 @@ class DeployRunner:
         crowded.update(others)
         if crowded:
             raise FleetConflict(
-                self.fleet.network.domain_id,
+                self.fleet.network.domain,
                 [f"{n} publishers on {topic}" for topic, n in sorted(crowded.items())],
                 "each robot's topics must have one publisher; another robot, twin or run on this domain uses the "
                 "same namespaces: stop it, or give the fleet file another network.domain_id (mrl deploy --domain-id)",

@@ -5,7 +5,7 @@ A fleet file is YAML (see ``pipeline/ros/fleets/twin.yaml``)::
     target: twin            # twin: start the bundled hardware twin; robots: use the running graph
     transport: dds          # dds (Cyclone DDS from Python) | rclpy (ROS 2 installed) | ros1 (a ROS 1 master)
     scenario: obstacles     # the map the robots drive in: bundled name or scenario YAML path
-    network: {domain_id: 0, loopback_only: true, peers: []}   # ros1: master_uri: http://HOST:PORT
+    network: {domain_id: 0, loopback_only: true, peers: []}   # no domain_id: a twin takes a free one; ros1: master_uri
     robots:                 # in scenario order: the i-th entry drives the scenario's i-th robot
       - {name: robot_1, namespace: robot_1, v_max_mps: 0.4, w_max_radps: 0.2}
     twin: {profile: mild, time_scale: 1.0, seed: 0}
@@ -52,11 +52,18 @@ class FleetRobot:
 
 @dataclass(frozen=True)
 class FleetNetwork:
-    domain_id: int = setting(0, ge=0, le=232)
+    domain_id: int | None = setting(None, ge=0, le=232, optional=True)
+    """The DDS (and ROS 2) domain; absent: a twin takes a free one of its machine for each deployment
+    (:mod:`pipeline.ros.domains`), robots ROS's default, 0."""
     loopback_only: bool = setting(True)
     peers: tuple[str, ...] = setting(())
     master_uri: str = setting("", allow_empty=True, optional=True)
     """The ROS 1 master of a ros1 fleet (``http://HOST:PORT``); empty: ``ROS_MASTER_URI``."""
+
+    @property
+    def domain(self) -> int:
+        """The domain the fleet is on: its own, or ROS's default (0) before a deployment leases one."""
+        return self.domain_id if self.domain_id is not None else 0
 
 
 @dataclass(frozen=True)
@@ -134,7 +141,7 @@ class Fleet:
     def network_settings(self, source: str = "<fleet>") -> NetworkSettings:
         try:
             return NetworkSettings(
-                self.network.domain_id, self.network.loopback_only, self.network.peers, self.network.master_uri
+                self.network.domain, self.network.loopback_only, self.network.peers, self.network.master_uri
             )
         except NetworkSettingsError as exc:
             raise ConfigError(source, [ConfigProblem(f"network.{exc.setting}", exc.value, exc.allowed)]) from exc

@@ -24,6 +24,7 @@ from types import FrameType
 from pipeline.core.scenario import load_scenario
 from pipeline.errors import MrlError
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
+from pipeline.ros.domains import NoFreeDomainError, lease_free_domain
 from pipeline.ros.fleet import load_fleet
 from pipeline.ros.transport import open_transport
 from pipeline.twin.profile import load_profile_for
@@ -113,6 +114,12 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         fleet = load_fleet(args.fleet)
         if args.domain_id is not None:
             fleet = replace(fleet, network=replace(fleet.network, domain_id=args.domain_id))
+        elif fleet.network.domain_id is None and fleet.transport != "ros1":  # started by hand: a free domain of its own
+            try:
+                lease = lease_free_domain()
+            except NoFreeDomainError as exc:
+                raise MrlError(str(exc)) from exc
+            fleet = replace(fleet, network=replace(fleet.network, domain_id=lease.domain_id))
         scenario = load_scenario(fleet.scenario, len(fleet.robots))  # the first robots, as the deployment
         name, profile = load_profile_for(args.profile or fleet.twin.profile, scenario)
         scale = fleet.twin.time_scale if args.time_scale is None else args.time_scale
@@ -147,6 +154,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         identity = transport.identity()
         say(
             f"twin: ready, profile {name}, {len(fleet.robots)} robots ({robots}), time scale {scale}"
+            + (f", DDS domain {fleet.network.domain}" if fleet.transport != "ros1" else "")
             + (f", participant {identity}" if identity else "")
         )
         if args.link_record:
