@@ -262,9 +262,10 @@ def deploy_policy(
     with ExitStack() as stack:
         pinned = fleet.network.domain_id is not None
         fleet = _leased_domain(fleet, stack)
+        note = ""
         if request.progress and fleet.transport != "ros1":
             how = "the fleet file's" if pinned else "a free one of this machine's"
-            print(f"deploy: DDS domain {fleet.network.domain} ({how}), held for this run", file=sys.stderr, flush=True)
+            note = f"deploy: DDS domain {fleet.network.domain} ({how}), held for this run"
         settings = fleet.network_settings(fleet_source)
         if _needs_own_master(fleet, settings):
             # a ROS 1 twin fleet without a master brings its own, as it brings its twin; the twin process and this
@@ -272,7 +273,9 @@ def deploy_policy(
             uri = stack.enter_context(private_master())
             stack.enter_context(_environment("ROS_MASTER_URI", uri))
             settings = replace(settings, master_uri=uri)
-        return _deploy(runtime, fleet, fleet_source, request, scenario, settings, confirm_reset, twin_extra_args, live)
+        return _deploy(
+            runtime, fleet, fleet_source, request, scenario, settings, confirm_reset, twin_extra_args, live, note
+        )
 
 
 def check_pinned_domain(fleet: Fleet, fleet_source: str) -> None:
@@ -349,6 +352,7 @@ def _deploy(
     confirm_reset: Callable[[int], None] | None,
     twin_extra_args: list[str] | None,
     live: LiveView | None,
+    domain_note: str = "",
 ) -> tuple[list[EpisodeResult], str]:
     twin: TwinProcess | None = None
     profile = "robots"
@@ -358,6 +362,8 @@ def _deploy(
     runner = None
     try:
         transport = open_transport(fleet.transport, settings)
+        if domain_note:  # the transport is up: what could be refused before anything moves was
+            print(domain_note, file=sys.stderr, flush=True)
         if fleet.target == "twin":
             check_domain_is_free(transport, fleet)
             profile = request.profile or fleet.twin.profile
