@@ -313,6 +313,9 @@ COVERAGE_EXCITATION_FINE_40 = "calibration_coverage/excitation_fine_40"
 COVERAGE_POLICY_20 = "calibration_coverage/policy_20"
 COVERAGE_REAL_LIDAR = "calibration_coverage/real_lidar"
 COVERAGE_REAL_LIDAR_DRIVING = "calibration_coverage/real_lidar_driving"
+COVERAGE_LOOP_LAB = "calibration_coverage/loop_lab"
+"""The loop's own recordings: the nominal policy on the lab twin, 50 episodes at 3x, four seeds."""
+COVERAGE_LOOP_LAB_RESCORED = "calibration_coverage/loop_lab_rescored"
 """The drawn realities with real lidars (range steps, per-beam noise, mixed pixels, no-return conventions...)."""
 LIDAR_LIKE_REAL = "lidar_like_real"
 """Twin recordings like a TurtleBot 4's bag (benchmarks/lidar_like_real.py)."""
@@ -913,6 +916,8 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "coverage-excitation-fine-40-docs": partial(coverage_docs, COVERAGE_EXCITATION_FINE_40),
     "coverage-policy-20-docs": partial(coverage_docs, COVERAGE_POLICY_20),
     "lidar": lidar_docs,
+    "coverage-loop-lab-docs": partial(coverage_docs, COVERAGE_LOOP_LAB),
+    "coverage-loop-lab-rescored-docs": partial(coverage_docs, COVERAGE_LOOP_LAB_RESCORED),
     "real-bags": real_bags_docs,
     "layouts": layouts,
     "scenarios": scenarios,

@@ -14,6 +14,14 @@ class RuntimeFault(MrlError):
     robots that never answered, a foreign writer on the domain. Commands exit with code 3 on it."""
 
 
+class InvalidMeasurement(MrlError):
+    """The run finished and its files are in place, but some of its episodes do not measure the policy: the hardware
+    twin fell behind its clock (a host too busy for the time scale asked). They are marked and counted; commands exit
+    with :data:`exit_code` on it."""
+
+    exit_code = 4
+
+
 class ConfigError(MrlError):
     """A parameter file or override holds keys or values that are not allowed.
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.record.live import live_view
 from pipeline.record.results import Rate, session_metrics
-from pipeline.rollout.deployment import DeployRequest, deploy_session
+from pipeline.rollout.deployment import DeployRequest, check_clock_kept, deploy_session
 
 if TYPE_CHECKING:
     from pipeline.params import DeployConfig
@@ -56,6 +56,7 @@ def run_deployment(
     with live_view(live, live_port, live_label) as view:
         outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset, live=view)
     print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
+    check_clock_kept(outcome, out, cfg.time_scale or fleet.twin.time_scale)
     return outcome
 
 
@@ -73,7 +74,16 @@ def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
     """Lines on a finished deployment: success over every episode with 95 % intervals, the completed-only rate beside
     it, aborted episodes by reason, stale seconds per robot, where it went."""
     kept = f"; earlier sessions kept beside it: {', '.join(p.name for p in outcome.kept)}" if outcome.kept else ""
-    return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}) -> {out}{kept}"
+    clock = ""
+    if "real/time_scale_realized_min" in outcome.metrics:
+        behind = int(outcome.metrics["real/clock_not_kept_episodes"])
+        clock = (
+            f"; the twin kept its clock in every episode (least time scale realized "
+            f"{outcome.metrics['real/time_scale_realized_min']:.2f})"
+            if behind == 0
+            else f"; the twin fell behind its clock in {behind} episode(s): not the policy's results"
+        )
+    return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}){clock} -> {out}{kept}"
 
 
 def session_summary(metrics: dict[str, float], world: str) -> str:

@@ -2,7 +2,8 @@
 
 Exit codes (:data:`EXIT_CODES`, which ``mrl --help`` lists): 0 success, 1 no result (``mrl sweep`` whose trials
 all failed), 2 bad input (an MrlError: its message names the file, key or topic), 3 runtime fault (a RuntimeFault:
-a twin or driver gone, a robot blind past its outage limit, a clash on the domain), 130 interrupted (Ctrl-C or
+a twin or driver gone, a robot blind past its outage limit, a clash on the domain), 4 a deployment whose twin fell
+behind its clock in some episodes (InvalidMeasurement: marked, not the policy's), 130 interrupted (Ctrl-C or
 SIGTERM; what was recorded so far is kept).
 """
 
@@ -14,13 +15,14 @@ import sys
 from collections.abc import Callable, Sequence
 from types import FrameType
 
-from pipeline.errors import MrlError, RuntimeFault
+from pipeline.errors import InvalidMeasurement, MrlError, RuntimeFault
 
 ROUNDS = ("nominal", "calibrated")
 EXIT_DONE = 0
 EXIT_NO_RESULT = 1
 EXIT_BAD_INPUT = 2
 EXIT_RUNTIME_FAULT = 3
+EXIT_INVALID_MEASUREMENT = 4
 EXIT_INTERRUPTED = 130
 EXIT_CODES: dict[int, str] = {
     EXIT_DONE: "done",
@@ -30,6 +32,8 @@ EXIT_CODES: dict[int, str] = {
     "for a mistyped, missing or malformed option)",
     EXIT_RUNTIME_FAULT: "runtime fault: a twin or driver gone, robots that never answered, a robot blind past its "
     "outage limit that ended the run, a clash on the DDS domain; the episodes run are kept",
+    EXIT_INVALID_MEASUREMENT: "a deployment that finished, but in some episodes the hardware twin fell behind its "
+    "clock (a host too busy for the time scale): they are marked in episodes.csv and metrics.json, not the policy's",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); what was recorded so far is kept",
 }
 """Every exit code of the stages and the ``mrl`` verbs, with its meaning."""
@@ -59,6 +63,8 @@ def run_stage(name: str, body: Callable[[], int]) -> int:
         print(f"{name}: {exc}", file=sys.stderr)
         if getattr(exc, "interrupted", False):
             return EXIT_INTERRUPTED
+        if isinstance(exc, InvalidMeasurement):
+            return EXIT_INVALID_MEASUREMENT
         fault = isinstance(exc, RuntimeFault) or getattr(exc, "runtime_fault", False)
         return EXIT_RUNTIME_FAULT if fault else EXIT_BAD_INPUT
     except KeyboardInterrupt:

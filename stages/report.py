@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sys
@@ -42,6 +43,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     for folder, name in ((calibration, "calibration.md"), (replay, "replay.md")):
         text = (folder / name).read_text(encoding="utf-8")
         extra.append(relink_images(text, folder, out))
+    warnings = []
+    for r in ROUNDS:  # a deployment whose twin fell behind its clock: said at the top, not read as the policy's
+        deployed = Path(params.deploy.out_dir) / r / "metrics.json"
+        metrics = json.loads(deployed.read_text(encoding="utf-8")) if deployed.is_file() else {}
+        behind = int(metrics.get("real/clock_not_kept_episodes", 0))
+        if behind:
+            warnings.append(
+                f"deploy {r}: in {behind} of {int(metrics['real/episodes'])} episodes the twin fell behind its clock "
+                f"(least time scale realized {metrics['real/time_scale_realized_min']:.2f}): they measure the host, "
+                f"not the policy; robot success over the others {metrics['real/robot_success_clock_kept']:.3f}"
+            )
     report = write_report(
         out,
         sessions,
@@ -49,6 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "\n\n".join(extra),
         extra_title="Calibration and replay",
         trajectory_episodes=params.report.trajectory_episodes,
+        warnings=warnings,
     )
     print(f"report: {report.markdown} and {report.metrics}")
     return 0

@@ -48,6 +48,10 @@ class EpisodeResult:
     """One of :data:`ABORT_KINDS` when aborted, else empty."""
     stale_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """(n_robots,) seconds each robot spent stale (standing still for want of fresh data); empty: none measured."""
+    time_scale_realized: float = math.nan
+    """Twin seconds simulated per host second through the episode (NaN: not measured, no twin)."""
+    clock_kept: bool = True
+    """False where the hardware twin fell behind its clock: the episode does not measure the policy."""
 
     def __post_init__(self) -> None:
         if self.aborted and self.abort_kind not in ABORT_KINDS:
@@ -104,7 +108,9 @@ def _rates(prefix: str, k: int, n: int, out: dict[str, float]) -> None:
 def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, float]:
     """Robot- and team-level success over every episode with 95 % Wilson intervals, and beside them the same rates
     over the completed (not aborted) episodes only (``*_completed``; NaN when none completed); aborted episodes by
-    kind, stale seconds per robot, collisions and time to goal."""
+    kind, stale seconds per robot, collisions and time to goal. Where a hardware twin measured how it kept its clock:
+    the episodes where it did not (``clock_not_kept_episodes``, which measure the host, not the policy), the least
+    time scale realized, and the rates over the episodes where it did (``*_clock_kept``)."""
     if not results:
         raise ValueError("no episodes to summarise")
     success = np.stack([r.success for r in results])
@@ -125,6 +131,14 @@ def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, f
     done = success[~aborted]
     _rates("robot_success_completed", int(done.sum()), int(done.size), out)
     _rates("team_success_completed", int(team[~aborted].sum()), int((~aborted).sum()), out)
+    realized = np.array([r.time_scale_realized for r in results])
+    if np.isfinite(realized).any():  # a twin kept (or not) its clock: the episodes where it did measure the policy
+        kept = np.array([r.clock_kept for r in results])
+        out["clock_not_kept_episodes"] = float((~kept).sum())
+        out["clock_kept_episodes"] = float(kept.sum())
+        out["time_scale_realized_min"] = float(np.nanmin(realized))
+        _rates("robot_success_clock_kept", int(success[kept].sum()), int(success[kept].size), out)
+        _rates("team_success_clock_kept", int(team[kept].sum()), int(kept.sum()), out)
     out["collision_rate"] = float(collided.mean())
     out["mean_time_to_goal_s"] = float(times.mean()) if times.size else float("nan")
     out["stale_s"] = float(stale.sum())

@@ -26,7 +26,8 @@ about an imported bag name the bag as given, not the temporary copy.
 
 Exit codes (:data:`pipeline.stage.EXIT_CODES`, listed by ``mrl --help``): 0 done, 1 no result (a sweep whose
 trials all failed), 2 bad input (one line ``mrl <verb>: <message>`` on stderr), 3 runtime fault (a twin or driver
-gone, a clash on the domain), 130 interrupted.
+gone, a clash on the domain), 4 a deployment in which the twin fell behind its clock (episodes marked), 130
+interrupted.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import TextIO
 
-from pipeline.errors import MrlError, RuntimeFault
+from pipeline.errors import InvalidMeasurement, MrlError, RuntimeFault
 from pipeline.mrl import calibrate, compare, deploy, episodes, evaluate, info, replay, sweep, twin
 from pipeline.mrl.common import CommandError, VerbParser, output_folder
 from pipeline.mrl.info import describe
@@ -115,7 +116,7 @@ def _one_line(verb: str, body: Callable[[], int]) -> Callable[[], int]:
             return body()
         except MrlError as exc:
             lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-            if len(lines) <= 1:
+            if len(lines) <= 1 or isinstance(exc, InvalidMeasurement):
                 raise
             text = lines[0].rstrip(":") + ": " + "; ".join(lines[1:])
             raise CommandError(

@@ -6,11 +6,14 @@ finalized, the transport and the twin process are shut down.
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections import deque
@@ -21,7 +24,7 @@ from pathlib import Path
 
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario, load_scenario
-from pipeline.errors import MrlError, RuntimeFault
+from pipeline.errors import InvalidMeasurement, MrlError, RuntimeFault
 from pipeline.mappings import to_mapping
 from pipeline.messages import topics as T
 from pipeline.messages.topics import TopicSpec
@@ -368,7 +371,10 @@ def _deploy(
             check_domain_is_free(transport, fleet)
             profile = request.profile or fleet.twin.profile
             scale = request.time_scale or fleet.twin.time_scale
-            twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, twin_extra_args, fleet.network.domain_id)
+            timing_dir = tempfile.mkdtemp(prefix="mrl-twin-timing-")
+            timing_file = Path(timing_dir) / "timing.json"
+            extra = [*(twin_extra_args or []), "--timing-record", str(timing_file)]
+            twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, extra, fleet.network.domain_id)
             profile = Path(profile).stem
             twin.wait_ready(TWIN_START_TIMEOUT_S)
         clock: Clock = ScaledClock(scale) if scale != 1.0 else WallClock()
@@ -414,8 +420,13 @@ def _deploy(
         )
         runner.wait_for_fleet(fleet.timing.discovery_timeout_s)
         check_one_publisher_each(transport, fleet)
-        results = runner.run(request.episodes, request.seed, request.progress)
-        return results, profile
+        try:
+            results = runner.run(request.episodes, request.seed, request.progress)
+        except DeployAborted as exc:
+            if twin is not None:  # the episodes run are marked as the twin kept its clock in them
+                _stop_twin(twin)
+                exc.results = _with_timing(exc.results, timing_file)
+            raise
     finally:
         if runner is not None:
             runner.close()
@@ -424,7 +435,34 @@ def _deploy(
         if transport is not None:
             transport.close()
         if twin is not None:
-            twin.stop()
+            _stop_twin(twin)
+    if twin is not None:
+        results = _with_timing(results, timing_file)
+        shutil.rmtree(timing_dir, ignore_errors=True)
+    return results, profile
+
+
+def _stop_twin(twin: TwinProcess) -> None:
+    if twin.proc.poll() is None:
+        twin.stop()
+
+
+def _with_timing(results: list[EpisodeResult], timing_file: Path) -> list[EpisodeResult]:
+    """The episodes with how the twin kept its clock in each (its ``--timing-record``, written as it stopped)."""
+    try:
+        records = {int(r["episode"]): r for r in json.loads(timing_file.read_text(encoding="utf-8"))}
+    except (OSError, ValueError, KeyError, TypeError):
+        return results  # a twin that died wrote none: its episodes' failure is already the runtime fault's
+    out = []
+    for result in results:
+        record = records.get(result.episode)
+        if record is None:
+            out.append(result)
+            continue
+        out.append(
+            replace(result, time_scale_realized=float(record["time_scale_realized"]), clock_kept=bool(record["kept"]))
+        )
+    return out
 
 
 SESSION_FILES = ("session.mcap", "metadata.yaml", "episodes.csv", "metrics.json")
@@ -512,6 +550,21 @@ def deploy_session(
             failure.interrupted,
         ) from failure
     return DeploymentOutcome(results, profile, metrics, files, folder.kept())
+
+
+def check_clock_kept(outcome: DeploymentOutcome, out_dir: Path, asked: float) -> None:
+    """After a deployment's files are in place: InvalidMeasurement where the twin fell behind its clock in some
+    episodes (they measure the host, not the policy), naming how many and the rate over the others."""
+    metrics = outcome.metrics
+    behind = int(metrics.get("real/clock_not_kept_episodes", 0.0))
+    if behind:
+        raise InvalidMeasurement(
+            f"in {behind} of {len(outcome.results)} episode(s) the twin fell behind its clock (least time scale "
+            f"realized {metrics['real/time_scale_realized_min']:.2f} for {asked:g} asked): the host was too busy for "
+            "the time scale; those episodes measure the host, not the policy (robot success over the others: "
+            f"{metrics['real/robot_success_clock_kept']:.3f}); the session is in {out_dir}: run again with a lower "
+            "--time-scale or on a quieter host"
+        )
 
 
 def _drop(folder: SessionFolder) -> None:

@@ -12,6 +12,7 @@ by SIGKILL, takes its twin with it instead of leaving robots publishing on the d
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import sys
@@ -19,6 +20,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import replace
+from pathlib import Path
 from types import FrameType
 
 from pipeline.core.scenario import load_scenario
@@ -56,11 +58,25 @@ def build_parser(
         help="fault injection: robot NS stops publishing START seconds after the first reset (for DURATION seconds)",
     )
     parser.add_argument(
+        "--stall",
+        default=None,
+        metavar="SECONDS@START",
+        help="fault injection: the host stalls the twin for SECONDS (wall) once, START twin seconds after the first "
+        "reset (a busy host)",
+    )
+    parser.add_argument(
         "--link-record",
         default=None,
         metavar="FILE.npz",
         help="on exit, write what the twin realized: each stamped message's delivery (topic, stamp, time handed on) "
         "and each command as its driver took it (robot, time, v, w)",
+    )
+    parser.add_argument(
+        "--timing-record",
+        default=None,
+        metavar="FILE.json",
+        help="on exit, write how the twin kept its clock in each episode: the time scale asked and realized, the "
+        "time jumped over in host stalls, the most it ran behind, whether it kept the scale",
     )
     parser.add_argument(
         "--exit-with-parent",
@@ -126,8 +142,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         if not 0 < scale <= 20:
             raise MrlError(f"--time-scale {scale}: must be in (0, 20]")
         seed = fleet.twin.seed if args.seed is None else args.seed
-        if args.link_record and not os.path.isdir(os.path.dirname(os.path.abspath(args.link_record))):
-            raise MrlError(f"--link-record {args.link_record}: its folder does not exist")
+        for option, value in (("--link-record", args.link_record), ("--timing-record", args.timing_record)):
+            if value and not os.path.isdir(os.path.dirname(os.path.abspath(value))):
+                raise MrlError(f"{option} {value}: its folder does not exist")
         silence = None
         if args.silence:
             robot, _, when = args.silence.partition("@")
@@ -141,6 +158,15 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             namespaces = [r.namespace for r in fleet.robots]
             if robot not in namespaces:
                 raise MrlError(f"--silence {args.silence!r}: no robot {robot!r} in the fleet; its robots: {namespaces}")
+        stall = None
+        if args.stall:
+            seconds, _, start_text = args.stall.partition("@")
+            try:
+                stall = (float(seconds), float(start_text or 0.0))
+            except ValueError:
+                raise MrlError(f"--stall {args.stall!r}: expected SECONDS@START, e.g. 2.0@1.5") from None
+            if not (stall[0] > 0 and stall[1] >= 0):
+                raise MrlError(f"--stall {args.stall!r}: SECONDS above 0, START at least 0")
         clock: Clock = WallClock() if scale == 1.0 else ScaledClock(scale, time.time_ns())
         transport = open_transport(fleet.transport, fleet.network_settings(args.fleet))
     except MrlError as exc:
@@ -150,6 +176,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
         twin = HardwareTwin(
             fleet, scenario, profile, transport, clock, seed, publish_clock=scale != 1.0, silence=silence
         )
+        twin.stall = stall
         robots = ", ".join(r.namespace for r in fleet.robots)
         identity = transport.identity()
         say(
@@ -164,8 +191,12 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             twin.run(stop)
         finally:
             twin.close()
+            twin.close_timing()
             if args.link_record:
                 twin.write_record(args.link_record)
+            if args.timing_record:
+                text = json.dumps([t.as_mapping() for t in twin.timing], indent=1)
+                Path(args.timing_record).write_text(text + "\n", encoding="utf-8")
     finally:
         transport.close()
     jumped = ""

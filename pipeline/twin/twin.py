@@ -22,6 +22,7 @@ import heapq
 import itertools
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -57,6 +58,55 @@ CLOCK_PERIOD_S = 0.02
 DRIVER_TIMEOUT_NS = 500_000_000
 MAX_WAKE_NS = 20_000_000
 """The loop wakes at least this often (twin time) to take resets and commands."""
+LAG_LIMIT_NS = 500_000_000
+"""An episode in which the twin ran behind its clock by more than this (twin time: past the fleet's staleness limits,
+its sensors reach the runner late enough to read as stale) did not keep its time scale."""
+REALIZED_MARGIN = 0.05
+"""An episode whose realized time scale falls short of the one asked by more than this share did not keep it."""
+
+
+@dataclass
+class EpisodeTiming:
+    """How the twin kept its clock through one episode: the time scale asked, the twin and host times it began and
+    ended at, the twin time it jumped over (host stalls) and the most it ran behind its clock."""
+
+    episode: int
+    asked_scale: float
+    start_ns: int
+    host_start_ns: int
+    end_ns: int = 0
+    host_end_ns: int = 0
+    jumped_ns: int = 0
+    lag_max_ns: int = 0
+
+    def end(self, end_ns: int, host_end_ns: int) -> None:
+        self.end_ns, self.host_end_ns = end_ns, host_end_ns
+
+    @property
+    def realized_scale(self) -> float:
+        """Twin seconds simulated (not jumped over) per host second."""
+        host = self.host_end_ns - self.host_start_ns
+        return (self.end_ns - self.start_ns - self.jumped_ns) / host if host > 0 else math.nan
+
+    @property
+    def kept(self) -> bool:
+        """The twin kept the time scale asked: no more than `REALIZED_MARGIN` short of it, never `LAG_LIMIT_NS`
+        behind its clock."""
+        realized = self.realized_scale
+        short = math.isfinite(realized) and realized < self.asked_scale * (1 - REALIZED_MARGIN)
+        return not short and self.lag_max_ns <= LAG_LIMIT_NS
+
+    def as_mapping(self) -> dict[str, object]:
+        return {
+            "episode": self.episode,
+            "time_scale_asked": self.asked_scale,
+            "time_scale_realized": round(self.realized_scale, 4),
+            "jumped_s": self.jumped_ns / NS_PER_S,
+            "lag_max_s": self.lag_max_ns / NS_PER_S,
+            "kept": self.kept,
+        }
+
+
 STALL_JUMP_NS = 1_000_000_000
 """A host stall longer than this (twin time) is jumped over: the robots stand still through it and the jump is
 recorded (`HardwareTwin.jumps`). Shorter stalls are caught up step by step (sensors taken at their own times,
@@ -286,6 +336,11 @@ class HardwareTwin:
         self.ticks = 0
         self.jumps: list[tuple[int, int]] = []
         """Host stalls longer than `STALL_JUMP_NS` jumped over: (twin time the jump started, ns skipped)."""
+        self.stall: tuple[float, float] | None = None
+        """Fault injection: (host seconds, twin seconds after the first reset) of one host stall."""
+        self.timing: list[EpisodeTiming] = []
+        """Per episode (from one reset to the next, the last to the twin's end): how well the twin kept its clock."""
+        self._timing: EpisodeTiming | None = None
         self._silenced_at_ns: int | None = None
         self._first_reset_ns: int | None = None
         now = clock.now_ns()
@@ -333,6 +388,13 @@ class HardwareTwin:
     def _lidar_unit(self, i: int) -> np.random.Generator:
         """What robot i's lidar unit is made of (its beams' angle errors and noise factors): the same every episode."""
         return np.random.default_rng([self.seed, LIDAR_UNIT_STREAM, i])
+
+    def close_timing(self) -> None:
+        """End the episode's timing record (at the next reset, or when the twin stops)."""
+        if self._timing is not None:
+            self._timing.end(self.physics_ns, time.monotonic_ns())
+            self.timing.append(self._timing)
+            self._timing = None
 
     def write_record(self, path: str) -> None:
         """What the twin realized, as a NumPy archive: the link's deliveries (`LossyLink.deliveries_arrays`) and the
@@ -388,6 +450,8 @@ class HardwareTwin:
             self._cmd_ns[:] = -(2**62)
             self._inbox.clear()
         episode, seed = request
+        self.close_timing()
+        self._timing = EpisodeTiming(episode, getattr(self.clock, "scale", 1.0), now_ns, time.monotonic_ns())
         self._begin_episode(now_ns, seed)
         if self._first_reset_ns is None:
             self._first_reset_ns = now_ns
@@ -490,12 +554,20 @@ class HardwareTwin:
             wake = max(self.next_wake_ns(), self.physics_ns + self.step_ns)
             if not self.clock.sleep_until(wake, stop):
                 break
+            first = self._first_reset_ns
+            if self.stall is not None and first is not None and wake - first >= self.stall[1] * NS_PER_S:
+                seconds, self.stall = self.stall[0], None
+                time.sleep(seconds)  # the host gives the twin no time: as a busy machine does
             behind = self.clock.now_ns() - wake
+            skipped = 0
             if behind > STALL_JUMP_NS:  # the host stalled for long: jump, or catching up would run away
                 skipped = (behind // self.step_ns) * self.step_ns
                 self.jumps.append((self.physics_ns, skipped))
                 self.physics_ns += skipped
-            self.step(wake)
+            if self._timing is not None:
+                self._timing.lag_max_ns = max(self._timing.lag_max_ns, behind)
+                self._timing.jumped_ns += skipped
+            self.step(wake + skipped)  # the time it jumped to: a reset taken now starts the episode there
 
     def close(self) -> None:
         self.link.close()

@@ -337,3 +337,31 @@ def test_a_refused_run_leaves_no_folder_behind(tiny_policy, tmp_path):
     with pytest.raises(FleetNotReady, match=r"lidar.beams = 0"):
         deploy_into(tiny_policy, bad, out)
     assert not out.exists()
+
+
+def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_for_the_policy_s(tiny_policy, tmp_path):
+    """A host too busy for the time scale: the twin stalls 2 s (host) in the first episode and jumps over it. The
+    session is published whole; the deployment ends with its own exit code (InvalidMeasurement); metrics.json counts
+    the episode and gives the rates over the others; a deployment that kept its clock says so."""
+    from pipeline.errors import InvalidMeasurement
+    from pipeline.rollout.deployment import check_clock_kept
+    from pipeline.stage import EXIT_INVALID_MEASUREMENT, run_stage
+
+    fleet = write_fleet(tmp_path / "fleet.yaml")
+    out = tmp_path / "busy"
+    busy = deploy_into(tiny_policy, fleet, out, episodes=2, twin_extra_args=["--stall", "2.0@0.5"])
+    with pytest.raises(InvalidMeasurement, match=r"in 1 of 2 episode\(s\) the twin fell behind its clock") as err:
+        check_clock_kept(busy, out, load_fleet(fleet).twin.time_scale)
+    assert [r.clock_kept for r in busy.results] == [False, True]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["real/episodes"] == 2 and metrics["real/clock_not_kept_episodes"] == 1
+    assert metrics["real/time_scale_realized_min"] < 0.95  # the jumped-over seconds were never simulated
+    assert metrics["real/clock_kept_episodes"] == 1  # the rates over the other episode beside the whole session's
+    assert 0.0 <= metrics["real/robot_success_clock_kept"] <= 1.0
+    assert (out / "episodes.csv").is_file() and (out / "session.mcap").is_file()
+    assert run_stage("deploy", lambda: (_ for _ in ()).throw(err.value)) == EXIT_INVALID_MEASUREMENT
+    quiet = deploy_into(tiny_policy, fleet, tmp_path / "quiet", episodes=1)
+    assert quiet.metrics["real/clock_not_kept_episodes"] == 0
+    scale = load_fleet(fleet).twin.time_scale  # the test fleet's
+    assert quiet.metrics["real/time_scale_realized_min"] == pytest.approx(scale, rel=0.05)
+    assert quiet.results[0].clock_kept and quiet.results[0].time_scale_realized == pytest.approx(scale, rel=0.05)

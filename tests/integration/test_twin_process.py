@@ -205,6 +205,7 @@ def test_the_twin_catches_up_a_host_stall_and_jumps_only_a_long_one(tmp_path, st
     import numpy as np
 
     from pipeline.core.scenario import load_scenario
+    from pipeline.messages import convert as C
     from pipeline.ros.fleet import load_fleet
     from pipeline.ros.transport import open_transport
     from pipeline.twin.profile import load_profile_for
@@ -220,9 +221,16 @@ def test_the_twin_catches_up_a_host_stall_and_jumps_only_a_long_one(tmp_path, st
     with open_transport(fleet.transport, fleet.network_settings()) as transport:
         twin = HardwareTwin(fleet, scenario, lab, transport, clock, seed=0)
         twin.link.deliveries = []
+        twin._on_reset(None, C.reset_request(clock.now, 7, 0, False), clock.now)  # an episode begins, as asked
         twin.run(stop)
         twin.write_record(str(tmp_path / "record.npz"))
         twin.close()
+        twin.close_timing()
+    # the episode's timing: a stall caught up keeps the clock; one jumped over does not (the episode is marked)
+    (timing,) = twin.timing
+    assert timing.episode == 7 and timing.kept == (not jumped)
+    assert timing.lag_max_ns >= stall_ns - twin.step_ns
+    assert timing.jumped_ns == sum(j[1] for j in twin.jumps)
     simulated_ns = round(twin.physics.data.time * 1e9)
     elapsed_ns = twin.physics_ns - clock.start
     assert elapsed_ns >= 2_900_000_000
