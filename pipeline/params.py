@@ -570,10 +570,19 @@ class ReportConfig:
 
 
 @dataclass(frozen=True)
+class FleetCheckConfig:
+    """The `fleet_check` stage: before any training, the deploy fleet's pinned DDS domain is not held by another
+    deployment on this machine."""
+
+    out: str = setting("logs/fleet_check.json")
+
+
+@dataclass(frozen=True)
 class Params:
     """All of params.yaml."""
 
     world: WorldConfig = setting()
+    fleet_check: FleetCheckConfig = setting()
     scripted_eval: ScriptedEvalConfig = setting()
     train: TrainConfig = setting()
     export: ExportConfig = setting()

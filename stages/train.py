@@ -8,9 +8,7 @@ from pathlib import Path
 
 from pipeline.learn.trainer import train
 from pipeline.params import load_params, round_world
-from pipeline.rollout.deployment import check_pinned_domain
 from pipeline.rollout.outputs import write_metrics
-from pipeline.ros.fleet import load_fleet
 from pipeline.sim import make_world
 from pipeline.stage import run_stage, stage_arguments
 
@@ -18,8 +16,6 @@ from pipeline.stage import run_stage, stage_arguments
 def main(argv: Sequence[str] | None = None) -> int:
     args = stage_arguments(__doc__ or "", argv)
     params = load_params(args.params)
-    # the deployment this training ends in: a pinned domain another deployment holds is refused now, not after it
-    check_pinned_domain(load_fleet(params.deploy.fleet), params.deploy.fleet)
     scenario, world = make_world(world=round_world(params, args.round, args.params))
     out = Path(params.train.out_dir) / args.round
     result = train(scenario, world, params.train, out, round_name=args.round)

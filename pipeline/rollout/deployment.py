@@ -38,7 +38,7 @@ from pipeline.record.session import SessionLog, clock_metadata, dumps, session_m
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
 from pipeline.rollout.runner import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
-from pipeline.ros.domains import NoFreeDomainError, lease_free_domain, lock_path, pinned_domain_is_free, try_lease
+from pipeline.ros.domains import NoFreeDomainError, lease_free_domain, lock_path, try_lease
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.ros1 import private_master
 from pipeline.ros.transport import NetworkSettings, Transport, open_transport
@@ -278,20 +278,6 @@ def deploy_policy(
             settings = replace(settings, master_uri=uri)
         return _deploy(
             runtime, fleet, fleet_source, request, scenario, settings, confirm_reset, twin_extra_args, live, note
-        )
-
-
-def check_pinned_domain(fleet: Fleet, fleet_source: str) -> None:
-    """Before work that ends in a deployment (a training): refuse a fleet whose pinned DDS domain another
-    deployment on this machine holds now, so the clash is not found only when the deployment starts."""
-    if fleet.transport == "ros1" or fleet.network.domain_id is None:
-        return
-    if not pinned_domain_is_free(fleet.network.domain_id):
-        raise FleetConflict(
-            fleet.network.domain_id,
-            [f"another deployment on this machine (its lease: {lock_path(fleet.network.domain_id)})"],
-            f"the fleet {fleet_source} pins it; give the fleet file another network.domain_id, or none (a twin "
-            "then takes a free domain)",
         )
 
 

@@ -18,6 +18,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from pipeline.errors import RuntimeFault
+
 FREE_DOMAINS = range(160, 233)
 """Domains a deployment takes for itself: clear of ROS's default (0), of the low ids labs pin by hand and of the
 tests' own (tests/domains.py); 232 is the highest Cyclone DDS maps to ports."""
@@ -96,3 +98,22 @@ def pinned_domain_is_free(domain_id: int) -> bool:
         return False
     lease.release()
     return True
+
+
+class DomainHeld(RuntimeFault):
+    """A pinned DDS domain that another deployment on this machine holds now."""
+
+    def __init__(self, domain_id: int, fleet_source: str) -> None:
+        self.domain_id = domain_id
+        super().__init__(
+            f"DDS domain {domain_id} already has another deployment on this machine (its lease: "
+            f"{lock_path(domain_id)}): the fleet {fleet_source} pins it; give the fleet file another "
+            "network.domain_id, or none (a twin then takes a free domain)"
+        )
+
+
+def check_pinned_domain(domain_id: int | None, fleet_source: str) -> None:
+    """Before work that ends in a deployment (a training): DomainHeld where the fleet pins a domain another
+    deployment on this machine holds now, so that the clash is not found only when the deployment starts."""
+    if domain_id is not None and not pinned_domain_is_free(domain_id):
+        raise DomainHeld(domain_id, fleet_source)

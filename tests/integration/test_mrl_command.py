@@ -134,9 +134,10 @@ def test_help_lists_every_exit_code_the_verbs_use_with_its_meaning():
     assert top.returncode == 0 and "\nexit codes:\n" in top.stdout
     section = top.stdout.split("\nexit codes:\n", 1)[1]
     listed = {int(m[1]): m[2] for m in re.finditer(r"^  (\d+)\s+(\S.*)$", section, re.MULTILINE)}
-    assert listed.keys() == {0, 1, 2, 3, 130}
+    assert listed.keys() == {0, 1, 2, 3, 4, 130}
     assert listed[0] == "done" and listed[1].startswith("no result") and listed[2].startswith("bad input")
     assert listed[3].startswith("runtime fault") and listed[130].startswith("interrupted")
+    assert listed[4].startswith("a deployment that finished, but in some episodes the hardware twin")
     # every code the verbs, the twin they start and the stages' plumbing return is among them
     import pipeline.stage
 

@@ -15,6 +15,8 @@ from pipeline.ros.domains import FREE_DOMAINS, lease_free_domain, lock_path, pin
 from pipeline.ros.fleet import load_fleet
 from tests.domains import BANDS
 
+ROOT = Path(__file__).resolve().parents[2]
+
 HOLD = (
     "import sys, time\n"
     "from pipeline.ros.domains import try_lease\n"
@@ -72,17 +74,37 @@ def test_the_bundled_twin_fleets_pin_no_domain():
 
 
 def test_a_pinned_domain_another_deployment_holds_is_refused_before_the_training(tmp_path: Path):
-    from pipeline.rollout.deployment import check_pinned_domain
+    """The dvc stage fleet_check runs before the trainings: a clash is found then, not after them."""
+    import yaml
+
+    from pipeline.ros.domains import check_pinned_domain
     from tests.integration.conftest import write_fleet
 
     domain = FREE_DOMAINS.stop - 2
     fleet_file = write_fleet(tmp_path / "fleet.yaml", network={"domain_id": domain, "loopback_only": True, "peers": []})
-    fleet = load_fleet(fleet_file)
-    check_pinned_domain(fleet, str(fleet_file))  # nobody holds it: nothing to say
+    check_pinned_domain(domain, str(fleet_file))  # nobody holds it: nothing to say
+    check_pinned_domain(None, "twin")  # nothing pinned: a twin takes a free one
+    params = tmp_path / "params.yaml"
+    defaults = yaml.safe_load((ROOT / "params.yaml").read_text())
+    defaults["deploy"]["fleet"] = str(fleet_file)
+    params.write_text(yaml.safe_dump(defaults))
     holder = hold(domain)
     try:
         with pytest.raises(RuntimeFault, match=rf"DDS domain {domain} already has another deployment on this machine"):
-            check_pinned_domain(fleet, str(fleet_file))
+            check_pinned_domain(domain, str(fleet_file))
+        done = subprocess.run(
+            [sys.executable, str(ROOT / "stages" / "fleet_check.py"), "--params", str(params)],
+            capture_output=True, text=True, cwd=tmp_path, timeout=120, check=False,
+        )  # fmt: skip
+        assert done.returncode == 3, done.stderr
+        assert f"fleet_check: DDS domain {domain} already has another deployment" in done.stderr
+        assert not (tmp_path / "logs" / "fleet_check.json").exists()
     finally:
         holder.kill()
         holder.wait()
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "stages" / "fleet_check.py"), "--params", str(params)],
+        capture_output=True, text=True, cwd=tmp_path, timeout=120, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert yaml.safe_load((tmp_path / "logs" / "fleet_check.json").read_text())["pinned_domain"] == domain
