@@ -56,6 +56,7 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "world.lidar.mixed_pixel_prob": 0.0,
     "world.lidar.no_return": "inf",
     "world.lidar.scan_drop_prob": 0.0,
+    "fleet_check.out": "logs/fleet_check.json",
     **{f"world.network.{k}": v for k, v in to_mapping(NetworkConfig()).items()},
     **{f"world.randomize.network.{k}": v for k, v in to_mapping(NetworkRanges()).items()},
 }
