@@ -118,13 +118,13 @@ def run(args: argparse.Namespace) -> int:
     with imported(args, args.bags) as bags:
         calibration = calibrate([bag.path for bag in bags], settings, progress=_progress)
         given = {str(bag.path): bag for bag in bags}
-        sources = tuple(
-            replace(s, path=str(given[s.path].source), sha256=bag_sha256(given[s.path].source))
-            if s.path in given and given[s.path].converted
-            else replace(s, path=str(given[s.path].source) if s.path in given else s.path)
-            for s in calibration.sources
-        )  # a converted bag is named and hashed as the user has it, not as its temporary MCAP
-        path = write_calibration(replace(calibration, sources=sources), args.out)
+        sources = []
+        for source in calibration.sources:  # a converted bag named and hashed as the user has it, not its copy
+            bag = given.get(source.path)
+            if bag is not None and bag.converted:
+                source = replace(source, path=str(bag.source), sha256=bag_sha256(bag.source))
+            sources.append(source)
+        path = write_calibration(replace(calibration, sources=tuple(sources)), args.out)
     _print_values(calibration)
     for limit in calibration.speed_limits():
         print(f"calibrate: {limit.sentence()}")

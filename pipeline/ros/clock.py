@@ -19,6 +19,9 @@ SPIN_NS = 400_000
 
 
 class Clock(Protocol):
+    scale: float
+    """Clock seconds per wall second."""
+
     def now_ns(self) -> int: ...
 
     def sleep_until(self, t_ns: int, stop: threading.Event | None = None) -> bool:

@@ -452,7 +452,7 @@ class HardwareTwin:
             self._inbox.clear()
         episode, seed = request
         self.close_timing()
-        self._timing = EpisodeTiming(episode, getattr(self.clock, "scale", 1.0), now_ns, time.monotonic_ns())
+        self._timing = EpisodeTiming(episode, self.clock.scale, now_ns, time.monotonic_ns())
         self._begin_episode(now_ns, seed)
         if self._first_reset_ns is None:
             self._first_reset_ns = now_ns

@@ -174,6 +174,8 @@ class StallingClock:
     """Twin time that passes only as the twin sleeps, except where the host stalls: the wake after `stall_at_ns`
     comes `stall_ns` late. Stops the twin at `end_ns`."""
 
+    scale = 1.0
+
     def __init__(self, stall_at_ns: int, stall_ns: int, end_ns: int, stop) -> None:
         self.now = 10**12
         self.start = self.now

@@ -22,6 +22,8 @@ MS = 1_000_000
 
 
 class ManualClock:
+    scale = 1.0
+
     def __init__(self, t_ns: int = 0) -> None:
         self.t = t_ns
 

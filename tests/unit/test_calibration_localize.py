@@ -130,15 +130,19 @@ def test_a_symmetric_room_is_refused_as_ambiguous_without_an_initial_pose():
     assert math.hypot(*(track.pose[0, :2] - truth[:2])) < 0.02 and track.start == "initial pose"
 
 
+def narrow_scan(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A scan of the obstacle room at `pose` that sees only 60 degrees ahead (the other beams without return)."""
+    angles = -math.pi + np.arange(BEAMS) * 2 * math.pi / BEAMS
+    return np.where(np.abs(angles) <= math.radians(30), synthetic_scan("obstacles", pose, 0.01, rng), np.nan)
+
+
 def test_a_first_scan_that_fits_two_poses_is_told_apart_by_the_next_scans():
     """A first scan that sees only 60 degrees ahead fits the obstacle room at the truth and turned about the room's
     centre; the next scans, full ones taken as the robot drives ahead, fit only the truth, which wins."""
     rng = np.random.default_rng(5)
     grid = OccupancyMap.from_scenario(load_scenario("obstacles"))
     truth = np.array([1.5, 2.0, 0.0])
-    angles = -math.pi + np.arange(BEAMS) * 2 * math.pi / BEAMS
-    first = synthetic_scan("obstacles", truth, 0.01, rng)
-    first = np.where(np.abs(angles) <= math.radians(30), first, np.nan)
+    first = narrow_scan(truth, rng)
     assert global_localize(grid, scan_points(first, -math.pi, 2 * math.pi / BEAMS, 180)).ambiguous
     n = 41
     poses = np.stack([truth[0] + 0.01 * np.arange(n), np.full(n, truth[1]), np.zeros(n)], axis=1)
@@ -157,9 +161,7 @@ def test_a_first_scan_that_fits_two_poses_of_a_map_the_rest_do_not_fit_is_a_wron
     rng = np.random.default_rng(5)
     grid = OccupancyMap.from_scenario(load_scenario("obstacles"))
     truth = np.array([1.5, 2.0, 0.0])
-    angles = -math.pi + np.arange(BEAMS) * 2 * math.pi / BEAMS
-    first = synthetic_scan("obstacles", truth, 0.01, rng)
-    first = np.where(np.abs(angles) <= math.radians(30), first, np.nan)
+    first = narrow_scan(truth, rng)
     n = 41
     elsewhere = [rng.uniform(0.5, 5.0, BEAMS) for _ in range(1, n)]  # ranges of a place the map does not hold
     pts = [scan_points(r, -math.pi, 2 * math.pi / BEAMS, 180) for r in [first, *elsewhere]]
