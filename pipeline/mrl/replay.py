@@ -139,15 +139,15 @@ def _map_run(args: argparse.Namespace) -> int:
     from pipeline.calibration.map_replay import map_replay
     from pipeline.params import calibrated_world, world_config
 
+    longest = args.horizon_s if args.horizon_s is not None else MAP_HORIZONS_S[-1]
+    if not (math.isfinite(longest) and longest > 0):
+        raise CommandError(f"--horizon-s {args.horizon_s:g}: give a number of seconds above 0")
+    horizons = (*(h for h in MAP_HORIZONS_S if h < longest), longest)
     out = output_folder(args.out)
     worlds = {"nominal": world_config({})}
     if args.calibration:
         worlds["calibrated"] = calibrated_world(worlds["nominal"], Path(args.calibration))
     with imported(args, [args.recording]) as (bag,):
-        longest = args.horizon_s if args.horizon_s is not None else MAP_HORIZONS_S[-1]
-        if not (math.isfinite(longest) and longest > 0):
-            raise CommandError(f"--horizon-s {args.horizon_s}: give a number of seconds above 0")
-        horizons = (*(h for h in MAP_HORIZONS_S if h < longest), longest)
         result = map_replay(
             [bag.path],
             args.map,

@@ -299,6 +299,24 @@ def test_bad_input_is_one_line_naming_the_path_or_option(tmp_path, bags):
     refused(mrl("episodes", bags["mcap"], "--out", tmp_path / "table.txt"), "episodes", "--out", ".csv or .parquet")
 
 
+def test_a_replay_horizon_of_no_seconds_is_refused_before_the_bag_is_read(tmp_path):
+    line = refused(
+        mrl(
+            "replay",
+            tmp_path / "floor.bag",
+            "--map",
+            tmp_path / "floor.yaml",
+            "--horizon-s",
+            "0",
+            "--out",
+            tmp_path / "r",
+        ),
+        "replay",
+        "--horizon-s 0",
+    )
+    assert "above 0" in line and not (tmp_path / "r").exists()
+
+
 def test_replay_without_policy_or_map_says_that_one_of_them_is_needed(tmp_path):
     line = refused(mrl("replay", GOLDEN_MCAP, "--out", tmp_path / "r"), "replay", "--policy DIR", "--map MAP")
     assert "is needed" in line and "not both" not in line

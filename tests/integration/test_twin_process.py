@@ -52,6 +52,16 @@ def test_twin_refuses_bad_input_with_a_clear_message(tmp_path):
     proc = start_twin("--fleet", str(fleet), "--link-record", str(tmp_path / "nowhere" / "record.npz"))
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and "--link-record" in err and "folder does not exist" in err and "Traceback" not in err
+    proc = start_twin("--fleet", str(fleet), "--timing-record", str(tmp_path / "nowhere" / "timing.json"))
+    _, err = proc.communicate(timeout=60)
+    assert (
+        proc.returncode == 2 and "--timing-record" in err and "folder does not exist" in err and "Traceback" not in err
+    )
+    for bad, allowed in (("two@1", "SECONDS@START"), ("0@1", "SECONDS above 0"), ("1@-2", "START at least 0")):
+        proc = start_twin("--fleet", str(fleet), "--stall", bad)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 2 and "Traceback" not in err
+        assert f"--stall {bad!r}" in err and allowed in err
     proc = start_twin("--fleet", str(fleet), "--silence", "robot_9@1.0")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and "no robot 'robot_9' in the fleet" in err and "Traceback" not in err
