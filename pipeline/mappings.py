@@ -113,7 +113,16 @@ class _Converter:
             if value is None and type(None) in args:
                 return None
             inner = [a for a in args if a is not type(None)]
-            return self.convert(inner[0], value, key, meta)
+            if len(inner) == 1:
+                return self.convert(inner[0], value, key, meta)
+            for arm in inner:  # the first arm the value fits (e.g. a number or the word "auto")
+                trial = _Converter()
+                converted = trial.convert(arm, value, key, meta)
+                if not trial.problems:
+                    return converted
+            arms = [_describe(a) + (self._suffix(meta) if a in (int, float) else "") for a in inner]
+            self.fail(key, value, " or ".join(arms))
+            return None
         if origin is Literal:
             choices = typing.get_args(tp)
             if value not in choices or isinstance(value, bool) != isinstance(choices[0], bool):

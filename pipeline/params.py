@@ -521,8 +521,9 @@ class DeployConfig:
     """A bundled fleet (twin, twin_ros1, twin_rclpy, spark_lab) or the path of a fleet YAML file."""
     episodes: int = setting(50, ge=1, le=100_000)
     seed: int = setting(20_000, ge=0)
-    time_scale: float = setting(0.0, ge=0.0, le=20.0)
-    """The twin's time scale; 0 keeps the fleet file's."""
+    time_scale: float | Literal["auto"] = setting(0.0, ge=0.0, le=20.0)
+    """The twin's time scale (``auto``: the highest the host lets it keep, :mod:`pipeline.rollout.pace`); 0 keeps
+    the fleet file's."""
     profile: str = setting("", allow_empty=True)
     """The twin's reality profile; empty keeps the fleet file's."""
     chunk_size_bytes: int = setting(1_048_576, ge=1024)

@@ -7,6 +7,7 @@ classes (:mod:`pipeline.params`) and pass them here. Nothing here imports the si
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -56,7 +57,7 @@ def run_deployment(
     with live_view(live, live_port, live_label) as view:
         outcome = deploy_session(runtime, fleet, cfg.fleet, request, out, confirm_reset=operator_reset, live=view)
     print(f"deploy: {deploy_summary(outcome, fleet.target, out)}")
-    check_clock_kept(outcome, out, cfg.time_scale or fleet.twin.time_scale)
+    check_clock_kept(outcome, out)
     return outcome
 
 
@@ -77,8 +78,11 @@ def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
     clock = ""
     if "real/time_scale_realized_min" in outcome.metrics:
         behind = int(outcome.metrics["real/clock_not_kept_episodes"])
+        m = outcome.metrics
+        low, high = m.get("real/time_scale_asked_min", math.nan), m.get("real/time_scale_asked_max", math.nan)
+        asked = f"{low:g}x asked" if low == high else f"{low:g}x to {high:g}x asked"
         clock = (
-            f"; the twin kept its clock in every episode (least time scale realized "
+            f"; the twin kept its clock in every episode ({asked}, least time scale realized "
             f"{outcome.metrics['real/time_scale_realized_min']:.2f})"
             if behind == 0
             else f"; the twin fell behind its clock in {behind} episode(s): not the policy's results"

@@ -16,6 +16,7 @@ frame of the topic (``map`` for ground truth, ``<ns>/odom`` for odometry), yaw i
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -37,7 +38,7 @@ from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC as EPISODE_TOPIC  # re-exported: mrl and benchmarks use it
 from pipeline.record.episodes import EpisodeWindow, EventRow, episode_windows
 from pipeline.record.errors import MissingTopicError, TopicTypeError
-from pipeline.record.session import SessionInfo, session_info
+from pipeline.record.session import TWIN_TIMING_META, SessionInfo, session_info
 
 PoseKind = Literal["ground_truth", "odom"]
 POSE_TYPES: dict[str, str] = {"ground_truth": T.POSE_STAMPED, "odom": T.ODOMETRY}
@@ -72,6 +73,9 @@ EPISODES_SCHEMA: dict[str, Any] = {
     "abort_reason": pl.String,
     "abort_kind": pl.String,
     "stale_s": pl.Float64,
+    "time_scale_asked": pl.Float64,
+    "time_scale_realized": pl.Float64,
+    "clock_kept": pl.Boolean,
     "start_ns": pl.Int64,
     "end_ns": pl.Int64,
     "salvaged": pl.Boolean,
@@ -208,6 +212,22 @@ class Recording:
         if scenario is not None:
             return scenario
         raise AnalysisError(self.where, "the recording names no scenario (no 'scenario' metadata)")
+
+    def _twin_timing(self) -> dict[int, tuple[float, float, bool]]:
+        """Per episode, (time scale asked, realized, kept) from the ``twin_timing`` record of a deployment on the
+        hardware twin; empty for other recordings (and those made before the record)."""
+        out = {}
+        for key, text in self._metadata.get(TWIN_TIMING_META, {}).items():
+            try:
+                record = json.loads(text)
+                out[int(key)] = (
+                    float(record["time_scale_asked"]),
+                    float(record["time_scale_realized"]),
+                    bool(record["kept"]),
+                )
+            except (ValueError, KeyError, TypeError) as exc:
+                raise AnalysisError(self.where, f"the {TWIN_TIMING_META} record of episode {key!r}: {exc}") from exc
+        return out
 
     def _session_info(self) -> SessionInfo:
         info = session_info(self._metadata)
@@ -448,10 +468,12 @@ class Recording:
             for robot, (t_ns, xy) in tracks.items()
         }
         info = self.info
+        timing = self._twin_timing()
         rows: list[tuple[Any, ...]] = []
         for k, e in enumerate(windows):
             w = e.window
             steps = steps_of[k]
+            asked, realized, clock_kept = timing.get(w.episode, (None, None, True))
             for robot in self.robots:
                 events = e.robot_events.get(robot, {})
                 goal = events.get("goal")
@@ -490,6 +512,9 @@ class Recording:
                         e.abort_reason,
                         e.abort_kind,
                         e.stale_s.get(robot, 0.0),
+                        asked,
+                        realized,
+                        clock_kept,
                         w.start_ns,
                         w.end_ns,
                         self.salvaged,
@@ -629,7 +654,9 @@ def episodes_table(source: Source) -> pl.DataFrame:
     their goals and the episode was not aborted), end (the end event's detail, ``aborted`` after a
     team-level abort, empty when the file stops inside the episode), abort_reason, abort_kind (outage,
     fault, clash, interrupted, or cut_off for a file that stops inside the episode), stale_s (seconds between
-    the robot's ``stale`` and ``fresh`` events), start_ns and end_ns (log times; end_ns null when the file
+    the robot's ``stale`` and ``fresh`` events), time_scale_asked, time_scale_realized and clock_kept (how the hardware
+    twin kept its clock in the episode, from the deployment's ``twin_timing`` record; null, null and true without
+    one), start_ns and end_ns (log times; end_ns null when the file
     stops inside the episode), salvaged.
 
     Raises:

@@ -48,6 +48,8 @@ class EpisodeResult:
     """One of :data:`ABORT_KINDS` when aborted, else empty."""
     stale_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """(n_robots,) seconds each robot spent stale (standing still for want of fresh data); empty: none measured."""
+    time_scale_asked: float = math.nan
+    """The time scale the twin was asked to keep in the episode (NaN: no twin)."""
     time_scale_realized: float = math.nan
     """Twin seconds simulated per host second through the episode (NaN: not measured, no twin)."""
     clock_kept: bool = True
@@ -137,6 +139,10 @@ def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, f
         out["clock_not_kept_episodes"] = float((~kept).sum())
         out["clock_kept_episodes"] = float(kept.sum())
         out["time_scale_realized_min"] = float(np.nanmin(realized))
+        asked = np.array([r.time_scale_asked for r in results])
+        if np.isfinite(asked).any():  # the scales asked (several where --time-scale auto lowered it)
+            out["time_scale_asked_min"] = float(np.nanmin(asked))
+            out["time_scale_asked_max"] = float(np.nanmax(asked))
         _rates("robot_success_clock_kept", int(success[kept].sum()), int(success[kept].size), out)
         _rates("team_success_clock_kept", int(team[kept].sum()), int(kept.sum()), out)
     out["collision_rate"] = float(collided.mean())

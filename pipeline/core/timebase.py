@@ -5,3 +5,10 @@ from __future__ import annotations
 NS_PER_S = 1_000_000_000
 NS_PER_MS = 1_000_000
 NS_PER_US = 1_000
+
+LAG_LIMIT_NS = 1_000_000_000
+"""An episode in which the twin ran behind its clock by more than this (twin time: twice the fleet's staleness limits,
+its sensors reach the runner stale; the host stall a twin jumps over) did not keep its time scale. Shorter lags are
+a slow link's: the runner's staleness rules already hold them."""
+REALIZED_MARGIN = 0.05
+"""An episode whose realized time scale falls short of the one asked by more than this share did not keep it."""

@@ -40,7 +40,12 @@ def add_parser(subparsers: Any) -> None:
     )
     deploy.add_argument("--seed", type=int, default=defaults.seed, metavar="N", help=f"(default: {defaults.seed})")
     deploy.add_argument(
-        "--time-scale", type=float, default=0.0, metavar="X", help="the twin's time scale (default: the fleet's)"
+        "--time-scale",
+        type=_time_scale,
+        default=0.0,
+        metavar="X",
+        help="the twin's time scale, or auto: the highest this host lets the twin keep, measured before the first "
+        "episode and lowered when it falls behind (default: the fleet's)",
     )
     deploy.add_argument("--profile", default="", metavar="P", help="the twin's reality profile (default: the fleet's)")
     deploy.add_argument("--out", default="deployment", metavar="DIR", help="the output folder (default: deployment)")
@@ -82,6 +87,15 @@ def run(args: argparse.Namespace) -> int:
         runtime = ExcitationDrive(runtime, seed=cfg.seed)
     run_deployment(runtime, fleet, cfg, out, live=args.live, live_port=args.live_port, live_label=NAME)
     return 0
+
+
+def _time_scale(text: str) -> float | str:
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number of simulated seconds per second, or auto") from None
 
 
 def _domain_id(text: str) -> int:

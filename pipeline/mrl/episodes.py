@@ -120,13 +120,14 @@ def _write_table(table: Any, path: Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         if path.suffix.lower() == ".csv":
-            flags = ("success", "reached", "collided", "aborted", "team_success")
+            flags = ("success", "reached", "collided", "aborted", "team_success", "clock_kept")
             rows = table.select(EPISODES_CSV_COLUMNS).with_columns(
                 *(pl.col(c).cast(pl.Int8) for c in flags),
                 pl.col("seed").fill_null(-1),
                 pl.col("stale_s").round(3),
                 pl.col("time_to_goal_s").round(3),
                 pl.col("path_length_m").round(4),
+                pl.col("time_scale_realized").round(4),
             )
             rows.write_csv(path, float_precision=None)
         else:

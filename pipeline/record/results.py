@@ -156,12 +156,20 @@ EPISODES_CSV_COLUMNS = (
     "path_length_m",
     "steps",
     "team_success",
+    "time_scale_asked",
+    "time_scale_realized",
+    "clock_kept",
 )
 """The columns of every episodes.csv (sim evaluation, scripted evaluation, deployment), in order. success: the robot
 reached its goal without colliding (before the abort, in an aborted episode); team_success: every robot did and the
 episode was not aborted; stale_s: the seconds the robot stood still for want of fresh data; path_length_m: metres
 along its poses at the episode's control steps (:func:`pipeline.core.episode.path_lengths_m`, which ``mrl episodes``
-reads back from the recording the same way)."""
+reads back from the recording the same way); time_scale_asked and time_scale_realized: the hardware twin's time
+scale asked for and realized in the episode (empty without a twin), clock_kept: 0 where the twin fell behind its
+clock (the episode measures the host, not the policy)."""
+EPISODES_CSV_BEFORE_CLOCK = EPISODES_CSV_COLUMNS[:-3]
+"""The layout of episodes.csv files written before the twin's clock was recorded: read with the clock columns
+empty and kept."""
 
 
 def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
@@ -190,6 +198,9 @@ def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
                         f"{r.path_length_m[i]:.4f}",
                         r.steps,
                         int(r.team),
+                        "" if np.isnan(r.time_scale_asked) else f"{r.time_scale_asked:g}",
+                        "" if np.isnan(r.time_scale_realized) else f"{r.time_scale_realized:.4f}",
+                        int(r.clock_kept),
                     ]
                 )
 
@@ -209,6 +220,9 @@ EPISODES_CSV_TYPES = {
     "path_length_m": float,
     "steps": int,
     "team_success": int,
+    "time_scale_asked": float,
+    "time_scale_realized": float,
+    "clock_kept": int,
 }
 """The value type of each column of :data:`EPISODES_CSV_COLUMNS` (flags as 0 or 1; an empty time to goal: the robot
 did not arrive)."""
@@ -217,13 +231,15 @@ did not arrive)."""
 def read_episodes_csv(path: str | Path) -> list[dict[str, Any]]:
     """The rows of an episodes.csv (sessions, ``mrl episodes --out``), typed; RecordError naming the file, the row
     and the column for another layout or a bad value (files of the earlier layout lack ``abort_kind`` and
-    ``stale_s``: written before every episode counted, re-counted by benchmarks/recount.py)."""
+    ``stale_s``: written before every episode counted, re-counted by benchmarks/recount.py; those written before the
+    twin's clock was recorded are read with empty clock columns, kept)."""
     p = Path(path)
     try:
         with p.open(newline="", encoding="utf-8") as f:
             reader = csv.DictReader(f)
             header = tuple(reader.fieldnames or ())
-            if header != EPISODES_CSV_COLUMNS:
+            earlier = header == EPISODES_CSV_BEFORE_CLOCK
+            if header != EPISODES_CSV_COLUMNS and not earlier:
                 raise RecordError(
                     str(p), f"columns {list(header)}; an episodes.csv has {list(EPISODES_CSV_COLUMNS)}, in that order"
                 )
@@ -231,7 +247,7 @@ def read_episodes_csv(path: str | Path) -> list[dict[str, Any]]:
             for line, raw in enumerate(reader, start=2):
                 row: dict[str, Any] = {}
                 for column, kind in EPISODES_CSV_TYPES.items():
-                    text = raw[column]
+                    text = raw.get(column, "1" if column == "clock_kept" else "") if earlier else raw[column]
                     try:
                         row[column] = math.nan if (kind is float and text == "") else kind(text)
                     except (TypeError, ValueError):

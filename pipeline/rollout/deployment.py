@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any, Literal
 
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario, load_scenario
@@ -34,8 +35,9 @@ from pipeline.record import McapLog
 from pipeline.record.live import LiveView
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
-from pipeline.record.session import SessionLog, clock_metadata, dumps, session_metadata
+from pipeline.record.session import TWIN_TIMING_META, SessionLog, clock_metadata, dumps, session_metadata
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
+from pipeline.rollout.pace import AUTO_START_SCALE, PACE_EVERY_S, AutoScale, Pace
 from pipeline.rollout.runner import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.domains import NoFreeDomainError, lease_free_domain, lock_path, try_lease
@@ -54,8 +56,8 @@ class DeployRequest:
     episodes: int
     seed: int
     recording: Path
-    time_scale: float = 0.0
-    """Twin time scale; 0 keeps the fleet file's."""
+    time_scale: float | Literal["auto"] = 0.0
+    """Twin time scale, or ``auto`` (:mod:`pipeline.rollout.pace`); 0 keeps the fleet file's."""
     profile: str = ""
     """Twin reality profile; empty keeps the fleet file's."""
     chunk_size_bytes: int = 1_048_576
@@ -90,6 +92,8 @@ class TwinProcess:
             start_new_session=True,
         )
         self.lines: deque[str] = deque(maxlen=50)
+        self.paces: list[Pace] = []
+        """Its pace reports (``--pace``), as they arrive."""
         self.ready = threading.Event()
         self.participant = ""
         """The twin's participant on the domain (from its ready line): the only writers the runner will hear."""
@@ -98,11 +102,27 @@ class TwinProcess:
 
     def _pump(self, stream: object) -> None:
         for line in stream:  # type: ignore[attr-defined]
+            if line.startswith("twin: pace "):
+                try:
+                    self.paces.append(Pace(**json.loads(line.removeprefix("twin: pace "))))
+                    continue
+                except (ValueError, TypeError):
+                    pass  # kept as any other line
             self.lines.append(line.rstrip())
             if line.startswith("twin: ready"):
                 found = re.search(r"participant (\S+)", line)
                 self.participant = found.group(1) if found else ""
                 self.ready.set()
+
+    def ask_scale(self, scale: float) -> None:
+        """Ask the twin (started with ``--pace``) to run at `scale` from its next episode on (at once before the
+        first), over its lifeline."""
+        if self.proc.stdin is not None and not self.proc.stdin.closed:
+            try:
+                self.proc.stdin.write(f"time-scale {scale!r}\n")
+                self.proc.stdin.flush()
+            except (BrokenPipeError, OSError):
+                pass  # a twin that is gone is the runner's fault to report
 
     def wait_ready(self, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
@@ -346,6 +366,8 @@ def _deploy(
     twin: TwinProcess | None = None
     profile = "robots"
     scale = 1.0
+    auto = False
+    timing: dict[int, dict[str, Any]] = {}
     transport = None
     log = None
     runner = None
@@ -356,14 +378,17 @@ def _deploy(
         if fleet.target == "twin":
             check_domain_is_free(transport, fleet)
             profile = request.profile or fleet.twin.profile
-            scale = request.time_scale or fleet.twin.time_scale
+            asked = request.time_scale or fleet.twin.time_scale
+            auto = asked == "auto"
+            scale = AUTO_START_SCALE if asked == "auto" else float(asked)
             timing_dir = tempfile.mkdtemp(prefix="mrl-twin-timing-")
             timing_file = Path(timing_dir) / "timing.json"
             extra = [*(twin_extra_args or []), "--timing-record", str(timing_file)]
+            extra += ["--pace", repr(PACE_EVERY_S)] if auto else []
             twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, extra, fleet.network.domain_id)
             profile = Path(profile).stem
             twin.wait_ready(TWIN_START_TIMEOUT_S)
-        clock: Clock = ScaledClock(scale) if scale != 1.0 else WallClock()
+        clock: Clock = ScaledClock(scale) if scale != 1.0 or auto else WallClock()
         session = session_metadata(
             "real",
             scenario.name,
@@ -375,9 +400,10 @@ def _deploy(
                 "target": fleet.target,
                 "transport": fleet.transport,
                 **({"domain_id": str(fleet.network.domain)} if fleet.transport != "ros1" else {}),
-                "time_scale": repr(scale),
+                "time_scale": "auto" if auto else repr(scale),
                 "fleet": fleet_source,
                 **clock_metadata(scale),
+                **({"clock_rate": "auto"} if auto else {}),
                 **getattr(runtime, "session_extra", {}),
             },
         )
@@ -406,24 +432,38 @@ def _deploy(
         )
         runner.wait_for_fleet(fleet.timing.discovery_timeout_s)
         check_one_publisher_each(transport, fleet)
+        if auto and twin is not None and isinstance(clock, ScaledClock):
+            pacer = AutoScale(twin.paces, twin.ask_scale, clock, scale)
+            scale = pacer.probe()
+            print(
+                "deploy: time scale auto: "
+                + ", ".join(f"{a:g}x realized {r:.2f}" for a, r in pacer.tried)
+                + f"; the episodes start at {scale:g}x (lowered if the twin falls behind)",
+                file=sys.stderr,
+                flush=True,
+            )
+            runner.pacer = pacer
         try:
             results = runner.run(request.episodes, request.seed, request.progress)
         except DeployAborted as exc:
             if twin is not None:  # the episodes run are marked as the twin kept its clock in them
                 _stop_twin(twin)
-                exc.results = _with_timing(exc.results, timing_file)
+                exc.results = _with_timing(exc.results, _read_timing(timing_file))
             raise
     finally:
         if runner is not None:
             runner.close()
+        if twin is not None:  # its record of the clock is written as it stops, and goes into the recording
+            _stop_twin(twin)
+            if log is not None:
+                timing = _read_timing(timing_file)
+                log.add_metadata(TWIN_TIMING_META, {str(k): json.dumps(r) for k, r in timing.items()})
         if log is not None:
             log.close()
         if transport is not None:
             transport.close()
-        if twin is not None:
-            _stop_twin(twin)
     if twin is not None:
-        results = _with_timing(results, timing_file)
+        results = _with_timing(results, timing)
         shutil.rmtree(timing_dir, ignore_errors=True)
     return results, profile
 
@@ -433,12 +473,17 @@ def _stop_twin(twin: TwinProcess) -> None:
         twin.stop()
 
 
-def _with_timing(results: list[EpisodeResult], timing_file: Path) -> list[EpisodeResult]:
-    """The episodes with how the twin kept its clock in each (its ``--timing-record``, written as it stopped)."""
+def _read_timing(timing_file: Path) -> dict[int, dict[str, Any]]:
+    """Per episode, how the twin kept its clock (its ``--timing-record``, written as it stopped); empty where a twin
+    that died wrote none (its episodes' failure is already the runtime fault's)."""
     try:
-        records = {int(r["episode"]): r for r in json.loads(timing_file.read_text(encoding="utf-8"))}
+        return {int(r["episode"]): r for r in json.loads(timing_file.read_text(encoding="utf-8"))}
     except (OSError, ValueError, KeyError, TypeError):
-        return results  # a twin that died wrote none: its episodes' failure is already the runtime fault's
+        return {}
+
+
+def _with_timing(results: list[EpisodeResult], records: dict[int, dict[str, Any]]) -> list[EpisodeResult]:
+    """The episodes with how the twin kept its clock in each (`_read_timing`)."""
     out = []
     for result in results:
         record = records.get(result.episode)
@@ -446,7 +491,12 @@ def _with_timing(results: list[EpisodeResult], timing_file: Path) -> list[Episod
             out.append(result)
             continue
         out.append(
-            replace(result, time_scale_realized=float(record["time_scale_realized"]), clock_kept=bool(record["kept"]))
+            replace(
+                result,
+                time_scale_asked=float(record["time_scale_asked"]),
+                time_scale_realized=float(record["time_scale_realized"]),
+                clock_kept=bool(record["kept"]),
+            )
         )
     return out
 
@@ -538,16 +588,18 @@ def deploy_session(
     return DeploymentOutcome(results, profile, metrics, files, folder.kept())
 
 
-def check_clock_kept(outcome: DeploymentOutcome, out_dir: Path, asked: float) -> None:
+def check_clock_kept(outcome: DeploymentOutcome, out_dir: Path) -> None:
     """After a deployment's files are in place: InvalidMeasurement where the twin fell behind its clock in some
     episodes (they measure the host, not the policy), naming how many and the rate over the others."""
     metrics = outcome.metrics
     behind = int(metrics.get("real/clock_not_kept_episodes", 0.0))
     if behind:
+        asked = [r.time_scale_asked for r in outcome.results if not r.clock_kept]
+        asked_text = "/".join(f"{a:g}" for a in sorted(set(asked), reverse=True))
         raise InvalidMeasurement(
             f"in {behind} of {len(outcome.results)} episode(s) the twin fell behind its clock (least time scale "
-            f"realized {metrics['real/time_scale_realized_min']:.2f} for {asked:g} asked): the host was too busy for "
-            "the time scale; those episodes measure the host, not the policy (robot success over the others: "
+            f"realized {metrics['real/time_scale_realized_min']:.2f} for {asked_text} asked): the host was too busy "
+            "for the time scale; those episodes measure the host, not the policy (robot success over the others: "
             f"{metrics['real/robot_success_clock_kept']:.3f}); the session is in {out_dir}: run again with a lower "
             "--time-scale or on a quieter host"
         )

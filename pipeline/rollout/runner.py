@@ -39,6 +39,7 @@ from pipeline.record.session import SessionLog
 from pipeline.rollout.errors import DeployAborted, FleetConflict, FleetNotReady
 from pipeline.rollout.handshake import ResetHandshake
 from pipeline.rollout.link import FleetLink, LatestSamples, odom_sample, scan_sample
+from pipeline.rollout.pace import AutoScale
 from pipeline.rollout.tally import EpisodeTally
 from pipeline.rollout.watch import OdometryFrame, StalenessWatch
 from pipeline.ros.buffers import PoseSample, ScanSample, TimingEvent
@@ -112,6 +113,8 @@ class DeployRunner:
         self._tally: EpisodeTally | None = None
         """The episode under way (between its start event and its result), None between episodes."""
         self._fatal: DeployAborted | None = None
+        self.pacer: AutoScale | None = None
+        """Where the time scale is ``auto``: told when each episode starts and ends, it lowers the scale."""
         """Set when an episode ended on a fault that stops the deployment (a twin or driver gone, the emitter)."""
         self.samples = LatestSamples(self.namespaces, self.use_truth)
         self.odometry = OdometryFrame(len(self.namespaces))
@@ -439,7 +442,11 @@ class DeployRunner:
         self.emitter.start()
         try:
             for k in bar:
+                if self.pacer is not None:
+                    self.pacer.episode_started()
                 results.append(self.run_episode(k, seed + k))
+                if self.pacer is not None and k + 1 < episodes:
+                    self.pacer.after_episode(k)
                 if self._fatal is not None:
                     raise self._fatal
                 rate = np.mean([r.success.mean() for r in results])

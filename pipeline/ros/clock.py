@@ -86,6 +86,16 @@ class ScaledClock:
             self._wall0 = time.time_ns() if wall_ns is None else wall_ns
             self.anchored = True
 
+    def rescale(self, scale: float) -> None:
+        """Run `scale` times faster than wall time from now on, from the present reading (no jump)."""
+        if not scale > 0:
+            raise ValueError(f"clock scale must be > 0, got {scale}")
+        with self._lock:
+            wall = time.time_ns()
+            self._sim0 = max(self._last, self._sim0 + int((wall - self._wall0) * self.scale))
+            self._wall0 = wall
+            self.scale = scale
+
     def wall_deadline(self, t_ns: int) -> int:
         with self._lock:
             return self._wall0 + int((t_ns - self._sim0) / self.scale)

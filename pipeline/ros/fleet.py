@@ -72,8 +72,10 @@ class TwinSettings:
 
     profile: str = setting("mild")
     """A bundled reality profile (mild, harsh) or the path of a profile YAML file."""
-    time_scale: float = setting(1.0, gt=0.0, le=20.0)
-    """Simulated seconds per wall-clock second; above 1 the twin publishes /clock."""
+    time_scale: float | Literal["auto"] = setting(1.0, gt=0.0, le=20.0)
+    """Simulated seconds per wall-clock second; above 1 the twin publishes /clock. ``auto``: the highest the host
+    lets the twin keep, measured before the first episode and lowered when it falls behind
+    (:mod:`pipeline.rollout.pace`)."""
     seed: int = setting(0, ge=0)
 
 

@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 from pipeline.core.scenario import load_scenario
 from pipeline.errors import MrlError
@@ -79,6 +81,15 @@ def build_parser(
         "time jumped over in host stalls, the most it ran behind, whether it kept the scale",
     )
     parser.add_argument(
+        "--pace",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="every SECONDS (host time) print a line 'twin: pace {...}' with how the twin keeps its clock, and take "
+        "'time-scale X' lines on standard input (from the next episode on): the deployment's --time-scale auto; "
+        "the twin's clock is published on /clock even at 1x",
+    )
+    parser.add_argument(
         "--exit-with-parent",
         action="store_true",
         help="stop when standard input closes (the starting process holds the other end of the pipe)",
@@ -86,17 +97,23 @@ def build_parser(
     return parser
 
 
-def watch_lifeline(stop: threading.Event) -> None:
-    """Set `stop` when standard input reaches end of file: the process holding its other end is gone."""
+def watch_lifeline(stop: threading.Event, on_line: Callable[[str], None] | None = None) -> None:
+    """Set `stop` when standard input reaches end of file: the process holding its other end is gone. Each whole
+    line it writes meanwhile goes to `on_line`."""
 
     fd = sys.stdin.fileno()
 
     def read() -> None:
         # os.read on the descriptor, not sys.stdin: a daemon thread blocked inside a buffered reader
         # aborts the interpreter at exit (it cannot take the reader's lock)
+        pending = b""
         try:
-            while os.read(fd, 4096):
-                pass
+            while chunk := os.read(fd, 4096):
+                pending += chunk
+                *lines, pending = pending.split(b"\n")
+                for line in lines:
+                    if on_line is not None:
+                        on_line(line.decode("utf-8", "replace").strip())
         except OSError:
             pass
         stop.set()
@@ -124,8 +141,29 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    asked: dict[str, Any] = {}  # the twin once it runs; a time scale asked for before it did
+    asking = threading.Lock()
+
+    def on_line(line: str) -> None:
+        word, _, value = line.partition(" ")
+        if word != "time-scale" or args.pace is None:
+            say(f"{me}: ignored on standard input: {line!r} (takes 'time-scale X' with --pace)")
+            return
+        try:
+            scale = float(value)
+        except ValueError:
+            scale = math.nan
+        if not 0 < scale <= 20:
+            say(f"{me}: ignored on standard input: {line!r} (a time scale in (0, 20])")
+            return
+        with asking:
+            if "twin" in asked:
+                asked["twin"].ask_scale(scale)
+            else:
+                asked["early"] = scale
+
     if args.exit_with_parent:
-        watch_lifeline(stop)
+        watch_lifeline(stop, on_line)
     try:
         fleet = load_fleet(args.fleet)
         if args.domain_id is not None:
@@ -138,7 +176,13 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             fleet = replace(fleet, network=replace(fleet.network, domain_id=lease.domain_id))
         scenario = load_scenario(fleet.scenario, len(fleet.robots))  # the first robots, as the deployment
         name, profile = load_profile_for(args.profile or fleet.twin.profile, scenario)
-        scale = fleet.twin.time_scale if args.time_scale is None else args.time_scale
+        fleet_scale = fleet.twin.time_scale
+        if args.time_scale is None and fleet_scale == "auto":
+            raise MrlError(
+                f"{args.fleet}: twin.time_scale is auto, which a deployment measures and sets; started by hand, the "
+                "twin needs --time-scale X"
+            )
+        scale = float(fleet_scale) if args.time_scale is None else args.time_scale
         if not 0 < scale <= 20:
             raise MrlError(f"--time-scale {scale}: must be in (0, 20]")
         seed = fleet.twin.seed if args.seed is None else args.seed
@@ -167,16 +211,24 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
                 raise MrlError(f"--stall {args.stall!r}: expected SECONDS@START, e.g. 2.0@1.5") from None
             if not (stall[0] > 0 and stall[1] >= 0):
                 raise MrlError(f"--stall {args.stall!r}: SECONDS above 0, START at least 0")
-        clock: Clock = WallClock() if scale == 1.0 else ScaledClock(scale, time.time_ns())
+        if args.pace is not None and not 0 < args.pace <= 60:
+            raise MrlError(f"--pace {args.pace}: must be in (0, 60] seconds")
+        scaled = scale != 1.0 or args.pace is not None
+        clock: Clock = ScaledClock(scale, time.time_ns()) if scaled else WallClock()
         transport = open_transport(fleet.transport, fleet.network_settings(args.fleet))
     except MrlError as exc:
         print(f"{me}: {exc}", file=sys.stderr)
         return 2
     try:
-        twin = HardwareTwin(
-            fleet, scenario, profile, transport, clock, seed, publish_clock=scale != 1.0, silence=silence
-        )
+        twin = HardwareTwin(fleet, scenario, profile, transport, clock, seed, publish_clock=scaled, silence=silence)
         twin.stall = stall
+        if args.pace is not None:
+            twin.pace_every_s = args.pace
+            twin.on_pace = lambda pace: say("twin: pace " + json.dumps(pace))
+            with asking:
+                if "early" in asked:
+                    twin.ask_scale(asked.pop("early"))
+                asked["twin"] = twin
         robots = ", ".join(r.namespace for r in fleet.robots)
         identity = transport.identity()
         say(

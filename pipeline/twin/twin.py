@@ -34,11 +34,11 @@ from pipeline.core.evader import Evader
 from pipeline.core.layouts import draw_layout
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
-from pipeline.core.timebase import NS_PER_S
+from pipeline.core.timebase import LAG_LIMIT_NS, NS_PER_S, REALIZED_MARGIN
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
-from pipeline.ros.clock import Clock
+from pipeline.ros.clock import Clock, ScaledClock
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.transport import Publisher, Transport
 from pipeline.twin.physics import BaseParams, FleetPhysics
@@ -58,12 +58,6 @@ CLOCK_PERIOD_S = 0.02
 DRIVER_TIMEOUT_NS = 500_000_000
 MAX_WAKE_NS = 20_000_000
 """The loop wakes at least this often (twin time) to take resets and commands."""
-LAG_LIMIT_NS = 1_000_000_000
-"""An episode in which the twin ran behind its clock by more than this (twin time: twice the fleet's staleness limits,
-its sensors reach the runner stale; the host stall a twin jumps over) did not keep its time scale. Shorter lags are
-a slow link's: the runner's staleness rules already hold them."""
-REALIZED_MARGIN = 0.05
-"""An episode whose realized time scale falls short of the one asked by more than this share did not keep it."""
 
 
 @dataclass
@@ -344,6 +338,13 @@ class HardwareTwin:
         self._timing: EpisodeTiming | None = None
         self._silenced_at_ns: int | None = None
         self._first_reset_ns: int | None = None
+        self._scale_asked: float | None = None
+        """A time scale asked for (`ask_scale`), taken at the next reset (at once before the first)."""
+        self.on_pace: Callable[[dict[str, float]], None] | None = None
+        """Where set: called every `pace_every_s` host seconds with how the twin keeps its clock (`pace`)."""
+        self.pace_every_s = 0.5
+        self._jumped_total_ns = 0
+        self._lag_since_ns = 0
         now = clock.now_ns()
         self.robot_clock = RobotClock(profile.clock, now)
         self.scan_geometry = ScanGeometry(
@@ -452,11 +453,38 @@ class HardwareTwin:
             self._inbox.clear()
         episode, seed = request
         self.close_timing()
+        self._take_scale()
         self._timing = EpisodeTiming(episode, self.clock.scale, now_ns, time.monotonic_ns())
         self._begin_episode(now_ns, seed)
         if self._first_reset_ns is None:
             self._first_reset_ns = now_ns
         self.link.send(self.reset_pub, C.reset_request(now_ns, episode, seed, True, store=self.store), reliable=True)
+
+    def ask_scale(self, scale: float) -> None:
+        """Run at `scale` from the next episode on (from now, before the first): the deployment lowers it when the
+        host cannot keep what it asked (``--time-scale auto``). Any thread."""
+        if not (math.isfinite(scale) and scale > 0) or not isinstance(self.clock, ScaledClock):
+            raise ValueError(f"time scale {scale!r}: must be above 0, on a scaled clock")
+        with self._lock:
+            self._scale_asked = scale
+
+    def _take_scale(self) -> None:
+        with self._lock:
+            scale, self._scale_asked = self._scale_asked, None
+        if scale is not None and isinstance(self.clock, ScaledClock) and scale != self.clock.scale:
+            self.clock.rescale(scale)
+
+    def pace(self) -> dict[str, float]:
+        """How the twin keeps its clock, cumulative: its time (ns), the time it jumped over in host stalls (ns), the
+        host's monotonic time (ns), the most it ran behind since the last call (ns), the time scale it runs at."""
+        lag, self._lag_since_ns = self._lag_since_ns, 0
+        return {
+            "twin_ns": float(self.physics_ns),
+            "jumped_ns": float(self._jumped_total_ns),
+            "host_ns": float(time.monotonic_ns()),
+            "lag_ns": float(lag),
+            "scale": float(self.clock.scale),
+        }
 
     def _silenced(self, ns: str, now_ns: int) -> bool:
         s = self.silence
@@ -551,7 +579,13 @@ class HardwareTwin:
 
     def run(self, stop: threading.Event) -> None:
         """Run until `stop` is set, waking when a stream is due."""
+        paced = time.monotonic()
         while not stop.is_set():
+            if self._first_reset_ns is None:
+                self._take_scale()  # no episode yet: a scale asked for applies at once
+            if self.on_pace is not None and time.monotonic() - paced >= self.pace_every_s:
+                paced = time.monotonic()
+                self.on_pace(self.pace())
             wake = max(self.next_wake_ns(), self.physics_ns + self.step_ns)
             if not self.clock.sleep_until(wake, stop):
                 break
@@ -565,6 +599,8 @@ class HardwareTwin:
                 skipped = (behind // self.step_ns) * self.step_ns
                 self.jumps.append((self.physics_ns, skipped))
                 self.physics_ns += skipped
+                self._jumped_total_ns += skipped
+            self._lag_since_ns = max(self._lag_since_ns, behind)
             if self._timing is not None:
                 self._timing.lag_max_ns = max(self._timing.lag_max_ns, behind)
                 self._timing.jumped_ns += skipped

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -351,8 +352,22 @@ def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_f
     out = tmp_path / "busy"
     busy = deploy_into(tiny_policy, fleet, out, episodes=2, twin_extra_args=["--stall", "2.0@0.5"])
     with pytest.raises(InvalidMeasurement, match=r"in 1 of 2 episode\(s\) the twin fell behind its clock") as err:
-        check_clock_kept(busy, out, load_fleet(fleet).twin.time_scale)
+        check_clock_kept(busy, out)
     assert [r.clock_kept for r in busy.results] == [False, True]
+    # episodes.csv marks the episode, and the recording carries the mark: mrl episodes reads it back the same
+    rows = read_episodes_csv(out / "episodes.csv")
+    assert {r["clock_kept"] for r in rows if r["episode"] == 0} == {0}
+    assert {r["clock_kept"] for r in rows if r["episode"] == 1} == {1}
+    scale = load_fleet(fleet).twin.time_scale
+    assert {r["time_scale_asked"] for r in rows} == {scale}
+    assert all(r["time_scale_realized"] < 0.95 * scale for r in rows if r["episode"] == 0)
+    table = episodes_table(out / "session.mcap").sort("episode", "robot")
+    assert table["clock_kept"].to_list() == [
+        r["clock_kept"] == 1 for r in sorted(rows, key=lambda r: (r["episode"], r["robot"]))
+    ]
+    assert table["time_scale_realized"].to_list() == pytest.approx(
+        [r["time_scale_realized"] for r in sorted(rows, key=lambda r: (r["episode"], r["robot"]))], abs=1e-4
+    )
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["real/episodes"] == 2 and metrics["real/clock_not_kept_episodes"] == 1
     assert metrics["real/time_scale_realized_min"] < 0.95  # the jumped-over seconds were never simulated
@@ -362,6 +377,36 @@ def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_f
     assert run_stage("deploy", lambda: (_ for _ in ()).throw(err.value)) == EXIT_INVALID_MEASUREMENT
     quiet = deploy_into(tiny_policy, fleet, tmp_path / "quiet", episodes=1)
     assert quiet.metrics["real/clock_not_kept_episodes"] == 0
-    scale = load_fleet(fleet).twin.time_scale  # the test fleet's
     assert quiet.metrics["real/time_scale_realized_min"] == pytest.approx(scale, rel=0.05)
     assert quiet.results[0].clock_kept and quiet.results[0].time_scale_realized == pytest.approx(scale, rel=0.05)
+
+
+def test_time_scale_auto_picks_what_the_host_keeps_and_lowers_it_when_the_twin_falls_behind(
+    tiny_policy, tmp_path, capfd
+):
+    """``auto``: the twin's pace is watched before the first episode and the scale it keeps is used (said on stderr,
+    recorded); a host stall in the first episode lowers the scale from the next one on, and every episode keeps the
+    scale it ran at in episodes.csv and the recording."""
+    fleet = write_fleet(tmp_path / "fleet.yaml", twin={"time_scale": "auto"})
+    out = tmp_path / "auto"
+    outcome = deploy_into(tiny_policy, fleet, out, episodes=3, twin_extra_args=["--stall", "2.0@0.5"])
+    err = capfd.readouterr().err
+    chosen = re.search(r"time scale auto: .*; the episodes start at ([0-9.]+)x", err)
+    assert chosen, err
+    start = float(chosen.group(1))
+    assert 1.0 <= start <= 6.0
+    first, *rest = outcome.results
+    assert first.time_scale_asked == start and not first.clock_kept  # the stall: marked, not the policy's
+    assert "the twin fell behind in episode 0" in err
+    assert all(r.time_scale_asked < start for r in rest) or start == 1.0
+    assert all(r.clock_kept for r in rest)  # at the lowered scale the quiet host kept it
+    rows = read_episodes_csv(out / "episodes.csv")
+    assert {(r["episode"], r["time_scale_asked"]) for r in rows} == {
+        (r.episode, r.time_scale_asked) for r in outcome.results
+    }
+    log = McapLog(out / "session.mcap")
+    assert log.metadata()["session"]["time_scale"] == "auto"
+    table = episodes_table(out / "session.mcap")
+    assert set(zip(table["episode"], table["time_scale_asked"], strict=True)) == {
+        (r.episode, r.time_scale_asked) for r in outcome.results
+    }

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 
 from pipeline.mrl import main
 
@@ -72,3 +73,29 @@ def test_deploy_drive_is_checked_by_the_parser(capsys):
         main(["deploy", "--policy", "p", "--fleet", "twin", "--drive", "wobble"])
     err = capsys.readouterr().err
     assert done.value.code == 2 and "--drive" in err and "'policy', 'excitation'" in err
+
+
+def test_deploy_time_scale_is_a_number_or_auto(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["deploy", "--policy", "p", "--time-scale", "fast"])
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and "--time-scale" in err and "a number of simulated seconds per second, or auto" in err
+
+
+@pytest.mark.parametrize("value", ["fast", -1.0, 25])
+def test_a_fleet_time_scale_other_than_a_number_or_auto_is_named(value, tmp_path):
+    from pipeline.errors import ConfigError
+    from pipeline.ros.fleet import load_fleet
+
+    text = (Path(load_fleet.__code__.co_filename).parent / "fleets" / "twin.yaml").read_text()
+    data = yaml.safe_load(text)
+    data["twin"]["time_scale"] = value
+    path = tmp_path / "fleet.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_fleet(str(path))
+    message = str(err.value)
+    assert "twin.time_scale" in message and "or one of 'auto'" in message and str(path) in message
+    data["twin"]["time_scale"] = "auto"
+    path.write_text(yaml.safe_dump(data))
+    assert load_fleet(str(path)).twin.time_scale == "auto"

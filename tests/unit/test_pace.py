@@ -1,0 +1,106 @@
+"""``--time-scale auto``'s decisions (pipeline.rollout.pace) on a host of known capacity: a reporter thread plays
+the twin's pace lines as a twin that can simulate `capacity` seconds per host second would send them."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from pipeline.errors import InvalidMeasurement
+from pipeline.rollout import pace
+from pipeline.rollout.pace import AutoScale, Pace, kept, next_scale, realized
+from pipeline.ros.clock import ScaledClock
+
+
+def test_the_realized_scale_leaves_out_the_time_jumped_over():
+    reports = [Pace(0.0, 0.0, 0.0, 0.0, 4.0), Pace(8e9, 2e9, 2e9, 3e8, 4.0)]
+    got, lag = realized(reports)
+    assert got == pytest.approx(3.0) and lag == 3e8
+    assert realized(reports[:1])[0] != realized(reports[:1])[0]  # NaN from one report
+
+
+@pytest.mark.parametrize(
+    ("asked", "got", "lag_ns", "expected"),
+    [(3.0, 2.9, 0.0, True), (3.0, 2.8, 0.0, False), (3.0, 3.0, 1.5e9, False), (1.0, float("nan"), 0.0, True)],
+)
+def test_kept_follows_the_twins_own_rule(asked, got, lag_ns, expected):
+    assert kept(asked, got, lag_ns) is expected
+
+
+def test_the_next_scale_is_a_step_below_with_headroom():
+    assert next_scale(2.7, 6.0) == 2.0  # 0.8 x 2.7 = 2.16, down to the half step
+    assert next_scale(5.9, 6.0) == 4.5
+    assert next_scale(2.99, 3.0) == 2.0
+    assert next_scale(1.1, 1.5) == 0.5  # below 1: the caller refuses
+
+
+class Host:
+    """Sends a pace report every `every_s` as a twin with `capacity` would: min(asked, capacity) per host second."""
+
+    def __init__(self, capacity: float, every_s: float) -> None:
+        self.capacity, self.every_s = capacity, every_s
+        self.asked = 6.0
+        self.paces: list[Pace] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def ask(self, scale: float) -> None:
+        self.asked = scale
+
+    def _run(self) -> None:
+        twin, last = 0.0, time.monotonic_ns()
+        while not self.stop.wait(self.every_s):
+            now = time.monotonic_ns()
+            rate = min(self.asked, self.capacity)
+            twin += (now - last) * rate
+            lag = 0.0 if rate >= self.asked else 2e8
+            self.paces.append(Pace(twin, 0.0, float(now), lag, self.asked))
+            last = now
+
+
+@pytest.fixture
+def quick(monkeypatch):
+    monkeypatch.setattr(pace, "PROBE_S", 0.4)
+    monkeypatch.setattr(pace, "PACE_EVERY_S", 0.05)
+
+
+@pytest.mark.parametrize(("capacity", "chosen"), [(9.0, 6.0), (2.7, 2.0), (1.3, 1.0)])
+def test_the_probe_settles_on_the_highest_scale_the_host_keeps(quick, capacity, chosen):
+    host = Host(capacity, 0.05)
+    clock = ScaledClock(6.0)
+    try:
+        scale = AutoScale(host.paces, host.ask, clock, 6.0).probe()
+    finally:
+        host.stop.set()
+    assert scale == chosen and host.asked == chosen and clock.scale == chosen
+
+
+def test_a_host_that_cannot_keep_1x_is_refused_by_name(quick):
+    host = Host(0.7, 0.05)
+    try:
+        with pytest.raises(InvalidMeasurement, match=r"cannot keep even 1x"):
+            AutoScale(host.paces, host.ask, ScaledClock(6.0), 6.0).probe()
+    finally:
+        host.stop.set()
+
+
+def test_an_episode_the_twin_did_not_keep_lowers_the_scale_for_the_next(quick):
+    host = Host(9.0, 0.05)
+    lines: list[str] = []
+    auto = AutoScale(host.paces, host.ask, ScaledClock(4.0), 4.0, say=lines.append)
+    try:
+        auto.episode_started()
+        time.sleep(0.3)
+        auto.after_episode(0)
+        assert auto.scale == 4.0 and not lines  # kept: unchanged
+        host.capacity = 2.5
+        auto.episode_started()
+        time.sleep(0.4)
+        auto.after_episode(1)
+    finally:
+        host.stop.set()
+    assert auto.scale == 2.0 and host.asked == 2.0 and auto.lowered[0][:2] == (1, 4.0)
+    assert "the twin fell behind in episode 1" in lines[0]
