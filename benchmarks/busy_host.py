@@ -1,0 +1,123 @@
+"""The loop's deployment on a busy host: a fixed time scale against ``auto``, every episode counted and marked.
+
+Deploys the exported policy (--policy, the nominal round's) on the bundled twin fleet with the loop's profile
+(--profile lab) for --episodes episodes, three times with the same seeds:
+
+- ``quiet``: at --scale (the loop's 3x) on the host as it is;
+- ``busy``: at --scale beside --load processes that spin at normal priority (a CPU load of its own: on this 2-core
+  machine, three of them stand for a training and a calibration beside the loop);
+- ``busy-auto``: beside the same load at ``--time-scale auto`` (:mod:`pipeline.rollout.pace`).
+
+Printed per run: episodes, the episodes in which the twin did not keep its clock (marked in episodes.csv, never
+dropped), the time scales asked, the least realized, aborted episodes and robot success over every episode with its
+95 % interval, and over the episodes the twin kept its clock in. Each run's metrics.json and episodes.csv go to
+--out/<run>/ with a run.json naming the command and commit. Last line:
+``busy_not_kept=<n> auto_not_kept=<n> busy_success=<rate> auto_success=<rate> quiet_success=<rate>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from collect_results import ROOT, commit_of  # this folder: the script's own
+
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.rollout.deployment import DeployRequest, deploy_session
+from pipeline.ros.fleet import load_fleet
+
+SPIN = "while True: pass"
+
+
+def spinners(n: int) -> list[subprocess.Popen[bytes]]:
+    return [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(n)]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policy", type=Path, default=Path("models/nominal/policy"))
+    parser.add_argument("--fleet", default="twin")
+    parser.add_argument("--profile", default="lab")
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=20_000)
+    parser.add_argument("--scale", type=float, default=3.0)
+    parser.add_argument("--load", type=int, default=3, help="processes spinning beside the busy runs")
+    parser.add_argument("--runs", nargs="+", default=["quiet", "busy", "busy-auto"])
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    if not (args.policy / "policy.json").is_file():
+        print(f"busy_host: no exported policy at {args.policy} (run `dvc repro` first or pass --policy)")
+        return 2
+    runtime = PolicyRuntime(args.policy)
+    fleet = load_fleet(args.fleet)
+    args.out.mkdir(parents=True, exist_ok=True)
+    figures: dict[str, dict[str, float]] = {}
+    walls: dict[str, float] = {}
+    for run in args.runs:
+        scale: float | str = "auto" if run.endswith("auto") else args.scale
+        load = spinners(args.load) if run.startswith("busy") else []
+        with tempfile.TemporaryDirectory() as tmp:
+            request = DeployRequest(
+                episodes=args.episodes,
+                seed=args.seed,
+                recording=Path(tmp) / "session.mcap",
+                time_scale=scale,  # type: ignore[arg-type]  # a number or "auto"
+                profile=args.profile,
+                progress=False,
+            )
+            start = time.perf_counter()
+            try:
+                outcome = deploy_session(runtime, fleet, args.fleet, request, Path(tmp) / "out")
+            finally:
+                for p in load:
+                    p.kill()
+                    p.wait()
+            walls[run] = time.perf_counter() - start
+            folder = args.out / run
+            folder.mkdir(parents=True, exist_ok=True)
+            for name in ("metrics.json", "episodes.csv"):
+                shutil.copy2(Path(tmp) / "out" / name, folder / name)
+        m = outcome.metrics
+        figures[run] = m
+        kept_rate = m.get("real/robot_success_clock_kept", float("nan"))
+        print(
+            f"{run:10s} ({scale if isinstance(scale, str) else f'{scale:g}x'}, {len(load)} spinning): "
+            f"{m['real/episodes']:.0f} episodes, twin behind its clock in {m['real/clock_not_kept_episodes']:.0f}, "
+            f"scales asked {m['real/time_scale_asked_min']:g}-{m['real/time_scale_asked_max']:g}, least realized "
+            f"{m['real/time_scale_realized_min']:.2f}; {m['real/aborted_episodes']:.0f} aborted; robot success "
+            f"{m['real/robot_success']:.3f} [{m['real/robot_success_ci_low']:.3f}, "
+            f"{m['real/robot_success_ci_high']:.3f}] over every episode, {kept_rate:.3f} over the "
+            f"{m['real/clock_kept_episodes']:.0f} the twin kept its clock in; {walls[run]:.0f} s",
+            flush=True,
+        )
+    run_file = {
+        "command": "python " + " ".join([str(Path(sys.argv[0]).as_posix()), *sys.argv[1:]]),
+        "commit": commit_of(ROOT),
+        "wall_s": {k: round(v, 1) for k, v in walls.items()},
+        "note": f"{args.load} processes spinning at normal priority beside the busy runs on this host",
+        "files": sorted(
+            str(p.relative_to(args.out)) for p in args.out.rglob("*") if p.is_file() and p.name != "run.json"
+        ),
+    }
+    (args.out / "run.json").write_text(json.dumps(run_file, indent=2) + "\n", encoding="utf-8")
+
+    def get(run: str, key: str) -> float:
+        return figures.get(run, {}).get(f"real/{key}", float("nan"))
+
+    print(
+        f"busy_not_kept={get('busy', 'clock_not_kept_episodes'):.0f} "
+        f"auto_not_kept={get('busy-auto', 'clock_not_kept_episodes'):.0f} "
+        f"busy_success={get('busy', 'robot_success'):.3f} auto_success={get('busy-auto', 'robot_success'):.3f} "
+        f"quiet_success={get('quiet', 'robot_success'):.3f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
