@@ -37,6 +37,7 @@ LOOP_FILES = (
     "logs/replay/replay.json",
     "logs/replay/replay.md",
     "logs/scripted/metrics.json",
+    "logs/stages/*.json",
 )
 
 

@@ -10,9 +10,13 @@ SIGTERM; what was recorded so far is kept).
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
 from types import FrameType
 
 from pipeline.errors import InvalidMeasurement, MrlError, RuntimeFault
@@ -54,8 +58,36 @@ def _terminate(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
-def run_stage(name: str, body: Callable[[], int]) -> int:
-    """Run a stage body with SIGTERM treated like Ctrl-C; print errors as one line per problem, no traceback."""
+STAGE_TIMES = Path("logs/stages")
+"""Where each dvc stage run writes its wall time (``<stage>[@<round>].json``): the stage table of a run
+(benchmarks/stage_table.py)."""
+
+
+def run_stage(name: str, body: Callable[[], int], times: Path | None = None) -> int:
+    """Run a stage body with SIGTERM treated like Ctrl-C; print errors as one line per problem, no traceback.
+
+    With `times` (the stage scripts pass `STAGE_TIMES`), the run's wall time, exit code and end go to
+    ``times/<name>[@<round>].json``, the round read from the script's ``--round``."""
+    start, began = time.monotonic(), datetime.now(UTC)
+    code = _run(name, body)
+    if times is not None:
+        argv = sys.argv[1:]
+        key = name + (f"@{argv[argv.index('--round') + 1]}" if "--round" in argv[:-1] else "")
+        record = {
+            "stage": key,
+            "seconds": round(time.monotonic() - start, 1),
+            "exit": code,
+            "started": began.isoformat(timespec="seconds"),
+        }
+        try:
+            times.mkdir(parents=True, exist_ok=True)
+            (times / f"{key}.json").write_text(json.dumps(record) + "\n", encoding="utf-8")
+        except OSError as exc:
+            print(f"{name}: the stage's time was not written to {times} ({exc.strerror or exc})", file=sys.stderr)
+    return code
+
+
+def _run(name: str, body: Callable[[], int]) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     try:
         return body()

@@ -15,7 +15,7 @@ from pipeline.calibration import Calibration, calibrate, calibration_settings, w
 from pipeline.calibration.fit_report import spectrum_lines
 from pipeline.core.scenario import load_scenario
 from pipeline.params import Params, calibrated_world, load_params
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -109,4 +109,4 @@ def write_residuals(params: Params, calibration: Calibration, recording: Path, p
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("calibrate", main))
+    sys.exit(run_stage("calibrate", main, STAGE_TIMES))

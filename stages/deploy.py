@@ -12,7 +12,7 @@ from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import check_scenario_agrees
 from pipeline.ros.fleet import load_fleet
 from pipeline.runs import run_deployment
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -30,4 +30,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("deploy", main))
+    sys.exit(run_stage("deploy", main, STAGE_TIMES))

@@ -12,7 +12,7 @@ from pipeline.record.live import live_view
 from pipeline.rollout.sim import evaluate_session
 from pipeline.runs import eval_summary
 from pipeline.sim import make_world
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -32,4 +32,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("eval_sim", main))
+    sys.exit(run_stage("eval_sim", main, STAGE_TIMES))

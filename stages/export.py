@@ -10,7 +10,7 @@ from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import CHECKPOINT_DIR
 from pipeline.params import load_params, round_world
 from pipeline.sim import make_world
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -31,4 +31,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("export", main))
+    sys.exit(run_stage("export", main, STAGE_TIMES))

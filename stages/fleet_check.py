@@ -15,7 +15,7 @@ from pathlib import Path
 from pipeline.params import load_params
 from pipeline.ros.domains import check_pinned_domain
 from pipeline.ros.fleet import load_fleet
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -33,4 +33,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("fleet_check", main))
+    sys.exit(run_stage("fleet_check", main, STAGE_TIMES))

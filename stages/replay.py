@@ -11,7 +11,7 @@ from pipeline.analysis.replay_report import run_replay, write_replay
 from pipeline.params import load_params, round_world
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.sim import make_world
-from pipeline.stage import ROUNDS, run_stage, stage_arguments
+from pipeline.stage import ROUNDS, STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -32,4 +32,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("replay", main))
+    sys.exit(run_stage("replay", main, STAGE_TIMES))

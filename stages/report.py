@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pipeline.analysis.gap_report import write_report
 from pipeline.params import load_params
-from pipeline.stage import ROUNDS, run_stage, stage_arguments
+from pipeline.stage import ROUNDS, STAGE_TIMES, run_stage, stage_arguments
 
 
 def relink_images(markdown: str, source: Path, target: Path) -> str:
@@ -68,4 +68,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("report", main))
+    sys.exit(run_stage("report", main, STAGE_TIMES))

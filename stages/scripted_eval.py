@@ -17,7 +17,7 @@ from pipeline.rollout.outputs import write_episodes, write_metrics, write_paths_
 from pipeline.rollout.sim import evaluate
 from pipeline.sim import make_world
 from pipeline.sim.env import MultiRobotSim
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -42,4 +42,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("scripted_eval", main))
+    sys.exit(run_stage("scripted_eval", main, STAGE_TIMES))

@@ -10,7 +10,7 @@ from pipeline.learn.trainer import train
 from pipeline.params import load_params, round_world
 from pipeline.rollout.outputs import write_metrics
 from pipeline.sim import make_world
-from pipeline.stage import run_stage, stage_arguments
+from pipeline.stage import STAGE_TIMES, run_stage, stage_arguments
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -35,4 +35,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stage("train", main))
+    sys.exit(run_stage("train", main, STAGE_TIMES))
