@@ -117,3 +117,27 @@ def test_the_offline_integration_modules_exist_and_start_no_fleet():
     for module in sorted(OFFLINE):
         text = (ROOT / module).read_text()
         assert not re.search(r"write_fleet|twin_session|record_twin_session|ros1_master|open_transport", text), module
+
+
+def test_every_relative_link_of_the_readme_and_docs_names_a_file_and_heading_that_exist():
+    """A reader following a link of README.md or docs/ lands on a file (and a heading, where the link names one)."""
+    link = re.compile(r"\]\(([^)\s]+)\)")
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    broken = []
+    for page in pages:
+        for target in link.findall(page.read_text(encoding="utf-8")):
+            if target.startswith(("http://", "https://", "mailto:")):
+                continue
+            path, _, anchor = target.partition("#")
+            where = (page.parent / path).resolve() if path else page
+            if not where.exists():
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+            elif anchor and where.suffix == ".md":
+                headings = {
+                    re.sub(r"[^\w\- ]", "", h.strip("# ").lower()).replace(" ", "-")
+                    for h in where.read_text(encoding="utf-8").splitlines()
+                    if h.startswith("#")
+                }
+                if anchor not in headings:
+                    broken.append(f"{page.relative_to(ROOT)}: {target} (no such heading)")
+    assert not broken, broken
