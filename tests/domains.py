@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 
-BANDS = {"loopback": (40, 100), "contract": (100, 130), "fleet": (130, 160)}
+BANDS = {"hosts": (20, 40), "loopback": (40, 100), "contract": (100, 130), "fleet": (130, 160)}
 """Per use, the domain ids [first, end) its tests draw from; clear of the domains deployments lease for themselves
 (`pipeline.ros.domains.FREE_DOMAINS`)."""
 

@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
         _write_table(table, out)
     else:
         with pl.Config(tbl_rows=-1, tbl_cols=-1, tbl_hide_dataframe_shape=True, tbl_width_chars=160):
-            print(table.select(EPISODE_COLUMNS))
+            behind = not table["clock_kept"].all()  # a twin that fell behind its clock: which episodes, shown
+            print(table.select(EPISODE_COLUMNS + (("time_scale_realized", "clock_kept") if behind else ())))
     summary = _summary(table, _world_of(table))
     print(f"episodes: {summary}" + (f" -> {out}" if out is not None else ""))
     return 0
@@ -106,7 +107,19 @@ def _summary(table: Any, world: str) -> str:
         f"{metrics.get(f'{world}/episodes', 0):.0f} episodes ({metrics.get(f'{world}/aborted_episodes', 0):.0f} "
         f"aborted): robot success {rate('robot_success')}, team success {rate('team_success')} over every "
         f"episode; completed episodes only: robot success {rate('robot_success_completed')}; "
-        f"collisions {rate('collision_rate')}"
+        f"collisions {rate('collision_rate')}" + _clock(table)
+    )
+
+
+def _clock(table: Any) -> str:
+    """The episodes in which the hardware twin fell behind its clock, where there were any."""
+    behind = table.filter(~table["clock_kept"])["episode"].unique().sort().to_list()
+    if not behind:
+        return ""
+    episodes = table["episode"].n_unique()
+    return (
+        f"; the twin fell behind its clock in {len(behind)} of {episodes} episode(s) ({', '.join(map(str, behind))}): "
+        "they measure the host, not the policy"
     )
 
 

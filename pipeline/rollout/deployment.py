@@ -37,7 +37,7 @@ from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
 from pipeline.record.session import TWIN_TIMING_META, SessionLog, clock_metadata, dumps, session_metadata
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
-from pipeline.rollout.pace import AUTO_START_SCALE, PACE_EVERY_S, AutoScale, Pace
+from pipeline.rollout.pace import AUTO_START_SCALE, PACE_EVERY_S, AutoScale, Pace, behind_note
 from pipeline.rollout.runner import DeployRunner
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.domains import NoFreeDomainError, lease_free_domain, lock_path, try_lease
@@ -289,7 +289,7 @@ def deploy_policy(
         if request.progress and fleet.transport != "ros1":
             how = "the fleet file's" if pinned else "a free one of this machine's"
             note = f"deploy: DDS domain {fleet.network.domain} ({how}), held for this run"
-        settings = fleet.network_settings(fleet_source)
+        settings = fleet.network_settings(fleet_source, on_this_host=True)
         if _needs_own_master(fleet, settings):
             # a ROS 1 twin fleet without a master brings its own, as it brings its twin; the twin process and this
             # one find it through ROS_MASTER_URI
@@ -384,7 +384,7 @@ def _deploy(
             timing_dir = tempfile.mkdtemp(prefix="mrl-twin-timing-")
             timing_file = Path(timing_dir) / "timing.json"
             extra = [*(twin_extra_args or []), "--timing-record", str(timing_file)]
-            extra += ["--pace", repr(PACE_EVERY_S)] if auto else []
+            extra += ["--pace", repr(PACE_EVERY_S)]  # how it keeps its clock: for auto, and to tell a busy host
             twin = TwinProcess(fleet_source, profile, scale, fleet.twin.seed, extra, fleet.network.domain_id)
             profile = Path(profile).stem
             twin.wait_ready(TWIN_START_TIMEOUT_S)
@@ -435,13 +435,7 @@ def _deploy(
         if auto and twin is not None and isinstance(clock, ScaledClock):
             pacer = AutoScale(twin.paces, twin.ask_scale, clock, scale)
             scale = pacer.probe()
-            print(
-                "deploy: time scale auto: "
-                + ", ".join(f"{a:g}x realized {r:.2f}" for a, r in pacer.tried)
-                + f"; the episodes start at {scale:g}x (lowered if the twin falls behind)",
-                file=sys.stderr,
-                flush=True,
-            )
+            print(f"deploy: time scale auto: {pacer.said()}", file=sys.stderr, flush=True)
             runner.pacer = pacer
         try:
             results = runner.run(request.episodes, request.seed, request.progress)
@@ -450,6 +444,13 @@ def _deploy(
                 _stop_twin(twin)
                 exc.results = _with_timing(exc.results, _read_timing(timing_file))
             raise
+    except (DeployAborted, FleetNotReady) as exc:
+        note = behind_note(twin.paces) if twin is not None else ""
+        if not note:  # a fleet that went silent on a host that kept the twin's clock: the fleet's fault, as said
+            raise
+        if isinstance(exc, DeployAborted):
+            raise DeployAborted(f"{exc.reason}; {note}", exc.results, exc.interrupted) from exc
+        raise FleetNotReady(f"{exc}; {note}") from exc
     finally:
         if runner is not None:
             runner.close()

@@ -3,12 +3,15 @@ twin falls behind.
 
 The twin reports how it keeps its clock every half second of host time (``twin: pace {...}`` lines of its
 ``--pace``): its own time, the time it jumped over in host stalls, the host's monotonic time and the most it ran
-behind since the last line. Before the first episode, with the fleet up and the runner listening (the runner's own
-work on the host included), the twin runs at `AUTO_START_SCALE` for `PROBE_S` seconds; the scale it realized,
-times `HEADROOM` and rounded down to a step of `SCALE_STEP`, is the next one tried, until one is kept (no more than
-the twin's own margin short of it, never a second behind). Between episodes the same test is applied to the
-episode just run: one the twin did not keep lowers the scale from the next episode on (the episode itself is
-marked by the twin's record, as any). A host that cannot keep 1x is refused before the first episode.
+behind since the last line. Before the first episode, with the fleet up and the runner listening, the twin is asked
+for `CAPACITY_SCALE`, more than it can keep: for `PROBE_S` seconds it runs flat out, and the scale it realizes is
+what this host gives it now, the robots standing. The episodes add the policy, the recording and the robots' motion
+beside it, and a busy host swings: the scale asked for is `HEADROOM` of that capacity, in steps of `SCALE_STEP`, at
+most `AUTO_MAX_SCALE`; it is then watched for `PROBE_S` and lowered the same way until the twin keeps it (no more
+than the twin's own margin short of it, never a second behind). Between episodes the same test is applied to the
+episode just run, and an episode a robot's outage aborted counts as not kept (on the twin's host, a blind robot is
+a starved process): the scale is lowered from the next episode on; the episode itself is marked by the twin's
+record, as any. A host on which the twin cannot keep 1x even flat out is refused before the first episode.
 """
 
 from __future__ import annotations
@@ -24,10 +27,15 @@ from pipeline.core.timebase import LAG_LIMIT_NS, REALIZED_MARGIN
 from pipeline.errors import InvalidMeasurement
 from pipeline.ros.clock import ScaledClock
 
-AUTO_START_SCALE = 6.0
-"""The scale tried first (the most a deployment at ``auto`` asks for)."""
-HEADROOM = 0.8
-"""The share of the scale realized that is asked for next: room for the episodes' own work and the host's swings."""
+CAPACITY_SCALE = 20.0
+"""The scale asked for while the probe measures the twin's capacity: more than a twin keeps, so it runs flat out."""
+AUTO_START_SCALE = CAPACITY_SCALE
+"""The scale the twin of a deployment at ``auto`` starts at (the probe's first)."""
+AUTO_MAX_SCALE = 6.0
+"""The most a deployment at ``auto`` asks for."""
+HEADROOM = 0.5
+"""The share of the capacity measured (or the scale realized in an episode not kept) that is asked for next: room
+for the episodes' own work beside the twin and for the host's swings."""
 SCALE_STEP = 0.5
 PROBE_S = 2.0
 """Host seconds each scale is watched for before the first episode."""
@@ -69,7 +77,7 @@ def kept(scale: float, realized_scale: float, lag_ns: float) -> bool:
 
 def next_scale(realized_scale: float, asked: float) -> float:
     """The scale to ask for after `asked` was not kept at `realized_scale`: `HEADROOM` of it in `SCALE_STEP` steps,
-    below `asked` (one step below where the twin realized nearly all of it: it fell behind all the same)."""
+    below `asked` (at least a step below where the twin realized nearly all of it: it fell behind all the same)."""
     step = math.floor(realized_scale * HEADROOM / SCALE_STEP) * SCALE_STEP
     return min(step, asked - SCALE_STEP)
 
@@ -97,6 +105,8 @@ class AutoScale:
         """Before the first episode: (scale asked, scale realized) per probe."""
         self.lowered: list[tuple[int, float, float, float]] = []
         """Between episodes: (episode, scale asked, realized, the next scale)."""
+        self.capacity = math.nan
+        """The scale the twin realized flat out before the first episode."""
         self._episode_from = 0
 
     def _since(self, host_ns: float) -> list[Pace]:
@@ -110,44 +120,68 @@ class AutoScale:
         self.clock.rescale(scale)
         self.scale = scale
 
+    def _watch(self, stop: threading.Event | None) -> tuple[float, float, int]:
+        """(scale realized, most lag ns, reports) over `PROBE_S` host seconds at the scale now asked for."""
+        began = time.monotonic_ns() + PACE_EVERY_S * 1e9  # the first report taken after the scale took hold
+        deadline = time.monotonic() + PACE_EVERY_S + PROBE_S
+        while time.monotonic() < deadline:
+            if stop is not None and stop.wait(0.05):
+                break
+            time.sleep(0.05)
+        window = self._since(began)
+        got, lag = realized(window)
+        self.tried.append((self.scale, got))
+        return got, lag, len(window)
+
     def probe(self, stop: threading.Event | None = None) -> float:
-        """The highest scale the twin keeps on this host now, tried from `start` down; InvalidMeasurement where even
-        1x is not kept."""
+        """The scale the episodes start at: `HEADROOM` of the twin's capacity on this host now, lowered until it is
+        kept; InvalidMeasurement where even 1x is not kept."""
+        if self.scale != CAPACITY_SCALE:
+            self._set(CAPACITY_SCALE)
+        capacity, lag, reports = self._watch(stop)
+        self.capacity = capacity
+        if not math.isfinite(capacity):
+            raise InvalidMeasurement(
+                f"time scale auto: the twin sent {reports} pace report(s) in {PROBE_S:g} s; cannot measure what this "
+                "host sustains"
+            )
+        if capacity < 1.0 * (1 - REALIZED_MARGIN):
+            raise self._too_busy(capacity, lag)
+        first = math.floor(min(capacity * HEADROOM, AUTO_MAX_SCALE) / SCALE_STEP) * SCALE_STEP
+        self._set(max(first, 1.0))
         for _ in range(PROBES):
-            began = time.monotonic_ns() + PACE_EVERY_S * 1e9  # the first report taken after the scale took hold
-            deadline = time.monotonic() + PACE_EVERY_S + PROBE_S
-            while time.monotonic() < deadline:
-                if stop is not None and stop.wait(0.05):
-                    break
-                time.sleep(0.05)
-            got, lag = realized(self._since(began))
-            self.tried.append((self.scale, got))
-            if not math.isfinite(got):
-                raise InvalidMeasurement(
-                    f"time scale auto: the twin sent {len(self._since(began))} pace report(s) in {PROBE_S:g} s; "
-                    "cannot measure what this host sustains"
-                )
+            got, lag, _ = self._watch(stop)
             if kept(self.scale, got, lag):
                 return self.scale
-            lower = next_scale(got, self.scale)
-            if lower < 1.0:
-                raise InvalidMeasurement(
-                    f"time scale auto: the twin realized {got:.2f}x for {self.scale:g}x asked (most {lag / 1e9:.2f} s "
-                    "behind): this host cannot keep even 1x now; run on a quieter host (other work at lower "
-                    "priority: nice -n 19)"
-                )
-            self._set(lower)
+            if self.scale <= 1.0:
+                raise self._too_busy(got, lag)
+            self._set(max(1.0, next_scale(got, self.scale) if math.isfinite(got) else self.scale - SCALE_STEP))
         raise InvalidMeasurement(
             f"time scale auto: no scale kept after {PROBES} tries ("
             + ", ".join(f"{a:g}x realized {r:.2f}" for a, r in self.tried)
             + "); the host's load swings too much to measure"
         )
 
+    def _too_busy(self, got: float, lag: float) -> InvalidMeasurement:
+        return InvalidMeasurement(
+            f"time scale auto: the twin realized {got:.2f}x for {self.scale:g}x asked (most {lag / 1e9:.2f} s behind): "
+            "this host cannot keep even 1x now; run on a quieter host (other work at lower priority: nice -n 19)"
+        )
+
+    def said(self) -> str:
+        """What the probe found, for the deployment's output."""
+        tried = ", ".join(f"{a:g}x realized {r:.2f}" for a, r in self.tried[1:])
+        return (
+            f"the twin ran at most {self.capacity:.1f}x here (flat out, the robots standing); {tried}; the episodes "
+            f"start at {self.scale:g}x (lowered if the twin falls behind)"
+        )
+
     def episode_started(self) -> None:
         self._episode_from = time.monotonic_ns()
 
-    def after_episode(self, episode: int) -> None:
-        """Lower the scale from the next episode on where the twin did not keep it in the episode just run."""
+    def after_episode(self, episode: int, outage: bool = False) -> None:
+        """Lower the scale from the next episode on where the twin did not keep it in the episode just run, or a
+        robot's outage aborted it (`outage`)."""
         ended = time.monotonic_ns()
         deadline = time.monotonic() + REPORT_WAIT_S
         while not self._since(ended)[1:] and time.monotonic() < deadline:  # a report that covers the episode's end
@@ -156,14 +190,48 @@ class AutoScale:
         got, lag = realized(window)
         if window and window[-1].host_ns < ended:  # none came: the twin has not run since (a host stall)
             lag = max(lag, (time.monotonic_ns() - window[-1].host_ns) * self.scale)
-        if kept(self.scale, got, lag):
+        behind = not kept(self.scale, got, lag)
+        if not behind and not outage:
             return
-        lower = max(1.0, next_scale(got, self.scale) if math.isfinite(got) else self.scale - SCALE_STEP)
+        if behind:
+            lower = max(1.0, next_scale(got, self.scale) if math.isfinite(got) else self.scale - SCALE_STEP)
+            why = f"the twin fell behind in episode {episode} (realized {got:.2f}x for {self.scale:g}x, most "
+            why += f"{lag / 1e9:.2f} s behind)"
+        else:
+            lower = max(1.0, math.floor(self.scale * HEADROOM / SCALE_STEP) * SCALE_STEP)
+            why = f"a robot's outage aborted episode {episode} at {self.scale:g}x (a process starved on a busy host)"
         if lower >= self.scale:
             return  # at 1x already: the episodes are marked, nothing lower to ask for
         self.lowered.append((episode, self.scale, got, lower))
-        self.say(
-            f"deploy: the twin fell behind in episode {episode} (realized {got:.2f}x for {self.scale:g}x, most "
-            f"{lag / 1e9:.2f} s behind): time scale {lower:g} from the next episode"
-        )
+        self.say(f"deploy: {why}: time scale {lower:g} from the next episode")
         self._set(lower)
+
+
+BEHIND_WINDOW_S = 5.0
+"""How far back (host seconds) `behind_note` looks at the twin's pace."""
+
+
+def behind_note(paces: Sequence[Pace], now_ns: float | None = None) -> str:
+    """Where the twin's last reports show it fell behind its clock (or no report came for a while): a sentence that
+    puts a fleet's silence on the host, not the robots; empty where it kept its clock."""
+    reports = list(paces)
+    if not reports:
+        return ""
+    now = time.monotonic_ns() if now_ns is None else now_ns
+    last = reports[-1]
+    window = [p for p in reports if p.host_ns >= last.host_ns - BEHIND_WINDOW_S * 1e9]
+    got, lag = realized(window)
+    silent_s = (now - last.host_ns) / 1e9
+    if silent_s > REPORT_WAIT_S:
+        return (
+            f"the hardware twin has not run for {silent_s:.1f} s (its last pace report): the host gave it no time, "
+            "the robots are not at fault; lower the time scale, use --time-scale auto, or run on a quieter host"
+        )
+    if kept(last.scale, got, lag):
+        return ""
+    realized_text = f"realized {got:.2f}x of {last.scale:g}x" if math.isfinite(got) else f"at {last.scale:g}x"
+    return (
+        f"the hardware twin fell behind its clock ({realized_text} over its last {len(window)} pace reports, up to "
+        f"{lag / 1e9:.1f} s behind): the host is too busy for the time scale, the robots are not at fault; lower the "
+        "time scale, use --time-scale auto, or run on a quieter host"
+    )

@@ -446,7 +446,7 @@ class DeployRunner:
                     self.pacer.episode_started()
                 results.append(self.run_episode(k, seed + k))
                 if self.pacer is not None and k + 1 < episodes:
-                    self.pacer.after_episode(k)
+                    self.pacer.after_episode(k, outage=results[-1].abort_kind == "outage")
                 if self._fatal is not None:
                     raise self._fatal
                 rate = np.mean([r.success.mean() for r in results])

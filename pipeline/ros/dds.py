@@ -130,6 +130,9 @@ def cyclone_config(settings: NetworkSettings, environ_uri: str | None = None) ->
             '<General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>'
             "<AllowMulticast>false</AllowMulticast></General>"
         )
+    elif settings.interface:  # the one of several that reaches the robots
+        address = quoteattr(settings.interface_address())
+        general = f"<General><Interfaces><NetworkInterface address={address}/></Interfaces></General>"
     peers = ("127.0.0.1", *settings.peers) if settings.loopback_only else settings.peers
     discovery = ""
     if peers:

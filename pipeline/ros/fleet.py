@@ -59,6 +59,9 @@ class FleetNetwork:
     peers: tuple[str, ...] = setting(())
     master_uri: str = setting("", allow_empty=True, optional=True)
     """The ROS 1 master of a ros1 fleet (``http://HOST:PORT``); empty: ``ROS_MASTER_URI``."""
+    interface: str = setting("", allow_empty=True, optional=True)
+    """The network interface (name or IPv4 address) of this host that reaches the robots, where it has several
+    (``loopback_only: false``); empty: the transport's choice."""
 
     @property
     def domain(self) -> int:
@@ -140,11 +143,15 @@ class Fleet:
     def names(self) -> tuple[str, ...]:
         return tuple(r.name for r in self.robots)
 
-    def network_settings(self, source: str = "<fleet>") -> NetworkSettings:
+    def network_settings(self, source: str = "<fleet>", *, on_this_host: bool = False) -> NetworkSettings:
+        """The fleet's network settings; `on_this_host`: checked against this host too (its interface exists, its
+        peers resolve and have a route: :meth:`NetworkSettings.check_host`), before a transport opens."""
+        n = self.network
         try:
-            return NetworkSettings(
-                self.network.domain, self.network.loopback_only, self.network.peers, self.network.master_uri
-            )
+            settings = NetworkSettings(n.domain, n.loopback_only, n.peers, n.master_uri, n.interface)
+            if on_this_host:
+                settings.check_host()
+            return settings
         except NetworkSettingsError as exc:
             raise ConfigError(source, [ConfigProblem(f"network.{exc.setting}", exc.value, exc.allowed)]) from exc
 

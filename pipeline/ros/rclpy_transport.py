@@ -37,7 +37,7 @@ from pipeline.messages.errors import MessageError
 from pipeline.messages.store import message_store
 from pipeline.messages.topics import QosProfile, TopicSpec
 from pipeline.ros import ros2_interfaces
-from pipeline.ros.errors import BackendUnavailableError, TransportError
+from pipeline.ros.errors import BackendUnavailableError, NetworkSettingsError, TransportError
 from pipeline.ros.transport import (
     MessageCallback,
     NetworkSettings,
@@ -257,6 +257,13 @@ class RclpyTransport(Transport):
     """One rclpy context and node in the domain of `settings`, spun by a background executor."""
 
     def __init__(self, settings: NetworkSettings) -> None:
+        if settings.interface:
+            raise NetworkSettingsError(
+                "interface",
+                settings.interface,
+                "is not taken by the rclpy transport: its middleware binds interfaces in a profile of its own "
+                f"({FASTDDS_PROFILES_VARIABLE}); leave it empty, or use the dds transport",
+            )
         super().__init__(settings)
         rclpy = _import_rclpy()
         from rclpy.context import Context

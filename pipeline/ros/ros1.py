@@ -440,8 +440,8 @@ class Ros1Transport(Transport):
                 )
             if not _node:
                 os.environ["ROS_MASTER_URI"] = uri
-                if settings.loopback_only:
-                    os.environ["ROS_IP"] = "127.0.0.1"
+                if settings.loopback_only or settings.interface:  # the address the node advertises
+                    os.environ["ROS_IP"] = settings.interface_address() or "127.0.0.1"
                     os.environ.pop("ROS_HOSTNAME", None)
                 rospy.init_node(f"mrl_{os.getpid()}", anonymous=True, disable_signals=True, log_level=rospy.WARN)
                 _node.update(uri=uri, name=rospy.get_caller_id())

@@ -13,9 +13,12 @@ delivery. Times are integer nanoseconds since the Unix epoch (``time.time_ns()``
 
 from __future__ import annotations
 
+import fcntl
 import ipaddress
 import logging
 import re
+import socket
+import struct
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -55,12 +58,17 @@ class NetworkSettings:
     (like ``ROS_STATIC_PEERS``), which must themselves be loopback addresses when `loopback_only`.
     `master_uri` is the ROS 1 master (``http://HOST:PORT``; empty: ``ROS_MASTER_URI``), used by the
     ros1 transport only; there `loopback_only` makes the node advertise 127.0.0.1 (``ROS_IP``).
+    `interface` (a network interface of this host by name, e.g. ``eth1``, or one of its IPv4 addresses) is the one
+    the transport uses where the host has several: DDS binds it (Cyclone's ``NetworkInterface``; otherwise it picks
+    one "arbitrarily" and advertises that one's address), ROS 1 advertises its address (``ROS_IP``). Checked against
+    the host's interfaces, and the peers against its names and routes, by :meth:`check_host` as a transport opens.
     """
 
     domain_id: int = 0
     loopback_only: bool = True
     peers: tuple[str, ...] = field(default=())
     master_uri: str = ""
+    interface: str = ""
 
     def __post_init__(self) -> None:
         if isinstance(self.domain_id, bool) or not isinstance(self.domain_id, int):
@@ -99,6 +107,45 @@ class NetworkSettings:
                 ) from None
             if ":" not in rest:
                 raise NetworkSettingsError("master_uri", self.master_uri, "needs its port, e.g. http://127.0.0.1:11311")
+        if not isinstance(self.interface, str):
+            raise NetworkSettingsError("interface", self.interface, "must be an interface name or IPv4 address")
+        if self.interface and self.loopback_only:
+            raise NetworkSettingsError(
+                "interface", self.interface, "is for other hosts; loopback_only = true uses the loopback interface"
+            )
+
+    def interface_address(self) -> str:
+        """The IPv4 address of `interface` on this host ('' where none is named); NetworkSettingsError where the host
+        has no such interface or address, naming the interfaces it has."""
+        if not self.interface:
+            return ""
+        found = _interface_ipv4(self.interface)
+        if found:
+            return found
+        have = ", ".join(f"{name} ({_interface_ipv4(name) or 'no IPv4 address'})" for _, name in socket.if_nameindex())
+        raise NetworkSettingsError(
+            "interface", self.interface, f"is not an interface of this host with an IPv4 address; it has: {have}"
+        )
+
+    def check_host(self) -> None:
+        """Before anything moves: `interface` exists here, and every peer resolves and has a route from this host
+        (a UDP socket connected to it sends nothing). NetworkSettingsError naming the one that does not."""
+        self.interface_address()
+        for i, peer in enumerate(self.peers):
+            host = _check_peer(f"peers[{i}]", peer)
+            try:
+                address = socket.getaddrinfo(host, None, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0]
+            except (socket.gaierror, UnicodeError) as exc:
+                raise NetworkSettingsError(f"peers[{i}]", peer, f"does not resolve on this host ({exc})") from None
+            probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                probe.connect((address, 7400))
+            except OSError as exc:
+                raise NetworkSettingsError(
+                    f"peers[{i}]", peer, f"has no route from this host ({exc.strerror or exc})"
+                ) from None
+            finally:
+                probe.close()
 
 
 def _check_peer(setting: str, peer: object) -> str:
@@ -119,6 +166,32 @@ def _check_peer(setting: str, peer: object) -> str:
     if address.version != 4:
         raise NetworkSettingsError(setting, peer, f"IPv6 peers are not supported; must be {_PEER_FORM}")
     return host
+
+
+def _interface_ipv4(name_or_address: str) -> str:
+    """The IPv4 address of this host's interface `name_or_address` (a name, or an address it holds: one a socket can
+    bind), '' where there is none."""
+    try:
+        ipaddress.IPv4Address(name_or_address)
+    except ValueError:
+        if name_or_address not in {name for _, name in socket.if_nameindex()}:
+            return ""
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            request = struct.pack("256s", name_or_address.encode()[:15])
+            try:
+                return socket.inet_ntoa(fcntl.ioctl(s.fileno(), SIOCGIFADDR, request)[20:24])
+            except OSError:  # up without an IPv4 address
+                return ""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind((name_or_address, 0))
+        except OSError:
+            return ""
+    return name_or_address
+
+
+SIOCGIFADDR = 0x8915
+"""Linux's ioctl that reads an interface's IPv4 address."""
 
 
 def _is_loopback(host: str) -> bool:
@@ -338,6 +411,7 @@ def open_transport(kind: BackendKind = "dds", settings: NetworkSettings | None =
     """A transport of backend `kind` ('dds': Cyclone DDS from Python; 'rclpy': a ROS 2 installation; 'ros1': a ROS 1
     master through rospy)."""
     settings = settings if settings is not None else NetworkSettings()
+    settings.check_host()
     if kind == "dds":
         from pipeline.ros.dds import DdsTransport
 

@@ -86,8 +86,8 @@ def build_parser(
         default=None,
         metavar="SECONDS",
         help="every SECONDS (host time) print a line 'twin: pace {...}' with how the twin keeps its clock, and take "
-        "'time-scale X' lines on standard input (from the next episode on): the deployment's --time-scale auto; "
-        "the twin's clock is published on /clock even at 1x",
+        "'time-scale X' lines on standard input (from the next episode on; a twin started above 1x): the "
+        "deployment's --time-scale auto",
     )
     parser.add_argument(
         "--exit-with-parent",
@@ -142,7 +142,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     asked: dict[str, Any] = {}  # the twin once it runs; a time scale asked for before it did
-    asking = threading.Lock()
+    asking = threading.RLock()
 
     def on_line(line: str) -> None:
         word, _, value = line.partition(" ")
@@ -157,10 +157,13 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             say(f"{me}: ignored on standard input: {line!r} (a time scale in (0, 20])")
             return
         with asking:
-            if "twin" in asked:
-                asked["twin"].ask_scale(scale)
-            else:
+            if "twin" not in asked:
                 asked["early"] = scale
+                return
+            try:
+                asked["twin"].ask_scale(scale)
+            except ValueError as exc:  # a twin at 1x runs on the wall clock: no scale to change
+                say(f"{me}: ignored on standard input: {line!r} ({exc})")
 
     if args.exit_with_parent:
         watch_lifeline(stop, on_line)
@@ -213,9 +216,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
                 raise MrlError(f"--stall {args.stall!r}: SECONDS above 0, START at least 0")
         if args.pace is not None and not 0 < args.pace <= 60:
             raise MrlError(f"--pace {args.pace}: must be in (0, 60] seconds")
-        scaled = scale != 1.0 or args.pace is not None
+        scaled = scale != 1.0
         clock: Clock = ScaledClock(scale, time.time_ns()) if scaled else WallClock()
-        transport = open_transport(fleet.transport, fleet.network_settings(args.fleet))
+        transport = open_transport(fleet.transport, fleet.network_settings(args.fleet, on_this_host=True))
     except MrlError as exc:
         print(f"{me}: {exc}", file=sys.stderr)
         return 2
@@ -226,9 +229,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pipeline.twin
             twin.pace_every_s = args.pace
             twin.on_pace = lambda pace: say("twin: pace " + json.dumps(pace))
             with asking:
-                if "early" in asked:
-                    twin.ask_scale(asked.pop("early"))
                 asked["twin"] = twin
+                if "early" in asked:
+                    on_line(f"time-scale {asked.pop('early')!r}")
         robots = ", ".join(r.namespace for r in fleet.robots)
         identity = transport.identity()
         say(

@@ -21,6 +21,7 @@ import yaml
 from pipeline.analysis.tables import episodes_table
 from pipeline.core.timebase import NS_PER_S
 from pipeline.messages.convert import EVENT_NAMES
+from pipeline.mrl import main as mrl_main
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.record import McapLog
 from pipeline.record.results import STAGING, read_episodes_csv
@@ -340,7 +341,9 @@ def test_a_refused_run_leaves_no_folder_behind(tiny_policy, tmp_path):
     assert not out.exists()
 
 
-def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_for_the_policy_s(tiny_policy, tmp_path):
+def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_for_the_policy_s(
+    tiny_policy, tmp_path, capsys
+):
     """A host too busy for the time scale: the twin stalls 2 s (host) in the first episode and jumps over it. The
     session is published whole; the deployment ends with its own exit code (InvalidMeasurement); metrics.json counts
     the episode and gives the rates over the others; a deployment that kept its clock says so."""
@@ -374,6 +377,9 @@ def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_f
     assert metrics["real/clock_kept_episodes"] == 1  # the rates over the other episode beside the whole session's
     assert 0.0 <= metrics["real/robot_success_clock_kept"] <= 1.0
     assert (out / "episodes.csv").is_file() and (out / "session.mcap").is_file()
+    capsys.readouterr()
+    assert mrl_main(["episodes", str(out / "session.mcap")]) == 0
+    assert "the twin fell behind its clock in 1 of 2 episode(s) (0)" in capsys.readouterr().out
     assert run_stage("deploy", lambda: (_ for _ in ()).throw(err.value)) == EXIT_INVALID_MEASUREMENT
     quiet = deploy_into(tiny_policy, fleet, tmp_path / "quiet", episodes=1)
     assert quiet.metrics["real/clock_not_kept_episodes"] == 0

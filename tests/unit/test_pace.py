@@ -30,10 +30,10 @@ def test_kept_follows_the_twins_own_rule(asked, got, lag_ns, expected):
 
 
 def test_the_next_scale_is_a_step_below_with_headroom():
-    assert next_scale(2.7, 6.0) == 2.0  # 0.8 x 2.7 = 2.16, down to the half step
-    assert next_scale(5.9, 6.0) == 4.5
-    assert next_scale(2.99, 3.0) == 2.0
-    assert next_scale(1.1, 1.5) == 0.5  # below 1: the caller refuses
+    assert next_scale(2.7, 6.0) == 1.0  # 0.5 x 2.7 = 1.35, down to the half step
+    assert next_scale(5.9, 6.0) == 2.5
+    assert next_scale(9.0, 4.0) == 3.5  # at least a step below the scale not kept
+    assert next_scale(1.1, 1.5) == 0.5  # below 1: the caller keeps 1
 
 
 class Host:
@@ -41,7 +41,7 @@ class Host:
 
     def __init__(self, capacity: float, every_s: float) -> None:
         self.capacity, self.every_s = capacity, every_s
-        self.asked = 6.0
+        self.asked = pace.CAPACITY_SCALE
         self.paces: list[Pace] = []
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -67,22 +67,25 @@ def quick(monkeypatch):
     monkeypatch.setattr(pace, "PACE_EVERY_S", 0.05)
 
 
-@pytest.mark.parametrize(("capacity", "chosen"), [(9.0, 6.0), (2.7, 2.0), (1.3, 1.0)])
-def test_the_probe_settles_on_the_highest_scale_the_host_keeps(quick, capacity, chosen):
+@pytest.mark.parametrize(("capacity", "chosen"), [(30.0, 6.0), (9.0, 4.5), (2.7, 1.0), (1.3, 1.0)])
+def test_the_probe_asks_for_half_the_capacity_the_host_gives_the_twin(quick, capacity, chosen):
     host = Host(capacity, 0.05)
-    clock = ScaledClock(6.0)
+    clock = ScaledClock(pace.CAPACITY_SCALE)
     try:
-        scale = AutoScale(host.paces, host.ask, clock, 6.0).probe()
+        auto = AutoScale(host.paces, host.ask, clock)
+        scale = auto.probe()
     finally:
         host.stop.set()
     assert scale == chosen and host.asked == chosen and clock.scale == chosen
+    assert auto.capacity == pytest.approx(min(capacity, pace.CAPACITY_SCALE), rel=0.1)
+    assert f"the episodes start at {chosen:g}x" in auto.said()
 
 
 def test_a_host_that_cannot_keep_1x_is_refused_by_name(quick):
     host = Host(0.7, 0.05)
     try:
         with pytest.raises(InvalidMeasurement, match=r"cannot keep even 1x"):
-            AutoScale(host.paces, host.ask, ScaledClock(6.0), 6.0).probe()
+            AutoScale(host.paces, host.ask, ScaledClock(pace.CAPACITY_SCALE)).probe()
     finally:
         host.stop.set()
 
@@ -102,5 +105,32 @@ def test_an_episode_the_twin_did_not_keep_lowers_the_scale_for_the_next(quick):
         auto.after_episode(1)
     finally:
         host.stop.set()
-    assert auto.scale == 2.0 and host.asked == 2.0 and auto.lowered[0][:2] == (1, 4.0)
+    assert auto.scale == 1.0 and host.asked == 1.0 and auto.lowered[0][:2] == (1, 4.0)
     assert "the twin fell behind in episode 1" in lines[0]
+
+
+def test_an_episode_a_robots_outage_aborted_lowers_the_scale_though_the_twin_kept_it(quick):
+    host = Host(30.0, 0.05)
+    lines: list[str] = []
+    auto = AutoScale(host.paces, host.ask, ScaledClock(4.0), 4.0, say=lines.append)
+    try:
+        auto.episode_started()
+        time.sleep(0.3)
+        auto.after_episode(3, outage=True)
+    finally:
+        host.stop.set()
+    assert auto.scale == 2.0 and "a robot's outage aborted episode 3 at 4x" in lines[0]
+
+
+def test_a_fleet_gone_quiet_is_put_on_the_host_only_where_the_twin_fell_behind():
+    from pipeline.rollout.pace import behind_note
+
+    every = 0.5e9
+    kept_up = [Pace(i * every * 3, 0.0, i * every, 1e7, 3.0) for i in range(11)]
+    assert behind_note(kept_up, now_ns=kept_up[-1].host_ns + 1e8) == ""
+    slow = [Pace(i * every * 1.2, 0.0, i * every, 1.5e9, 3.0) for i in range(11)]
+    note = behind_note(slow, now_ns=slow[-1].host_ns + 1e8)
+    assert "fell behind its clock (realized 1.20x of 3x" in note and "the robots are not at fault" in note
+    silent = behind_note(kept_up, now_ns=kept_up[-1].host_ns + 4e9)
+    assert "has not run for 4.0 s" in silent
+    assert behind_note([]) == ""
