@@ -220,6 +220,7 @@ def _timed(kind: str, fn: Callable[..., Any]) -> Callable[..., Any]:
 def instrument() -> None:
     """Time the calls the training loop makes (for the breakdown only)."""
     VecWorlds.step = _timed("worlds", VecWorlds.step)  # type: ignore[method-assign]
+    VecWorlds.step_wait = _timed("worlds", VecWorlds.step_wait)  # type: ignore[method-assign]  # overlap's wait
     for cls in (learners.OffPolicyLearner, learners.BatchedSACMember, learners.OnPolicyLearner):
         for name, kind in (("act", "inference"), ("observe", "store"), ("update", "updates")):
             if name in vars(cls):  # inherited methods are timed once, where they are defined
@@ -236,6 +237,7 @@ def train_rate(
     out: Path,
     sac_update: str = "batched",
     settings: Sequence[tuple[str, Any]] = (),
+    overlap: bool = False,
 ) -> tuple[float, dict[str, float]]:
     params = load_params()
     kind = action_kind(algorithm)
@@ -267,6 +269,7 @@ def train_rate(
         "selection": {"keep": "last", "every_steps": 0, "stop_at_success": None, "stop_after_convergence": False},
         "convergence": {"stop": False},
         "sac": {"update": sac_update},
+        "overlap": overlap,
     }
     cfg = from_mapping(TrainConfig, merge(train_map, changes), "params.yaml (train_speed)")
     SPENT.clear()
@@ -305,6 +308,14 @@ def main() -> None:
     )
     parser.add_argument(
         "--gradient-only", action="store_true", help="only the gradient steps' rows, no worlds and no training runs"
+    )
+    parser.add_argument(
+        "--overlap",
+        nargs="+",
+        default=["off"],
+        choices=["off", "on"],
+        help="train.overlap settings to measure, each a row (on: sac and dqn; the worlds in their process while the "
+        "learners update, 'worlds' is then the wait for them)",
     )
     args = parser.parse_args()
     common: list[tuple[str, Any]] = []
@@ -357,7 +368,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for algorithm in args.algorithms:
             for mode in args.modes:
-                for update in args.sac_updates if algorithm == "sac" else ["-"]:
+                for update, overlap in [
+                    (u, o == "on")
+                    for u in (args.sac_updates if algorithm == "sac" else ["-"])
+                    for o in args.overlap
+                    if not (o == "on" and algorithm == "ppo")
+                ]:
                     limit = limits[action_kind(algorithm)]
                     rate, shares = train_rate(
                         algorithm,
@@ -366,11 +382,13 @@ def main() -> None:
                         args.steps,
                         args.learning_starts,
                         workers,
-                        Path(tmp) / f"{algorithm}-{mode}-{update}",
+                        Path(tmp) / f"{algorithm}-{mode}-{update}-{overlap}",
                         sac_update=update if algorithm == "sac" else "batched",
                         settings=[*common, *[(k, v) for a, k, v in scoped if a == algorithm]],
+                        overlap=overlap,
                     )
                     name = f"{algorithm}[{update}]/{mode}" if algorithm == "sac" else f"{algorithm}/{mode}"
+                    name += "+overlap" if overlap else ""
                     parts = " ".join(f"{shares[k]:>6.0%}" for k in ("worlds", "inference", "store", "updates"))
                     # the rate if nothing but the gradient updates took time: the bound the learner sets
                     bound = rate / shares["updates"] if shares["updates"] > 0 else float("inf")

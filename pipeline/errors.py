@@ -16,8 +16,8 @@ class RuntimeFault(MrlError):
 
 class InvalidMeasurement(MrlError):
     """The run finished and its files are in place, but some of its episodes do not measure the policy: the hardware
-    twin fell behind its clock (a host too busy for the time scale asked). They are marked and counted; commands exit
-    with :data:`exit_code` on it."""
+    twin fell behind its clock or its control steps woke late (a host too busy for the time scale asked). They are
+    marked and counted; commands exit with :data:`exit_code` on it."""
 
     exit_code = 4
 

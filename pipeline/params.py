@@ -445,6 +445,11 @@ class TrainConfig:
     n_step: int = setting(1, ge=1, le=20, optional=True)
     """sac and dqn: each stored transition spans this many steps of its robot (the discounted rewards summed, the
     bootstrap at gamma^n_step, a window that reaches a terminal step ending there); 1: one-step transitions."""
+    overlap: bool = setting(False, optional=True)
+    """sac and dqn: the worlds step in a process of their own while the learners take their gradient steps
+    (collection and learning overlapped on two cores). Each round of gradient steps then sees the transitions up to
+    the step before the one being collected: the behaviour policy lags the learner by one update, which off-policy
+    learning from a replay takes as it takes any older data. Deterministic: the same seed gives the same weights."""
     checkpoint_every_episodes: int = setting(100, ge=1)
     torch_threads: int = setting(1, ge=1, le=64)
     sac: SacConfig = setting(SacConfig())
@@ -468,6 +473,9 @@ class TrainConfig:
                         "(independent sac or dqn only)"))  # fmt: skip
         if self.n_step > 1 and self.algorithm == "ppo":
             bad.append(("n_step", self.n_step, "1 with algorithm ppo (n-step transitions are for sac and dqn)"))
+        if self.overlap and self.algorithm == "ppo":
+            bad.append(("overlap", True, f"false with algorithm ppo in mode {self.mode} (its updates come between "
+                        "rollouts, with the worlds idle by design: nothing to overlap; sac and dqn only)"))  # fmt: skip
         if self.total_steps == 0 and self.imitation.steps == 0:
             bad.append(("total_steps", 0, ">= 1, or 0 with imitation.steps > 0 (the imitated policy alone)"))
         return bad

@@ -76,16 +76,21 @@ def deploy_summary(outcome: DeploymentOutcome, target: str, out: Path) -> str:
     it, aborted episodes by reason, stale seconds per robot, where it went."""
     kept = f"; earlier sessions kept beside it: {', '.join(p.name for p in outcome.kept)}" if outcome.kept else ""
     clock = ""
-    if "real/time_scale_realized_min" in outcome.metrics:
-        behind = int(outcome.metrics["real/clock_not_kept_episodes"])
-        m = outcome.metrics
-        low, high = m.get("real/time_scale_asked_min", math.nan), m.get("real/time_scale_asked_max", math.nan)
-        asked = f"{low:g}x asked" if low == high else f"{low:g}x to {high:g}x asked"
+    m = outcome.metrics
+    if "real/clock_not_kept_episodes" in m:
+        behind = int(m["real/clock_not_kept_episodes"])
+        how = []
+        if "real/time_scale_realized_min" in m:
+            low, high = m.get("real/time_scale_asked_min", math.nan), m.get("real/time_scale_asked_max", math.nan)
+            asked = f"{low:g}x asked" if low == high else f"{low:g}x to {high:g}x asked"
+            how.append(f"{asked}, least time scale realized {m['real/time_scale_realized_min']:.2f}")
+        if "real/control_late_p95_max" in m:
+            how.append(f"control steps at most {m['real/control_late_p95_max']:.2f} of a period late")
         clock = (
-            f"; the twin kept its clock in every episode ({asked}, least time scale realized "
-            f"{outcome.metrics['real/time_scale_realized_min']:.2f})"
+            f"; the deployment kept its clock in every episode ({'; '.join(how)})"
             if behind == 0
-            else f"; the twin fell behind its clock in {behind} episode(s): not the policy's results"
+            else f"; the deployment did not keep its clock in {behind} episode(s) ({'; '.join(how)}): not the "
+            "policy's results"
         )
     return f"{session_summary(outcome.metrics, 'real')} on {target} ({outcome.profile}){clock} -> {out}{kept}"
 

@@ -36,8 +36,9 @@ EXIT_CODES: dict[int, str] = {
     "for a mistyped, missing or malformed option)",
     EXIT_RUNTIME_FAULT: "runtime fault: a twin or driver gone, robots that never answered, a robot blind past its "
     "outage limit that ended the run, a clash on the DDS domain; the episodes run are kept",
-    EXIT_INVALID_MEASUREMENT: "a deployment that finished, but in some episodes the hardware twin fell behind its "
-    "clock (a host too busy for the time scale): they are marked in episodes.csv and metrics.json, not the policy's",
+    EXIT_INVALID_MEASUREMENT: "a deployment that finished, but in some episodes it did not keep its clock (the "
+    "hardware twin fell behind, or the control steps woke late: a host too busy for the time scale): they are "
+    "marked in episodes.csv and metrics.json, not the policy's",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); what was recorded so far is kept",
 }
 """Every exit code of the stages and the ``mrl`` verbs, with its meaning."""

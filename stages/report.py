@@ -50,9 +50,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         behind = int(metrics.get("real/clock_not_kept_episodes", 0))
         if behind:
             warnings.append(
-                f"deploy {r}: in {behind} of {int(metrics['real/episodes'])} episodes the twin fell behind its clock "
-                f"(least time scale realized {metrics['real/time_scale_realized_min']:.2f}): they measure the host, "
-                f"not the policy; robot success over the others {metrics['real/robot_success_clock_kept']:.3f}"
+                f"deploy {r}: in {behind} of {int(metrics['real/episodes'])} episodes the deployment did not keep its "
+                f"clock (the twin fell behind, or the control steps woke late; least time scale realized "
+                f"{metrics.get('real/time_scale_realized_min', float('nan')):.2f}, control steps at most "
+                f"{metrics.get('real/control_late_p95_max', float('nan')):.2f} of a period late): they measure the "
+                f"host, not the policy; robot success over the others {metrics['real/robot_success_clock_kept']:.3f}"
             )
     report = write_report(
         out,

@@ -30,7 +30,7 @@ from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat
 from pipeline.analysis.errors import AnalysisError
 from pipeline.core.episode import path_lengths_m, path_times_ns
 from pipeline.core.scenario import Scenario
-from pipeline.core.timebase import NS_PER_S
+from pipeline.core.timebase import CONTROL_LATE_LIMIT, NS_PER_S
 from pipeline.errors import MrlError
 from pipeline.messages import topics as T
 from pipeline.messages.convert import EVENT_NAMES, NO_SEED
@@ -38,7 +38,7 @@ from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC as EPISODE_TOPIC  # re-exported: mrl and benchmarks use it
 from pipeline.record.episodes import EpisodeWindow, EventRow, episode_windows
 from pipeline.record.errors import MissingTopicError, TopicTypeError
-from pipeline.record.session import TWIN_TIMING_META, SessionInfo, session_info
+from pipeline.record.session import CONTROL_TIMING_META, TWIN_TIMING_META, SessionInfo, session_info
 
 PoseKind = Literal["ground_truth", "odom"]
 POSE_TYPES: dict[str, str] = {"ground_truth": T.POSE_STAMPED, "odom": T.ODOMETRY}
@@ -75,6 +75,7 @@ EPISODES_SCHEMA: dict[str, Any] = {
     "stale_s": pl.Float64,
     "time_scale_asked": pl.Float64,
     "time_scale_realized": pl.Float64,
+    "control_late_p95": pl.Float64,
     "clock_kept": pl.Boolean,
     "start_ns": pl.Int64,
     "end_ns": pl.Int64,
@@ -228,6 +229,13 @@ class Recording:
             except (ValueError, KeyError, TypeError) as exc:
                 raise AnalysisError(self.where, f"the {TWIN_TIMING_META} record of episode {key!r}: {exc}") from exc
         return out
+
+    def _control_timing(self) -> dict[int, float]:
+        """Per episode, how late the runner's control steps woke (the ``control_timing`` record of a deployment)."""
+        try:
+            return {int(k): float(v) for k, v in self._metadata.get(CONTROL_TIMING_META, {}).items()}
+        except ValueError as exc:
+            raise AnalysisError(self.where, f"the {CONTROL_TIMING_META} record: {exc}") from exc
 
     def _session_info(self) -> SessionInfo:
         info = session_info(self._metadata)
@@ -469,11 +477,14 @@ class Recording:
         }
         info = self.info
         timing = self._twin_timing()
+        control = self._control_timing()
         rows: list[tuple[Any, ...]] = []
         for k, e in enumerate(windows):
             w = e.window
             steps = steps_of[k]
-            asked, realized, clock_kept = timing.get(w.episode, (None, None, True))
+            asked, realized, twin_kept = timing.get(w.episode, (None, None, True))
+            late = control.get(w.episode)
+            clock_kept = twin_kept and (late is None or late <= CONTROL_LATE_LIMIT)
             for robot in self.robots:
                 events = e.robot_events.get(robot, {})
                 goal = events.get("goal")
@@ -514,6 +525,7 @@ class Recording:
                         e.stale_s.get(robot, 0.0),
                         asked,
                         realized,
+                        late,
                         clock_kept,
                         w.start_ns,
                         w.end_ns,
@@ -654,9 +666,10 @@ def episodes_table(source: Source) -> pl.DataFrame:
     their goals and the episode was not aborted), end (the end event's detail, ``aborted`` after a
     team-level abort, empty when the file stops inside the episode), abort_reason, abort_kind (outage,
     fault, clash, interrupted, or cut_off for a file that stops inside the episode), stale_s (seconds between
-    the robot's ``stale`` and ``fresh`` events), time_scale_asked, time_scale_realized and clock_kept (how the hardware
-    twin kept its clock in the episode, from the deployment's ``twin_timing`` record; null, null and true without
-    one), start_ns and end_ns (log times; end_ns null when the file
+    the robot's ``stale`` and ``fresh`` events), time_scale_asked, time_scale_realized (how the hardware twin kept its
+    clock in the episode, from the deployment's ``twin_timing`` record), control_late_p95 (how late the runner's
+    control steps woke, from its ``control_timing`` record) and clock_kept (both within their limits; null, null,
+    null and true without the records), start_ns and end_ns (log times; end_ns null when the file
     stops inside the episode), salvaged.
 
     Raises:

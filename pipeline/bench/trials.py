@@ -49,6 +49,7 @@ DIGEST_KEYS_ADDED: dict[str, Any] = {
     "train.imitation.teacher": "scripted",
     "train.imitation.memory_dropout": 0.0,
     "train.share_experience": False,
+    "train.overlap": False,
     "train.n_step": 1,
     "train.selection.stop_after_convergence": False,
     "world.lidar.range_step_m": 0.0,

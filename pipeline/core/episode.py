@@ -52,8 +52,12 @@ class EpisodeResult:
     """The time scale the twin was asked to keep in the episode (NaN: no twin)."""
     time_scale_realized: float = math.nan
     """Twin seconds simulated per host second through the episode (NaN: not measured, no twin)."""
+    control_late_p95: float = math.nan
+    """How late the runner's control steps woke, the 95th percentile as a share of the control period (NaN: not
+    measured)."""
     clock_kept: bool = True
-    """False where the hardware twin fell behind its clock: the episode does not measure the policy."""
+    """False where the hardware twin fell behind its clock, or the runner's control steps woke later than
+    :data:`~pipeline.core.timebase.CONTROL_LATE_LIMIT`: the episode does not measure the policy."""
 
     def __post_init__(self) -> None:
         if self.aborted and self.abort_kind not in ABORT_KINDS:
@@ -110,9 +114,10 @@ def _rates(prefix: str, k: int, n: int, out: dict[str, float]) -> None:
 def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, float]:
     """Robot- and team-level success over every episode with 95 % Wilson intervals, and beside them the same rates
     over the completed (not aborted) episodes only (``*_completed``; NaN when none completed); aborted episodes by
-    kind, stale seconds per robot, collisions and time to goal. Where a hardware twin measured how it kept its clock:
-    the episodes where it did not (``clock_not_kept_episodes``, which measure the host, not the policy), the least
-    time scale realized, and the rates over the episodes where it did (``*_clock_kept``)."""
+    kind, stale seconds per robot, collisions and time to goal. Where a deployment measured how it kept its clock (the
+    runner's control steps; a hardware twin's time scale): the episodes where it did not (``clock_not_kept_episodes``,
+    which measure the host, not the policy), the latest control steps and the least time scale realized, and the
+    rates over the episodes where it did (``*_clock_kept``)."""
     if not results:
         raise ValueError("no episodes to summarise")
     success = np.stack([r.success for r in results])
@@ -134,15 +139,20 @@ def summarize(results: list[EpisodeResult], prefix: str = "eval") -> dict[str, f
     _rates("robot_success_completed", int(done.sum()), int(done.size), out)
     _rates("team_success_completed", int(team[~aborted].sum()), int((~aborted).sum()), out)
     realized = np.array([r.time_scale_realized for r in results])
-    if np.isfinite(realized).any():  # a twin kept (or not) its clock: the episodes where it did measure the policy
+    late = np.array([r.control_late_p95 for r in results])
+    if np.isfinite(realized).any() or np.isfinite(late).any():  # the episodes that kept the clock measure the policy
         kept = np.array([r.clock_kept for r in results])
         out["clock_not_kept_episodes"] = float((~kept).sum())
         out["clock_kept_episodes"] = float(kept.sum())
+        if np.isfinite(late).any():
+            out["control_late_p95_max"] = float(np.nanmax(late))
+    if np.isfinite(realized).any():
         out["time_scale_realized_min"] = float(np.nanmin(realized))
         asked = np.array([r.time_scale_asked for r in results])
         if np.isfinite(asked).any():  # the scales asked (several where --time-scale auto lowered it)
             out["time_scale_asked_min"] = float(np.nanmin(asked))
             out["time_scale_asked_max"] = float(np.nanmax(asked))
+    if "clock_kept_episodes" in out:
         _rates("robot_success_clock_kept", int(success[kept].sum()), int(success[kept].size), out)
         _rates("team_success_clock_kept", int(team[kept].sum()), int(kept.sum()), out)
     out["collision_rate"] = float(collided.mean())

@@ -114,7 +114,14 @@ def train(
     th.set_num_threads(cfg.torch_threads)
     start = time.perf_counter()
     worlds = VecWorlds(
-        scenario, world, cfg.n_envs, cfg.seed, cfg.start_xy_m, cfg.start_yaw_rad, workers=cfg.world_workers
+        scenario,
+        world,
+        cfg.n_envs,
+        cfg.seed,
+        cfg.start_xy_m,
+        cfg.start_yaw_rad,
+        workers=cfg.world_workers,
+        remote=cfg.overlap,
     )
     try:
         return _train(scenario, world, cfg, out_dir, worlds, start, progress, round_name, report)
@@ -249,11 +256,21 @@ class _TrainingRun:
             selector.offer(self.steps, self.greedy, self.models)
 
     def step(self, obs: Any) -> Any:
-        """One step of every world with the learners' actions; each learner observes its batch and updates."""
+        """One step of every world with the learners' actions; each learner observes its batch and updates.
+
+        With `overlap` the worlds step (in their process) while the learners take the gradient steps due so far,
+        on the transitions up to the previous step; the step's transitions are stored afterwards."""
         streams = self.streams
         per_learner = streams.learner_obs(obs)
         actions = [learner.act(o) for learner, o in zip(self.learners, per_learner, strict=True)]
-        result = self.worlds.step(streams.world_actions(actions))
+        if self.cfg.overlap:
+            self.worlds.step_async(streams.world_actions(actions))
+            for learner in self.learners:
+                learner.set_progress(self.steps / self.cfg.total_steps)
+                learner.update()
+            result = self.worlds.step_wait()
+        else:
+            result = self.worlds.step(streams.world_actions(actions))
         batches = streams.learner_batches(result)
         self.steps += self.worlds.n_worlds
         share = self.cfg.share_experience
@@ -263,8 +280,9 @@ class _TrainingRun:
                 for j in range(len(self.learners)):
                     if j != i:
                         learner.observe_other(per_learner[j], actions[j], batches[j], j)  # type: ignore[union-attr]
-            learner.set_progress(self.steps / self.cfg.total_steps)
-            learner.update()
+            if not self.cfg.overlap:
+                learner.set_progress(self.steps / self.cfg.total_steps)
+                learner.update()
         return result
 
     def count_episodes(self, finished: Any) -> None:

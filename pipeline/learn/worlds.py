@@ -199,9 +199,12 @@ class VecWorlds:
         start_xy_m: float = 0.0,
         start_yaw_rad: float = 0.0,
         workers: int = 1,
+        remote: bool = False,
     ) -> None:
         """`start_xy_m`, `start_yaw_rad`: each episode starts every robot this far (uniformly) from its start pose.
-        `workers`: processes that step the worlds (1: this process; at most `n_worlds` are used)."""
+        `workers`: processes that step the worlds (1: this process, unless `remote`; at most `n_worlds` are used).
+        `remote`: the worlds live in worker processes even where there is one, so that `step_async` lets this
+        process work while they step."""
         if n_worlds < 1:
             raise ValueError(f"n_worlds must be >= 1, got {n_worlds}")
         if workers < 1:
@@ -221,7 +224,7 @@ class VecWorlds:
         self._shares = [(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
         self._workers: list[_Worker] = []
         self._local: _Share | None = None
-        if n_workers == 1:
+        if n_workers == 1 and not remote:
             self._local = _Share([probe] + [MultiRobotSim(scenario, world) for _ in range(n_worlds - 1)])
         else:
             self._workers = [_Worker(scenario, world, b - a) for a, b in self._shares]
@@ -234,6 +237,7 @@ class VecWorlds:
         self._episode_seed = np.zeros(n_worlds, dtype=np.int64)
         self._returns = np.zeros((n_worlds, self.n_robots))
         self._obs = np.zeros((n_worlds, self.n_robots, self.obs_size), dtype=np.float32)
+        self._pending = False
 
     @property
     def sims(self) -> list[MultiRobotSim]:
@@ -309,14 +313,39 @@ class VecWorlds:
     def _step_all(self, actions: np.ndarray) -> _Stepped:
         if self._local is not None:
             return self._local.step(actions)
+        self._send_step(actions)
+        return self._receive_step()
+
+    def _send_step(self, actions: np.ndarray) -> None:
         for w, (a, b) in zip(self._workers, self._shares, strict=True):
             w.send("step", np.asarray(actions[a:b]))
+
+    def _receive_step(self) -> _Stepped:
         parts = [w.receive() for w in self._workers]
         return _Stepped(*(np.concatenate([getattr(p, f) for p in parts]) for f in _Stepped.__dataclass_fields__))
 
+    def step_async(self, actions: np.ndarray) -> None:
+        """Start every world's step with `actions` and return at once (worlds in worker processes only); this
+        process works meanwhile, then takes the step with `step_wait`."""
+        if self._local is not None:
+            raise RuntimeError("step_async needs the worlds in worker processes (VecWorlds(remote=True))")
+        if self._pending:
+            raise RuntimeError("a step is already under way: step_wait first")
+        self._send_step(actions)
+        self._pending = True
+
+    def step_wait(self) -> WorldsStep:
+        """The step begun by `step_async` (as `step` returns it)."""
+        if not self._pending:
+            raise RuntimeError("no step under way: step_async first")
+        self._pending = False
+        return self._finish(self._receive_step())
+
     def step(self, actions: np.ndarray) -> WorldsStep:
         """Advance every world one control period; `actions` is (n_worlds, n_robots, 2) or (n_worlds, n_robots)."""
-        s = self._step_all(actions)
+        return self._finish(self._step_all(actions))
+
+    def _finish(self, s: _Stepped) -> WorldsStep:
         next_obs = np.asarray(s.obs, dtype=np.float32)
         act = s.active
         reward = np.where(act, s.reward, 0.0)

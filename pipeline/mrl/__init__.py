@@ -26,7 +26,7 @@ about an imported bag name the bag as given, not the temporary copy.
 
 Exit codes (:data:`pipeline.stage.EXIT_CODES`, listed by ``mrl --help``): 0 done, 1 no result (a sweep whose
 trials all failed), 2 bad input (one line ``mrl <verb>: <message>`` on stderr), 3 runtime fault (a twin or driver
-gone, a clash on the domain), 4 a deployment in which the twin fell behind its clock (episodes marked), 130
+gone, a clash on the domain), 4 a deployment that did not keep its clock (episodes marked), 130
 interrupted.
 """
 

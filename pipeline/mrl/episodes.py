@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         with pl.Config(tbl_rows=-1, tbl_cols=-1, tbl_hide_dataframe_shape=True, tbl_width_chars=160):
             behind = not table["clock_kept"].all()  # a twin that fell behind its clock: which episodes, shown
-            print(table.select(EPISODE_COLUMNS + (("time_scale_realized", "clock_kept") if behind else ())))
+            clock = ("time_scale_realized", "control_late_p95", "clock_kept") if behind else ()
+            print(table.select(EPISODE_COLUMNS + clock))
     summary = _summary(table, _world_of(table))
     print(f"episodes: {summary}" + (f" -> {out}" if out is not None else ""))
     return 0
@@ -112,13 +113,15 @@ def _summary(table: Any, world: str) -> str:
 
 
 def _clock(table: Any) -> str:
-    """The episodes in which the hardware twin fell behind its clock, where there were any."""
+    """The episodes in which the deployment did not keep its clock (the twin fell behind, or the control steps woke
+    late), where there were any."""
     behind = table.filter(~table["clock_kept"])["episode"].unique().sort().to_list()
     if not behind:
         return ""
     episodes = table["episode"].n_unique()
     return (
-        f"; the twin fell behind its clock in {len(behind)} of {episodes} episode(s) ({', '.join(map(str, behind))}): "
+        f"; the deployment did not keep its clock in {len(behind)} of {episodes} episode(s) "
+        f"({', '.join(map(str, behind))}): "
         "they measure the host, not the policy"
     )
 
@@ -141,6 +144,7 @@ def _write_table(table: Any, path: Path) -> None:
                 pl.col("time_to_goal_s").round(3),
                 pl.col("path_length_m").round(4),
                 pl.col("time_scale_realized").round(4),
+                pl.col("control_late_p95").round(4),
             )
             rows.write_csv(path, float_precision=None)
         else:

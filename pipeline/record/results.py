@@ -158,6 +158,7 @@ EPISODES_CSV_COLUMNS = (
     "team_success",
     "time_scale_asked",
     "time_scale_realized",
+    "control_late_p95",
     "clock_kept",
 )
 """The columns of every episodes.csv (sim evaluation, scripted evaluation, deployment), in order. success: the robot
@@ -165,9 +166,10 @@ reached its goal without colliding (before the abort, in an aborted episode); te
 episode was not aborted; stale_s: the seconds the robot stood still for want of fresh data; path_length_m: metres
 along its poses at the episode's control steps (:func:`pipeline.core.episode.path_lengths_m`, which ``mrl episodes``
 reads back from the recording the same way); time_scale_asked and time_scale_realized: the hardware twin's time
-scale asked for and realized in the episode (empty without a twin), clock_kept: 0 where the twin fell behind its
-clock (the episode measures the host, not the policy)."""
-EPISODES_CSV_BEFORE_CLOCK = EPISODES_CSV_COLUMNS[:-3]
+scale asked for and realized in the episode (empty without a twin); control_late_p95: how late the runner's control
+steps woke, the 95th percentile as a share of the control period (empty in the simulator); clock_kept: 0 where the
+twin fell behind its clock or the control steps woke late (the episode measures the host, not the policy)."""
+EPISODES_CSV_BEFORE_CLOCK = EPISODES_CSV_COLUMNS[:-4]
 """The layout of episodes.csv files written before the twin's clock was recorded: read with the clock columns
 empty and kept."""
 
@@ -200,6 +202,7 @@ def write_episodes(path: Path, results: list[EpisodeResult]) -> None:
                         int(r.team),
                         "" if np.isnan(r.time_scale_asked) else f"{r.time_scale_asked:g}",
                         "" if np.isnan(r.time_scale_realized) else f"{r.time_scale_realized:.4f}",
+                        "" if np.isnan(r.control_late_p95) else f"{r.control_late_p95:.4f}",
                         int(r.clock_kept),
                     ]
                 )
@@ -222,6 +225,7 @@ EPISODES_CSV_TYPES = {
     "team_success": int,
     "time_scale_asked": float,
     "time_scale_realized": float,
+    "control_late_p95": float,
     "clock_kept": int,
 }
 """The value type of each column of :data:`EPISODES_CSV_COLUMNS` (flags as 0 or 1; an empty time to goal: the robot

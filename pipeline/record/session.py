@@ -35,6 +35,9 @@ from pipeline.record.writer import DEFAULT_CHUNK_SIZE, McapRecorder, versions_me
 
 World = Literal["sim", "real"]
 SESSION_META = "session"
+CONTROL_TIMING_META = "control_timing"
+"""A deployment: per episode (its number as the key), how late the runner's control steps woke, the 95th percentile
+as a share of the control period (``repr`` of a float)."""
 TWIN_TIMING_META = "twin_timing"
 """A deployment on the hardware twin: per episode (its number as the key), how the twin kept its clock, as JSON
 (``time_scale_asked``, ``time_scale_realized``, ``jumped_s``, ``lag_max_s``, ``kept``)."""

@@ -7,6 +7,7 @@ finalized, the transport and the twin process are shut down.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import shutil
@@ -25,6 +26,7 @@ from typing import Any, Literal
 
 from pipeline.core.episode import EpisodeResult, summarize
 from pipeline.core.scenario import Scenario, load_scenario
+from pipeline.core.timebase import CONTROL_LATE_LIMIT, REALIZED_MARGIN
 from pipeline.errors import InvalidMeasurement, MrlError, RuntimeFault
 from pipeline.mappings import to_mapping
 from pipeline.messages import topics as T
@@ -35,7 +37,14 @@ from pipeline.record import McapLog
 from pipeline.record.live import LiveView
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
-from pipeline.record.session import TWIN_TIMING_META, SessionLog, clock_metadata, dumps, session_metadata
+from pipeline.record.session import (
+    CONTROL_TIMING_META,
+    TWIN_TIMING_META,
+    SessionLog,
+    clock_metadata,
+    dumps,
+    session_metadata,
+)
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
 from pipeline.rollout.pace import AUTO_START_SCALE, PACE_EVERY_S, AutoScale, Pace, behind_note
 from pipeline.rollout.runner import DeployRunner
@@ -459,6 +468,9 @@ def _deploy(
             if log is not None:
                 timing = _read_timing(timing_file)
                 log.add_metadata(TWIN_TIMING_META, {str(k): json.dumps(r) for k, r in timing.items()})
+        if runner is not None and log is not None and runner.late_by_episode:
+            late = {str(k): repr(v) for k, v in runner.late_by_episode.items()}
+            log.add_metadata(CONTROL_TIMING_META, late)
         if log is not None:
             log.close()
         if transport is not None:
@@ -496,7 +508,7 @@ def _with_timing(results: list[EpisodeResult], records: dict[int, dict[str, Any]
                 result,
                 time_scale_asked=float(record["time_scale_asked"]),
                 time_scale_realized=float(record["time_scale_realized"]),
-                clock_kept=bool(record["kept"]),
+                clock_kept=result.clock_kept and bool(record["kept"]),
             )
         )
     return out
@@ -590,20 +602,37 @@ def deploy_session(
 
 
 def check_clock_kept(outcome: DeploymentOutcome, out_dir: Path) -> None:
-    """After a deployment's files are in place: InvalidMeasurement where the twin fell behind its clock in some
-    episodes (they measure the host, not the policy), naming how many and the rate over the others."""
+    """After a deployment's files are in place: InvalidMeasurement where the deployment did not keep its clock in
+    some episodes (the twin fell behind, or the control steps woke late: they measure the host, not the policy),
+    naming how many, why and the rate over the others."""
     metrics = outcome.metrics
     behind = int(metrics.get("real/clock_not_kept_episodes", 0.0))
     if behind:
-        asked = [r.time_scale_asked for r in outcome.results if not r.clock_kept]
-        asked_text = "/".join(f"{a:g}" for a in sorted(set(asked), reverse=True))
+        missed = [r for r in outcome.results if not r.clock_kept]
+        why = clock_missed(missed)
         raise InvalidMeasurement(
-            f"in {behind} of {len(outcome.results)} episode(s) the twin fell behind its clock (least time scale "
-            f"realized {metrics['real/time_scale_realized_min']:.2f} for {asked_text} asked): the host was too busy "
-            "for the time scale; those episodes measure the host, not the policy (robot success over the others: "
+            f"in {behind} of {len(outcome.results)} episode(s) the deployment did not keep its clock ({why}): the "
+            "host was too busy; those episodes measure the host, not the policy (robot success over the others: "
             f"{metrics['real/robot_success_clock_kept']:.3f}); the session is in {out_dir}: run again with a lower "
-            "--time-scale or on a quieter host"
+            "--time-scale (or auto) or on a quieter host"
         )
+
+
+def clock_missed(missed: list[EpisodeResult]) -> str:
+    """Why episodes did not keep their clock: the twin's time scale realized and the control steps' lateness."""
+    parts = []
+    twin = [r for r in missed if r.time_scale_realized < r.time_scale_asked * (1 - REALIZED_MARGIN)]
+    if twin or any(math.isfinite(r.time_scale_realized) for r in missed):
+        low = min((r.time_scale_realized for r in missed), default=math.nan)
+        asked = "/".join(f"{a:g}" for a in sorted({r.time_scale_asked for r in missed}, reverse=True))
+        parts.append(f"least time scale the twin realized {low:.2f} for {asked} asked")
+    late = [r.control_late_p95 for r in missed if r.control_late_p95 > CONTROL_LATE_LIMIT]
+    if late:
+        parts.append(
+            f"control steps of {len(late)} woke up to {max(late):.2f} of a period late (95th percentile; limit "
+            f"{CONTROL_LATE_LIMIT:g})"
+        )
+    return "; ".join(parts) or "the twin ran more than a second behind"
 
 
 def _drop(folder: SessionFolder) -> None:

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from pipeline.core.timebase import LAG_LIMIT_NS, REALIZED_MARGIN
+from pipeline.core.timebase import CONTROL_LATE_LIMIT, LAG_LIMIT_NS, REALIZED_MARGIN
 from pipeline.errors import InvalidMeasurement
 from pipeline.ros.clock import ScaledClock
 
@@ -179,9 +179,10 @@ class AutoScale:
     def episode_started(self) -> None:
         self._episode_from = time.monotonic_ns()
 
-    def after_episode(self, episode: int, outage: bool = False) -> None:
-        """Lower the scale from the next episode on where the twin did not keep it in the episode just run, or a
-        robot's outage aborted it (`outage`)."""
+    def after_episode(self, episode: int, outage: bool = False, late: float = math.nan) -> None:
+        """Lower the scale from the next episode on where the twin did not keep it in the episode just run, the
+        runner's control steps woke late (`late`: the 95th percentile as a share of the control period, above
+        `CONTROL_LATE_LIMIT`), or a robot's outage aborted it (`outage`)."""
         ended = time.monotonic_ns()
         deadline = time.monotonic() + REPORT_WAIT_S
         while not self._since(ended)[1:] and time.monotonic() < deadline:  # a report that covers the episode's end
@@ -191,7 +192,8 @@ class AutoScale:
         if window and window[-1].host_ns < ended:  # none came: the twin has not run since (a host stall)
             lag = max(lag, (time.monotonic_ns() - window[-1].host_ns) * self.scale)
         behind = not kept(self.scale, got, lag)
-        if not behind and not outage:
+        slow = late > CONTROL_LATE_LIMIT  # NaN: not measured
+        if not (behind or slow or outage):
             return
         if behind:
             lower = max(1.0, next_scale(got, self.scale) if math.isfinite(got) else self.scale - SCALE_STEP)
@@ -199,7 +201,12 @@ class AutoScale:
             why += f"{lag / 1e9:.2f} s behind)"
         else:
             lower = max(1.0, math.floor(self.scale * HEADROOM / SCALE_STEP) * SCALE_STEP)
-            why = f"a robot's outage aborted episode {episode} at {self.scale:g}x (a process starved on a busy host)"
+            why = (
+                f"the control steps of episode {episode} woke {late:.2f} of a period late (95th percentile) at "
+                f"{self.scale:g}x"
+                if slow
+                else f"a robot's outage aborted episode {episode} at {self.scale:g}x (a process starved on a busy host)"
+            )
         if lower >= self.scale:
             return  # at 1x already: the episodes are marked, nothing lower to ask for
         self.lowered.append((episode, self.scale, got, lower))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 from tqdm import tqdm
@@ -29,7 +30,7 @@ from pipeline.core.layouts import draw_layout
 from pipeline.core.network import observed_scans, stand_still
 from pipeline.core.scan import uncovered_beams
 from pipeline.core.scenario import Scenario
-from pipeline.core.timebase import NS_PER_S
+from pipeline.core.timebase import CONTROL_LATE_LIMIT, NS_PER_S
 from pipeline.errors import MrlError
 from pipeline.mdp import mdp_parts
 from pipeline.messages import topics as T
@@ -113,6 +114,10 @@ class DeployRunner:
         self._tally: EpisodeTally | None = None
         """The episode under way (between its start event and its result), None between episodes."""
         self._fatal: DeployAborted | None = None
+        self.late_ns: list[int] = []
+        """How late each control step of the episode under way woke, on the fleet's clock (ns)."""
+        self.late_by_episode: dict[int, float] = {}
+        """Per episode run: its control steps' lateness, the 95th percentile as a share of the control period."""
         self.pacer: AutoScale | None = None
         """Where the time scale is ``auto``: told when each episode starts and ends, it lowers the scale."""
         """Set when an episode ended on a fault that stops the deployment (a twin or driver gone, the emitter)."""
@@ -349,6 +354,7 @@ class DeployRunner:
             if not self.clock.sleep_until(next_t):
                 break
             t = self.clock.now_ns()
+            self.late_ns.append(t - next_t)  # how late this control step woke (the fleet's time)
             if step > 0:  # the path at this step's time on the control grid, whatever happens in the step
                 tally.stepped(self._path_poses(next_t, tally.poses[-1]))
             self.link.timing(TimingEvent("control", "", "", t, tick=step))
@@ -416,7 +422,12 @@ class DeployRunner:
         t_end = self.clock.now_ns()
         self.log.event(t_end, episode, step, "end", detail=tally.outcome(aborted))
         self._tally = None
-        return tally.result(self.judge, aborted, reason, kind, self.staleness.stale_s(t_end))
+        result = tally.result(self.judge, aborted, reason, kind, self.staleness.stale_s(t_end))
+        if not self.late_ns:
+            return result
+        late = float(np.percentile(self.late_ns, 95)) / self.period_ns
+        self.late_by_episode[episode] = late
+        return replace(result, control_late_p95=late, clock_kept=late <= CONTROL_LATE_LIMIT)
 
     def _cut_short(self, why: str, kind: str) -> EpisodeResult | None:
         """The episode under way, if any, ended now as aborted (`kind`), with an ``abort`` and an ``end`` event."""
@@ -444,9 +455,11 @@ class DeployRunner:
             for k in bar:
                 if self.pacer is not None:
                     self.pacer.episode_started()
+                self.late_ns = []
                 results.append(self.run_episode(k, seed + k))
                 if self.pacer is not None and k + 1 < episodes:
-                    self.pacer.after_episode(k, outage=results[-1].abort_kind == "outage")
+                    last = results[-1]
+                    self.pacer.after_episode(k, outage=last.abort_kind == "outage", late=last.control_late_p95)
                 if self._fatal is not None:
                     raise self._fatal
                 rate = np.mean([r.success.mean() for r in results])

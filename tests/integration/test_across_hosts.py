@@ -13,7 +13,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import threading
@@ -28,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.bench import hosts
+from pipeline.bench.hosts import HostsUnavailable, OtherHost, RemoteProcess, dds_environment, ip
 from pipeline.core.timebase import NS_PER_S
 from pipeline.errors import ConfigError
 from pipeline.messages import topics as T
@@ -44,8 +45,6 @@ pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
 NAMESPACES = tuple(f"robot_{i}" for i in (1, 2, 3))
-SUBNET = "10.231"
-"""The veth pair's /24 is SUBNET.<x>.0, x picked per run (.1 here, .2 on the other host)."""
 TWIN_READY_S = 60.0
 MASTER_PORT = 11311
 """The ROS 1 master's port on the other host (a namespace of its own has every port free)."""
@@ -54,73 +53,15 @@ RUNNER = "import sys; from tests.integration.test_across_hosts import deploy_to_
 _domains = count()
 
 
-@dataclass(frozen=True)
-class OtherHost:
-    """A network namespace standing in for another host, reached from here over a veth pair."""
-
-    name: str
-    here_if: str
-    """The veth end in this (the root) namespace."""
-    there_if: str
-    here_addr: str
-    there_addr: str
-
-    def command(self, *args: str) -> list[str]:
-        """`args` run inside the other host."""
-        return ["ip", "netns", "exec", self.name, *args]
-
-
-def ip(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=30, check=False)
-
-
-def free_subnet() -> int:
-    """An x of SUBNET.x.0/24 no interface of this namespace uses, starting from one this process's id picks."""
-    used = ip("-4", "-o", "addr", "show").stdout
-    for k in range(250):
-        x = (os.getpid() + k) % 250 + 1
-        if f" {SUBNET}.{x}." not in used:
-            return x
-    pytest.skip(f"no free /24 in {SUBNET}.0.0/16 for the veth pair")
-
-
-def remove_host(host: OtherHost) -> None:
-    ip("netns", "del", host.name)  # takes its veth end, and so the pair, along
-    if ip("link", "show", host.here_if).returncode == 0:
-        ip("link", "del", host.here_if)
-
-
 @pytest.fixture(scope="module")
 def other_host() -> Iterator[OtherHost]:
-    """A namespace `mrl-host-<pid>` with a veth pair SUBNET.x.1 (here) <-> SUBNET.x.2 (there), both ends and the
-    namespace's loopback up; removed afterwards, whatever the tests did."""
-    if shutil.which("ip") is None:
-        pytest.skip("network namespaces: the ip command (iproute2) is not installed")
-    if os.geteuid() != 0:
-        pytest.skip("network namespaces: ip netns needs root")
-    pid = os.getpid()
-    x = free_subnet()
-    host = OtherHost(f"mrl-host-{pid}", f"mrlh{pid}a", f"mrlh{pid}b", f"{SUBNET}.{x}.1", f"{SUBNET}.{x}.2")
-    made = ip("netns", "add", host.name)
-    if made.returncode != 0:
-        pytest.skip(f"network namespaces: ip netns add {host.name} failed: {made.stderr.strip()}")
+    """A second host (:func:`pipeline.bench.hosts.other_host`), removed afterwards whatever the tests did; skipped
+    with the reason where this machine does not allow one."""
     try:
-        steps = [
-            ("link", "add", host.here_if, "type", "veth", "peer", "name", host.there_if),
-            ("link", "set", host.there_if, "netns", host.name),
-            ("addr", "add", f"{host.here_addr}/24", "dev", host.here_if),
-            ("link", "set", host.here_if, "up"),
-            ("netns", "exec", host.name, "ip", "addr", "add", f"{host.there_addr}/24", "dev", host.there_if),
-            ("netns", "exec", host.name, "ip", "link", "set", host.there_if, "up"),
-            ("netns", "exec", host.name, "ip", "link", "set", "lo", "up"),
-        ]
-        for step in steps:
-            done = ip(*step)
-            if done.returncode != 0:
-                pytest.skip(f"network namespaces: ip {' '.join(step)} failed: {done.stderr.strip()}")
-        yield host
-    finally:
-        remove_host(host)
+        with hosts.other_host() as host:
+            yield host
+    except HostsUnavailable as exc:
+        pytest.skip(str(exc))
     assert host.name not in ip("netns", "list").stdout and ip("link", "show", host.here_if).returncode != 0
 
 
@@ -152,49 +93,6 @@ def fleet_pair(folder: Path, host: OtherHost, **changes: object) -> FleetPair:
     return FleetPair(twin, runner, domain)
 
 
-class RemoteProcess:
-    """A process on the other host; its output (stdout and stderr) is kept, a line starting with `ready` awaited."""
-
-    def __init__(self, host: OtherHost, args: list[str], env: dict[str, str], ready: str = "") -> None:
-        self.proc = subprocess.Popen(
-            host.command(*args),
-            stdin=subprocess.PIPE,  # the twin's lifeline (--exit-with-parent): it goes when this process does
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            env=env,
-        )
-        self.lines: list[str] = []
-        self.ready = threading.Event()
-        self._ready_text = ready
-        threading.Thread(target=self._pump, daemon=True).start()
-
-    def _pump(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip())
-            if self._ready_text and line.startswith(self._ready_text):
-                self.ready.set()
-
-    def wait_ready(self, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while not self.ready.wait(0.05):
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"{self.proc.args} did not report ready: {' | '.join(self.lines[-20:])}")
-
-    def stop(self) -> int:
-        if self.proc.stdin is not None and not self.proc.stdin.closed:
-            self.proc.stdin.close()
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        return self.proc.returncode
-
-
 @contextmanager
 def remote_twin(host: OtherHost, fleet_file: Path, env: dict[str, str]) -> Iterator[RemoteProcess]:
     """The hardware twin of `fleet_file` on the other host at time scale 1, ready."""
@@ -208,13 +106,6 @@ def remote_twin(host: OtherHost, fleet_file: Path, env: dict[str, str]) -> Itera
         raise
     code = twin.stop()
     assert code == 0, f"the twin on the other host exited with {code}: {' | '.join(twin.lines[-20:])}"
-
-
-def dds_environment() -> dict[str, str]:
-    """The environment of a DDS process on the other host: its one interface is the veth, nothing to name."""
-    env = dict(os.environ)
-    env.pop("CYCLONEDDS_URI", None)
-    return env
 
 
 def deploy(policy: Path, fleet_file: Path, out: Path, episodes: int):

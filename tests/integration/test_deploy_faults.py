@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 from pipeline.analysis.tables import episodes_table
-from pipeline.core.timebase import NS_PER_S
+from pipeline.core.timebase import CONTROL_LATE_LIMIT, NS_PER_S
 from pipeline.messages.convert import EVENT_NAMES
 from pipeline.mrl import main as mrl_main
 from pipeline.policy.runtime import PolicyRuntime
@@ -354,7 +354,10 @@ def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_f
     fleet = write_fleet(tmp_path / "fleet.yaml")
     out = tmp_path / "busy"
     busy = deploy_into(tiny_policy, fleet, out, episodes=2, twin_extra_args=["--stall", "2.0@0.5"])
-    with pytest.raises(InvalidMeasurement, match=r"in 1 of 2 episode\(s\) the twin fell behind its clock") as err:
+    with pytest.raises(
+        InvalidMeasurement,
+        match=r"in 1 of 2 episode\(s\) the deployment did not keep its clock \(least time scale the twin realized",
+    ) as err:
         check_clock_kept(busy, out)
     assert [r.clock_kept for r in busy.results] == [False, True]
     # episodes.csv marks the episode, and the recording carries the mark: mrl episodes reads it back the same
@@ -379,12 +382,19 @@ def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_f
     assert (out / "episodes.csv").is_file() and (out / "session.mcap").is_file()
     capsys.readouterr()
     assert mrl_main(["episodes", str(out / "session.mcap")]) == 0
-    assert "the twin fell behind its clock in 1 of 2 episode(s) (0)" in capsys.readouterr().out
+    assert "the deployment did not keep its clock in 1 of 2 episode(s) (0)" in capsys.readouterr().out
     assert run_stage("deploy", lambda: (_ for _ in ()).throw(err.value)) == EXIT_INVALID_MEASUREMENT
     quiet = deploy_into(tiny_policy, fleet, tmp_path / "quiet", episodes=1)
-    assert quiet.metrics["real/clock_not_kept_episodes"] == 0
     assert quiet.metrics["real/time_scale_realized_min"] == pytest.approx(scale, rel=0.05)
-    assert quiet.results[0].clock_kept and quiet.results[0].time_scale_realized == pytest.approx(scale, rel=0.05)
+    assert quiet.results[0].time_scale_realized == pytest.approx(scale, rel=0.05)
+    # the runner's control steps were timed too (on a loaded test host they may wake late: then the episode is
+    # marked, by the same rule), and the recording carries it as episodes.csv does
+    late = quiet.results[0].control_late_p95
+    assert late >= 0.0 and quiet.results[0].clock_kept == (late <= CONTROL_LATE_LIMIT)
+    assert quiet.metrics["real/clock_not_kept_episodes"] == (0 if quiet.results[0].clock_kept else 1)
+    (row, *_) = read_episodes_csv(tmp_path / "quiet" / "episodes.csv")
+    assert row["control_late_p95"] == pytest.approx(late, abs=1e-4)
+    assert episodes_table(tmp_path / "quiet" / "session.mcap")["control_late_p95"][0] == pytest.approx(late)
 
 
 def test_time_scale_auto_picks_what_the_host_keeps_and_lowers_it_when_the_twin_falls_behind(
@@ -405,7 +415,6 @@ def test_time_scale_auto_picks_what_the_host_keeps_and_lowers_it_when_the_twin_f
     assert first.time_scale_asked == start and not first.clock_kept  # the stall: marked, not the policy's
     assert "the twin fell behind in episode 0" in err
     assert all(r.time_scale_asked < start for r in rest) or start == 1.0
-    assert all(r.clock_kept for r in rest)  # at the lowered scale the quiet host kept it
     rows = read_episodes_csv(out / "episodes.csv")
     assert {(r["episode"], r["time_scale_asked"]) for r in rows} == {
         (r.episode, r.time_scale_asked) for r in outcome.results

@@ -134,3 +134,20 @@ def test_a_fleet_gone_quiet_is_put_on_the_host_only_where_the_twin_fell_behind()
     silent = behind_note(kept_up, now_ns=kept_up[-1].host_ns + 4e9)
     assert "has not run for 4.0 s" in silent
     assert behind_note([]) == ""
+
+
+def test_control_steps_that_woke_late_lower_the_scale(quick):
+    host = Host(30.0, 0.05)
+    lines: list[str] = []
+    auto = AutoScale(host.paces, host.ask, ScaledClock(5.0), 5.0, say=lines.append)
+    try:
+        auto.episode_started()
+        time.sleep(0.3)
+        auto.after_episode(0, late=0.1)  # within the limit: kept
+        assert auto.scale == 5.0 and not lines
+        auto.episode_started()
+        time.sleep(0.3)
+        auto.after_episode(1, late=0.6)
+    finally:
+        host.stop.set()
+    assert auto.scale == 2.5 and "the control steps of episode 1 woke 0.60 of a period late" in lines[0]
