@@ -88,12 +88,12 @@ def main() -> int:
         kept_rate = m.get("real/robot_success_clock_kept", float("nan"))
         print(
             f"{run:10s} ({scale if isinstance(scale, str) else f'{scale:g}x'}, {len(load)} spinning): "
-            f"{m['real/episodes']:.0f} episodes, twin behind its clock in {m['real/clock_not_kept_episodes']:.0f}, "
+            f"{m['real/episodes']:.0f} episodes, clock not kept in {m['real/clock_not_kept_episodes']:.0f}, "
             f"scales asked {m['real/time_scale_asked_min']:g}-{m['real/time_scale_asked_max']:g}, least realized "
             f"{m['real/time_scale_realized_min']:.2f}; {m['real/aborted_episodes']:.0f} aborted; robot success "
             f"{m['real/robot_success']:.3f} [{m['real/robot_success_ci_low']:.3f}, "
             f"{m['real/robot_success_ci_high']:.3f}] over every episode, {kept_rate:.3f} over the "
-            f"{m['real/clock_kept_episodes']:.0f} the twin kept its clock in; {walls[run]:.0f} s",
+            f"{m['real/clock_kept_episodes']:.0f} that kept it; {walls[run]:.0f} s",
             flush=True,
         )
     run_file = {

@@ -253,6 +253,33 @@ def recount() -> str:
     )
 
 
+def busy_host() -> str:
+    folder = RESULTS / "busy_host"
+    run = run_of(folder)
+    m = {name: json.loads((folder / name / "metrics.json").read_text(encoding="utf-8")) for name in run["wall_s"]}
+
+    def kept(name: str) -> str:
+        x = m[name]
+        return f"{x['real/clock_kept_episodes']:.0f} of {x['real/episodes']:.0f}"
+
+    def success(name: str) -> str:
+        x = m[name]
+        low, high = 100 * x["real/robot_success_ci_low"], 100 * x["real/robot_success_ci_high"]
+        return f"{pct(x['real/robot_success'])} [{low:.1f}, {high:.1f}]"
+
+    auto = m["busy-auto"]
+    return prose(
+        f"**A busy host** ([results/busy_host/](benchmarks/results/busy_host/run.json), `python "
+        f"benchmarks/busy_host.py --load 6` at {run['commit'][:7]}: the nominal policy on the lab twin, 20 episodes, "
+        "6 processes spinning beside it on the 2 cores): the deployment kept its clock in "
+        f"{kept('quiet')} episodes at 3x on the quiet host, {kept('busy')} at 3x beside the load (control steps woke "
+        f"late: marked, not the policy's), {kept('busy-auto')} at `--time-scale auto` (from "
+        f"{auto['real/time_scale_asked_max']:g}x down to {auto['real/time_scale_asked_min']:g}x, "
+        f"{run['wall_s']['busy-auto']:.0f} s against {run['wall_s']['busy']:.0f} s); robot success "
+        f"{success('quiet')}, {success('busy')}, {success('busy-auto')}."
+    )
+
+
 def scale() -> str:
     folder = RESULTS / "calibration_scale"
     text = (folder / "summary.txt").read_text(encoding="utf-8")
@@ -902,6 +929,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "sim2real": sim2real,
     "ten": ten,
     "recount": recount,
+    "busy-host": busy_host,
     "scale": scale,
     "coverage": coverage,
     "coverage-docs": partial(coverage_docs, COVERAGE),
