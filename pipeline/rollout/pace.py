@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from pipeline.core.timebase import CONTROL_LATE_LIMIT, LAG_LIMIT_NS, REALIZED_MARGIN
+from pipeline.core.timebase import LAG_LIMIT_NS, REALIZED_MARGIN
 from pipeline.errors import InvalidMeasurement
 from pipeline.ros.clock import ScaledClock
 
@@ -43,6 +43,9 @@ PROBES = 5
 """At most this many scales are tried before the first episode."""
 PACE_EVERY_S = 0.5
 """How often (host seconds) the twin reports its pace."""
+AUTO_LATE_TARGET = 0.25
+"""The most the control steps may wake late at ``auto`` (the 95th percentile, a share of the control period) before
+the scale is lowered: well inside the limit past which an episode is marked (`CONTROL_LATE_LIMIT`)."""
 REPORT_WAIT_S = 3 * PACE_EVERY_S
 """How long the end of an episode waits for the twin's next report (one that covers the episode's end)."""
 
@@ -182,7 +185,7 @@ class AutoScale:
     def after_episode(self, episode: int, outage: bool = False, late: float = math.nan) -> None:
         """Lower the scale from the next episode on where the twin did not keep it in the episode just run, the
         runner's control steps woke late (`late`: the 95th percentile as a share of the control period, above
-        `CONTROL_LATE_LIMIT`), or a robot's outage aborted it (`outage`)."""
+        `AUTO_LATE_TARGET`), or a robot's outage aborted it (`outage`)."""
         ended = time.monotonic_ns()
         deadline = time.monotonic() + REPORT_WAIT_S
         while not self._since(ended)[1:] and time.monotonic() < deadline:  # a report that covers the episode's end
@@ -192,7 +195,7 @@ class AutoScale:
         if window and window[-1].host_ns < ended:  # none came: the twin has not run since (a host stall)
             lag = max(lag, (time.monotonic_ns() - window[-1].host_ns) * self.scale)
         behind = not kept(self.scale, got, lag)
-        slow = late > CONTROL_LATE_LIMIT  # NaN: not measured
+        slow = late > AUTO_LATE_TARGET  # NaN: not measured
         if not (behind or slow or outage):
             return
         if behind:

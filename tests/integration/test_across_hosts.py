@@ -357,3 +357,38 @@ def test_an_interface_or_peer_this_host_cannot_use_is_named_before_anything_move
     with pytest.raises(ConfigError, match=r"network.interface.*'mrl-no-such-if'.*is not an interface of this host"):
         deploy(tiny_policy, missing, tmp_path / "never", episodes=1)
     assert not (tmp_path / "never" / "session.mcap").exists()
+
+
+def test_rclpy_robot_nodes_on_another_host_drive_whole_episodes(other_host, tiny_policy, tmp_path):
+    """Three ordinary ROS 2 nodes (rclpy, Fast DDS from the wheels) on the other host, found through their static
+    peer; the runner here on Cyclone DDS bound to its end of the pair: whole episodes, every command and scan bit for
+    bit (:func:`tests.peers.drivers.check_whole_episodes`)."""
+    from tests.peers import drivers
+    from tests.peers import rclpy as peer
+
+    if (why := peer.missing()) is not None:
+        pytest.skip(why)
+    from pipeline.ros.rclpy_transport import middleware_environment
+    from pipeline.ros.transport import NetworkSettings
+
+    domain = domain_id("hosts", os.getpid() + next(_domains))
+    fleet_file = write_fleet(
+        tmp_path / "fleet.yaml",
+        target="robots",
+        network={
+            "domain_id": domain,
+            "loopback_only": False,
+            "peers": [other_host.there_addr],
+            "interface": other_host.here_addr,
+        },
+    )
+
+    def node_over_there(scenario, index: int, namespace: str, log: Path) -> drivers.DriverProcess:
+        env = peer.environment(domain, log.parent / "ros_log")
+        env.update(middleware_environment(NetworkSettings(domain, loopback_only=False, peers=(other_host.here_addr,))))
+        env.pop("CYCLONEDDS_URI", None)
+        return drivers.DriverProcess(other_host.command(*peer.command(scenario, index, namespace, log)), namespace, env)
+
+    recording, logs, results = drivers.deploy_on_drivers(node_over_there, fleet_file, tiny_policy, tmp_path, 2)
+    drivers.check_whole_episodes(recording, logs, results, episodes=2)
+    assert McapLog(recording).metadata()["session"]["transport"] == "dds"
