@@ -54,6 +54,7 @@ def main() -> int:
     if not (args.policy / "policy.json").is_file():
         print(f"busy_host: no exported policy at {args.policy} (run `dvc repro` first or pass --policy)")
         return 2
+    commit = commit_of(ROOT)  # before this run's outputs change any tracked file
     runtime = PolicyRuntime(args.policy)
     fleet = load_fleet(args.fleet)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -98,7 +99,7 @@ def main() -> int:
         )
     run_file = {
         "command": "python " + " ".join([str(Path(sys.argv[0]).as_posix()), *sys.argv[1:]]),
-        "commit": commit_of(ROOT),
+        "commit": commit,
         "wall_s": {k: round(v, 1) for k, v in walls.items()},
         "note": f"{args.load} processes spinning at normal priority beside the busy runs on this host",
         "files": sorted(
