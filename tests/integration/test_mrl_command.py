@@ -137,7 +137,7 @@ def test_help_lists_every_exit_code_the_verbs_use_with_its_meaning():
     assert listed.keys() == {0, 1, 2, 3, 4, 130}
     assert listed[0] == "done" and listed[1].startswith("no result") and listed[2].startswith("bad input")
     assert listed[3].startswith("runtime fault") and listed[130].startswith("interrupted")
-    assert listed[4].startswith("a deployment that finished, but in some episodes it did not keep its clock")
+    assert listed[4].startswith("a deployment that finished, but in some episodes it did not keep its")
     # every code the verbs, the twin they start and the stages' plumbing return is among them
     import pipeline.stage
 

@@ -212,10 +212,13 @@ def deploy_on_drivers(
     return folder / "session.mcap", logs, results
 
 
-def check_whole_episodes(recording: Path, logs: dict[str, Path], results: list[Any], episodes: int) -> None:
+def check_whole_episodes(
+    recording: Path, logs: dict[str, Path], results: list[Any], episodes: int, write_s: float = 0.002
+) -> None:
     """What a deployment on three drivers must show: every episode run through, the reliable commands from the
     driver's first on received bit for bit and in order within their validity, every recorded scan what the driver
-    published (float32, bit for bit), and the robots moved (their ground truth)."""
+    published (float32, bit for bit), and the robots moved (their ground truth). `write_s`: how long a write may
+    take before its send time is stamped (a receive may come that much before the recorded send)."""
     import numpy as np
 
     from pipeline.record import McapLog
@@ -238,7 +241,7 @@ def check_whole_episodes(recording: Path, logs: dict[str, Path], results: list[A
         # arrival follows the recorded send time (stamped after the write returns: allow the write's length) and
         # comes within the command's validity
         delays = np.array(got.delays_s())
-        assert delays.min() > -0.002, ns
+        assert delays.min() > -write_s, ns
         assert np.quantile(delays, 0.99) < 0.12, ns
         recorded = list(log.messages([f"/{ns}/scan"]))
         assert len(recorded) >= 0.8 * len([k for k in driver.scans if first <= k[0] * 10**9 + k[1] <= last])
