@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 NS_PER_S = 1_000_000_000
 NS_PER_MS = 1_000_000
 NS_PER_US = 1_000
@@ -16,3 +18,10 @@ fleet's clock) did not keep its clock on the runner's side: a twentieth of its s
 policy ran at another rate than it was trained at. (``--time-scale auto`` aims lower: `pace.AUTO_LATE_TARGET`.)"""
 REALIZED_MARGIN = 0.05
 """An episode whose realized time scale falls short of the one asked by more than this share did not keep it."""
+
+
+def scale_kept(asked: float, realized: float, lag_ns: float) -> bool:
+    """The twin kept the time scale `asked`: `realized` no more than `REALIZED_MARGIN` short of it (NaN: not
+    measured, not short), never more than `LAG_LIMIT_NS` behind its clock."""
+    short = not math.isnan(realized) and realized < asked * (1 - REALIZED_MARGIN)
+    return not short and lag_ns <= LAG_LIMIT_NS

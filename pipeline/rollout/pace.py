@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from pipeline.core.timebase import LAG_LIMIT_NS, REALIZED_MARGIN
+from pipeline.core.timebase import REALIZED_MARGIN, scale_kept
 from pipeline.errors import InvalidMeasurement
 from pipeline.ros.clock import ScaledClock
 
@@ -72,10 +72,8 @@ def realized(paces: Sequence[Pace]) -> tuple[float, float]:
     return (twin / host if host > 0 else math.nan), max(p.lag_ns for p in paces[1:])
 
 
-def kept(scale: float, realized_scale: float, lag_ns: float) -> bool:
-    """The twin kept `scale`: by the twin's own rule for its episodes (`REALIZED_MARGIN`, `LAG_LIMIT_NS`)."""
-    short = math.isfinite(realized_scale) and realized_scale < scale * (1 - REALIZED_MARGIN)
-    return not short and lag_ns <= LAG_LIMIT_NS
+kept = scale_kept
+"""The twin kept a scale: by the twin's own rule for its episodes (:func:`pipeline.core.timebase.scale_kept`)."""
 
 
 def next_scale(realized_scale: float, asked: float) -> float:

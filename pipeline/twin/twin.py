@@ -34,7 +34,7 @@ from pipeline.core.evader import Evader
 from pipeline.core.layouts import draw_layout
 from pipeline.core.scan import ScanGeometry
 from pipeline.core.scenario import Scenario
-from pipeline.core.timebase import LAG_LIMIT_NS, NS_PER_S, REALIZED_MARGIN
+from pipeline.core.timebase import NS_PER_S, scale_kept
 from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.messages.store import message_store
@@ -87,9 +87,7 @@ class EpisodeTiming:
     def kept(self) -> bool:
         """The twin kept the time scale asked: no more than `REALIZED_MARGIN` short of it, never `LAG_LIMIT_NS`
         behind its clock."""
-        realized = self.realized_scale
-        short = math.isfinite(realized) and realized < self.asked_scale * (1 - REALIZED_MARGIN)
-        return not short and self.lag_max_ns <= LAG_LIMIT_NS
+        return scale_kept(self.asked_scale, self.realized_scale, self.lag_max_ns)
 
     def as_mapping(self) -> dict[str, object]:
         return {
