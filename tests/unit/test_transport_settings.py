@@ -140,3 +140,24 @@ def test_rclpy_module_imports_without_rclpy() -> None:
     import pipeline.ros.rclpy_transport as module
 
     assert module.rclpy_available() is HAS_RCLPY
+
+
+def test_an_interface_this_host_lacks_or_on_loopback_only_is_named():
+    with pytest.raises(NetworkSettingsError, match=r"interface.*'lo'.*loopback_only = true uses the loopback"):
+        NetworkSettings(interface="lo")
+    with pytest.raises(NetworkSettingsError, match=r"'mrl-no-such-if'.*not an interface of this host.*it has: .*lo"):
+        NetworkSettings(loopback_only=False, interface="mrl-no-such-if").check_host()
+    assert NetworkSettings(loopback_only=False, interface="lo").interface_address() == "127.0.0.1"
+    assert NetworkSettings(loopback_only=False, interface="127.0.0.1").interface_address() == "127.0.0.1"
+
+
+def test_a_peer_that_does_not_resolve_is_named_before_a_transport_opens():
+    settings = NetworkSettings(loopback_only=False, peers=("no-such-robot.invalid",))
+    with pytest.raises(NetworkSettingsError, match=r"peers\[0\].*no-such-robot\.invalid.*does not resolve"):
+        settings.check_host()
+
+
+def test_dds_binds_the_interface_named():
+    config = cyclone_config(NetworkSettings(loopback_only=False, interface="lo", peers=("10.231.9.2",)))
+    assert '<NetworkInterface address="127.0.0.1"/>' in config and '<Peer address="10.231.9.2"/>' in config
+    assert "NetworkInterface" not in cyclone_config(NetworkSettings(loopback_only=False, peers=("10.231.9.2",)))
