@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -82,6 +82,7 @@ def write_report(
     trajectory_episodes: int = 3,
     pairs: Sequence[tuple[str, str]] | None = None,
     warnings: Sequence[str] = (),
+    progress: Callable[[str], None] | None = None,
 ) -> Report:
     """Analyse `sessions` and write ``report.md``, ``metrics.json`` and the figures into `out_dir`.
 
@@ -94,6 +95,8 @@ def write_report(
         trajectory_episodes: episodes drawn per session in ``trajectories.png``.
         pairs: the (sim label, real label) pairs compared; by default each label with itself.
         warnings: lines shown under "Warnings" at the top of ``report.md`` (e.g. a recording compared with itself).
+        progress: called with each stage as it starts (reading a recording, the comparison, the figures); the
+            recordings' reading also shows a bar on a terminal when it is given.
 
     Raises:
         AnalysisError: no sessions, a world other than sim/real, a pair naming a label without sessions, sessions
@@ -105,11 +108,14 @@ def write_report(
     if not items:
         raise AnalysisError(str(out_dir), "no sessions to report on")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    stage = progress or (lambda _: None)
     recordings: list[tuple[LabelledSession, Recording]] = []
     tables: dict[str, dict[str, list[pl.DataFrame]]] = {w: {} for w in WORLDS}
     for item in items:
-        recording = Recording(item.path)
+        recording = Recording(item.path, progress=progress is not None)
+        stage(
+            f"reading {item.world} {item.label!r} ({item.shown or item.path}, {_size_text(item.shown or recording.path)})"
+        )
         table = recording.episodes_table().with_columns(pl.lit(item.label).alias("label"))
         tables[item.world].setdefault(item.label, []).append(table)
         recordings.append((item, recording))
@@ -117,10 +123,13 @@ def write_report(
         pairs = [(label, label) for label in tables["sim"] if label in tables["real"]]
     _check_pairs(out, pairs, tables)
     _check_scenarios(recordings, pairs)
+    out.mkdir(parents=True, exist_ok=True)  # every recording read and checked before the report folder is touched
+    stage("comparing the episodes")
     pooled = {w: {label: pl.concat(parts) for label, parts in by_label.items()} for w, by_label in tables.items()}
     comparison = compare(pooled["sim"], pooled["real"], pairs=pairs)
     episodes = pl.concat([t for by_label in pooled.values() for t in by_label.values()], how="diagonal_relaxed")
 
+    stage("drawing the figures")
     figures: dict[str, Path] = {}
     figures["success_rates"] = plot_success_rates(success_panels(comparison.groups), out / "success_rates.png")
     shown: dict[tuple[str, str], Recording] = {}
@@ -149,6 +158,11 @@ def write_report(
     report_path = out / REPORT_NAME
     report_path.write_text(markdown, encoding="utf-8")
     return Report(report_path, metrics_path, figures, comparison, episodes)
+
+
+def _size_text(path: Path) -> str:
+    size = sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) if path.is_dir() else path.stat().st_size
+    return f"{size / 1e6:.1f} MB"
 
 
 def _session_name(world: str, label: str) -> str:

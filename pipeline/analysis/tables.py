@@ -25,6 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 import polars as pl
+from tqdm import tqdm
 
 from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat, decode
 from pipeline.analysis.errors import AnalysisError
@@ -165,13 +166,17 @@ class Recording:
     Args:
         source: the MCAP file (or an open :class:`~pipeline.record.McapLog`).
         session: the name in the ``session`` column; the file's stem by default.
+        progress: show a bar of the messages read (on a terminal, on stderr) while topics are decoded.
 
     Raises:
         LogReadError: the file is missing, not MCAP or damaged beyond salvage (from the reader).
     """
 
-    def __init__(self, source: str | os.PathLike[str] | McapLog, session: str | None = None) -> None:
+    def __init__(
+        self, source: str | os.PathLike[str] | McapLog, session: str | None = None, progress: bool = False
+    ) -> None:
         self.log = source if isinstance(source, McapLog) else McapLog(source)
+        self.progress = progress
         self.path = self.log.path
         self.where = str(self.path)
         self.session = session if session is not None else self.path.stem
@@ -281,13 +286,23 @@ class Recording:
             pending[topic] = ([], [], [])
 
         batch = DECODE_BATCH
-        for topic, _, log_ns, pub_ns, _, data in self.log.raw(wanted):
-            times, stamps, datas = pending[topic]
-            times.append(log_ns)
-            stamps.append(pub_ns)
-            datas.append(data)
-            if len(datas) >= batch:
-                flush(topic)
+        counts = self.log.message_counts() if self.progress else {}
+        with tqdm(
+            total=sum(counts.get(t, 0) for t in wanted) or None,
+            desc=f"reading {self.path.name}",
+            unit="msg",
+            unit_scale=True,
+            disable=None if self.progress else True,  # a bar on a terminal only
+            leave=False,
+        ) as bar:
+            for topic, _, log_ns, pub_ns, _, data in self.log.raw(wanted):
+                times, stamps, datas = pending[topic]
+                times.append(log_ns)
+                stamps.append(pub_ns)
+                datas.append(data)
+                if len(datas) >= batch:
+                    flush(topic)
+                    bar.update(batch)
         for topic in wanted:
             if pending[topic][2] or not parts[topic]:
                 flush(topic)

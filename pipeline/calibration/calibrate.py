@@ -263,6 +263,74 @@ EFFECTIVE_REASON = (
 )
 
 
+GAIN_AGREEMENT_TOLERANCE = 0.05
+"""How far (share of the value) the simulator's gain with the deadband may lie outside the body-velocity fit's
+interval and still agree with it: the steady-state reading leaves out the lag's share of each transition."""
+
+
+@dataclass(frozen=True)
+class GainAgreement:
+    """One channel's gain read two ways: the body-velocity fit (`body_fit`, which holds the deadband in a smaller
+    gain), and the wheel chain's gain at body level (`wheel_chain`, what the simulator takes) whose deadband gives
+    `with_deadband` over the recorded commands. They agree when `with_deadband` is within the fit's interval widened
+    by :data:`GAIN_AGREEMENT_TOLERANCE`."""
+
+    channel: str
+    body_fit: Estimate
+    wheel_chain: float
+    with_deadband: float
+
+    @property
+    def agrees(self) -> bool:
+        lo, hi = self.body_fit.interval or (math.nan, math.nan)
+        slack = GAIN_AGREEMENT_TOLERANCE * abs(self.with_deadband)
+        return lo - slack <= self.with_deadband <= hi + slack
+
+    def sentence(self) -> str:
+        lo, hi = self.body_fit.interval or (math.nan, math.nan)
+        verdict = (
+            "they agree: the body-velocity fit's smaller gain is the deadband's"
+            if self.agrees
+            else f"they differ by more than {GAIN_AGREEMENT_TOLERANCE:.0%}: the deadband does not explain the "
+            "body-velocity fit's gain, the drive is not the simulator's model (a lag or limit the simulator lacks)"
+        )
+        return (
+            f"{self.channel} gain: the simulator takes the wheel chain's {self.wheel_chain:.3f} with the deadband, "
+            f"which over the recorded commands moves the body as a gain of {self.with_deadband:.3f}; the "
+            f"body-velocity fit reads {self.body_fit.value:.4g} [{lo:.4g}, {hi:.4g}]: {verdict}"
+        )
+
+    def as_mapping(self) -> dict[str, object]:
+        lo, hi = self.body_fit.interval or (math.nan, math.nan)
+        return {
+            "body_fit": _short(self.body_fit.value or math.nan),
+            "body_fit_interval": [_short(lo), _short(hi)],
+            "simulator": _short(self.wheel_chain),
+            "simulator_with_deadband": _short(self.with_deadband),
+            "agrees": self.agrees,
+        }
+
+
+def deadband_gains(
+    tracks: Sequence[VelocityTrack], gains: tuple[float, float], deadband_radps: float, timeout_s: float
+) -> tuple[float, float] | None:
+    """The gains (linear, angular) through the origin of the simulator's drive (`gains` times the command, then the
+    wheels' deadband by the nominal geometry) against the commands acting at the tracks' samples (NaN for a channel
+    never commanded); None without tracks."""
+    from pipeline.sim.world import deadband_body
+
+    commands = [t.commands.at(t.t_ns, timeout_s) for t in tracks]
+    if not commands:
+        return None
+    u = np.concatenate(commands)
+    body = deadband_body(u * np.asarray(gains), NOMINAL_WHEEL_SEPARATION_M, deadband_radps * NOMINAL_WHEEL_RADIUS_M)
+    out = []
+    for c in range(2):
+        uu = float(np.sum(u[:, c] ** 2))
+        out.append(float(np.sum(body[:, c] * u[:, c])) / uu if uu > 0.0 else math.nan)
+    return out[0], out[1]
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Estimates of the reality profile from recordings of one scenario.
@@ -287,6 +355,9 @@ class Calibration:
     effective: dict[str, EffectiveValue] = field(default_factory=dict)
     """Values of the simulator's model that stand for several of the robot's properties together (the drive
     chain's delay and lag), by name; see :data:`EFFECTIVE_DRIVE`."""
+    deadband_gains: tuple[float, float] | None = None
+    """The body-velocity gains (linear, angular) that the simulator's drive with :meth:`body_gains` and the deadband
+    gives over the recorded commands (what the body-velocity fit would read in it); None without body gains."""
 
     def simulator_estimate(self, key: str) -> Estimate | None:
         """The estimate the simulator's setting for profile key `key` takes: the effective value where the profile
@@ -351,6 +422,22 @@ class Calibration:
         linear, angular = self.motors.gains
         scale = radius / NOMINAL_WHEEL_RADIUS_M
         return linear * scale, angular * scale * NOMINAL_WHEEL_SEPARATION_M / separation
+
+    def gain_agreement(self) -> list[GainAgreement]:
+        """Per channel, the body-velocity fit's gain beside the gain the simulator's drive (the wheel chain's gain
+        with the deadband) shows over the same commands: the two readings of one robot, reconciled or not."""
+        gains = self.body_gains()
+        if gains is None or self.deadband_gains is None:
+            return []
+        out = []
+        for c, channel in enumerate(("linear", "angular")):
+            est = self.values.get(f"actuation.{channel}_gain")
+            if est is None or not est.ok or est.value is None or est.interval is None:
+                continue
+            if not math.isfinite(self.deadband_gains[c]):
+                continue
+            out.append(GainAgreement(channel, est, gains[c], self.deadband_gains[c]))
+        return out
 
     def speed_limits(self) -> list[SpeedLimit]:
         """The channels where the base saturated (a top speed below what was commanded)."""
@@ -842,7 +929,7 @@ def calibrate(
     values = within_physical_ranges(values)
     values = {key: _flag_weak(key, est) for key, est in values.items()}
     stage("done")
-    return Calibration(
+    calibration = Calibration(
         read.scenario.name,
         _sources(read.sessions),
         values,
@@ -857,6 +944,13 @@ def calibrate(
         randomization=found.randomization,
         pose_source=_merged(read.pose_sources),
         effective=effective,
+    )
+    gains, deadband = calibration.body_gains(), values.get("base.deadband_radps")
+    if gains is None or deadband is None or deadband.value is None:
+        return calibration
+    return replace(
+        calibration,
+        deadband_gains=deadband_gains(data.tracks, gains, deadband.value, settings.command_timeout_s),
     )
 
 

@@ -307,6 +307,7 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
             f"{gains[1]:.3f} angular) in place of the body-velocity fit's, which hold the deadband; it has no "
             "acceleration limit, which its lag and delay absorb"
         )
+        notes += [agreement.sentence() for agreement in calibration.gain_agreement()]
     if calibration.odometry is not None and calibration.odometry.component_rms:
         parts = ", ".join(f"{k} {v:.4f}" for k, v in calibration.odometry.component_rms.items())
         notes.append(f"odometry draws, rms per component: {parts}")

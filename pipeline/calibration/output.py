@@ -65,6 +65,7 @@ def calibration_mapping(calibration: Calibration) -> dict[str, Any]:
             "effective": {name: value.as_mapping() for name, value in calibration.effective.items()},
             "ambiguous": [a.as_mapping() for a in (calibration.actuation.ambiguities if calibration.actuation else ())],
             "trade_offs": _trade_offs(calibration),
+            "gains": {a.channel: a.as_mapping() for a in calibration.gain_agreement()},
             "speed_limits": {
                 limit.channel: limit.as_mapping()
                 for limit in (calibration.actuation.speed_limits if calibration.actuation else ())

@@ -130,6 +130,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"calibrate: {limit.sentence()}")
     for ambiguity in calibration.actuation.ambiguities if calibration.actuation else ():
         print(f"calibrate: ambiguous: {ambiguity.sentence()}")
+    for agreement in calibration.gain_agreement():
+        print(f"calibrate: {agreement.sentence()}")
     for name, value in calibration.effective.items():
         if value.estimate.ok and value.estimate.value is not None:
             print(f"calibrate: {_effective_sentence(calibration, name, value)}")

@@ -10,7 +10,8 @@ import math
 import os
 import sys
 import tempfile
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
@@ -168,6 +169,32 @@ def _as_given(bags: Sequence[ImportedBag]) -> Iterator[None]:
         if text == str(exc):
             raise
         raise CommandError(text, bool(getattr(exc, "interrupted", False))) from exc
+
+
+def stage_line(verb: str) -> Callable[[str], None]:
+    """Progress for long work: each stage as it starts, on stderr as ``<verb>: <stage> (<seconds> s)`` (the results
+    go to stdout)."""
+    start = time.monotonic()
+
+    def show(stage: str) -> None:
+        print(f"{verb}: {stage} ({time.monotonic() - start:.0f} s)", file=sys.stderr, flush=True)
+
+    return show
+
+
+def require_episodes(bag: ImportedBag, verb: str) -> None:
+    """Refuse a bag without this project's episode events before any work: what the verb reads, what the bag is and
+    which verbs read it instead."""
+    from pipeline.record.episodes import EPISODE_TOPIC
+
+    if any(topic.name == EPISODE_TOPIC for topic in bag.topics):
+        return
+    kind = f"a {bag.source_format} bag of the robots' own topics" if bag.converted else "a recording without them"
+    raise CommandError(
+        f"{bag.source}: no episodes to {verb} (no {EPISODE_TOPIC} topic): {verb} reads the episodes (starts, goals, "
+        f"ends) that mrl deploy and the pipeline's stages record, and this is {kind}; mrl calibrate and mrl replay "
+        "read such a bag (mrl info says what it holds)"
+    )
 
 
 def source_name(bag: ImportedBag) -> str:

@@ -10,7 +10,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.mrl.common import BAG_HELP, CommandError, add_verb, bag_options, imported, output_folder, source_name
+from pipeline.mrl.common import (
+    BAG_HELP,
+    CommandError,
+    add_verb,
+    bag_options,
+    imported,
+    output_folder,
+    require_episodes,
+    source_name,
+    stage_line,
+)
 
 if TYPE_CHECKING:
     from pipeline.record import ImportedBag
@@ -144,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
 
     out = output_folder(args.out)
     with imported(args, [args.sim, args.real]) as bags:
+        for bag in bags:
+            require_episodes(bag, NAME)
         inputs, notes = compared_inputs(bags)
         for note in notes:
             warnings.warn(note, ComparisonWarning, stacklevel=1)
@@ -155,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             trajectory_episodes=args.trajectory_episodes,
             pairs=pairs,
             warnings=notes,
+            progress=stage_line(NAME),
         )
     metrics = report.comparison.metrics
 

@@ -14,7 +14,9 @@ from pipeline.mrl.common import (
     bag_options,
     check_writable_parent,
     imported,
+    require_episodes,
     source_name,
+    stage_line,
 )
 
 NAME = "episodes"
@@ -59,7 +61,11 @@ def run(args: argparse.Namespace) -> int:
 
     out = _table_path(args.out)
     with imported(args, [args.bag]) as (bag,):
-        table = Recording(bag.path, session=source_name(bag)).episodes_table()
+        require_episodes(bag, NAME)
+        stage = stage_line(NAME)
+        stage(f"reading {bag.source} ({bag.path.stat().st_size / 1e6:.1f} MB)")
+        table = Recording(bag.path, session=source_name(bag), progress=True).episodes_table()
+        stage(f"{table['episode'].n_unique()} episodes of {table['robot'].n_unique()} robots read")
         if bag.converted:
             table = table.with_columns(pl.lit(str(bag.source)).alias("path"))
     if out is not None:

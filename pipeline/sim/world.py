@@ -21,6 +21,16 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     return np.asarray((a + np.pi) % (2 * np.pi) - np.pi)
 
 
+def deadband_body(target: np.ndarray, separation_m: float, deadband_mps: float) -> np.ndarray:
+    """Body velocities (n, 2) (v m/s, w rad/s) that the wheels deliver of targets (n, 2): each wheel's rim speed by
+    the geometry (`separation_m` between the wheels), zero where it is under `deadband_mps` (the motors do not turn
+    under the deadband)."""
+    half = separation_m / 2
+    wheels = np.stack([target[:, 0] - half * target[:, 1], target[:, 0] + half * target[:, 1]], axis=1)
+    wheels[np.abs(wheels) < deadband_mps] = 0.0
+    return np.stack([wheels.mean(axis=1), (wheels[:, 1] - wheels[:, 0]) / (2 * half)], axis=1)
+
+
 class SimWorld:
     """N differential-drive robots in a scenario, stepped one control period at a time.
 
@@ -153,11 +163,7 @@ class SimWorld:
             if limit is not None:
                 target[:, c] = np.clip(target[:, c], -limit, limit)
         if self._wheels:
-            # wheel speeds by the nominal geometry; the motors do not turn under the deadband
-            half = act.wheel_separation_m / 2
-            wheels = np.stack([target[:, 0] - half * target[:, 1], target[:, 0] + half * target[:, 1]], axis=1)
-            wheels[np.abs(wheels) < act.deadband_radps * act.wheel_radius_m] = 0.0
-            target = np.stack([wheels.mean(axis=1), (wheels[:, 1] - wheels[:, 0]) / (2 * half)], axis=1)
+            target = deadband_body(target, act.wheel_separation_m, act.deadband_radps * act.wheel_radius_m)
         if act.yaw_rate_per_mps != 0.0:
             target = target.copy()
             target[:, 1] += act.yaw_rate_per_mps * target[:, 0]

@@ -397,3 +397,24 @@ def test_the_lab_calibrates_without_motion_capture(lab_recording, lab_calibratio
         elif abs(b.value - a.value) > 0.15 * abs(a.value) + tol.abs + 1e-12:
             misses.append(f"{key}: {b.value:.5g} without ground truth, {a.value:.5g} with")
     assert not misses, "\n".join(misses)
+
+
+def test_the_lab_gains_read_at_the_body_and_at_the_wheels_are_reconciled(lab_calibration, tmp_path):
+    """The lab's deadband makes the body-velocity fit read smaller gains than the wheels' chain; the simulator takes
+    the wheel chain's gains with the deadband. Run over the recorded commands, that drive must move the body as the
+    body-velocity fit read it, and calibration.yaml, calibration.md and the command's lines say so with one value."""
+    _, result = lab_calibration
+    agreements = {a.channel: a for a in result.gain_agreement()}
+    assert agreements, "the lab's deadband is identified: both readings exist"
+    for channel, agreement in agreements.items():
+        assert agreement.agrees, agreement.sentence()
+        assert agreement.with_deadband < agreement.wheel_chain, channel  # the deadband takes speed away
+        assert result.world_overrides()["actuation"][f"{channel}_gain"] == pytest.approx(agreement.wheel_chain, 1e-5)
+    folder = tmp_path / "out"
+    write_calibration(result, folder)
+    written = yaml.safe_load((folder / "calibration.yaml").read_text())["gains"]
+    report = (folder / "calibration.md").read_text()
+    for channel, agreement in agreements.items():
+        assert written[channel]["simulator_with_deadband"] == pytest.approx(agreement.with_deadband, rel=1e-5)
+        assert written[channel]["agrees"] is True
+        assert agreement.sentence() in report

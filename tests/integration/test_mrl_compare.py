@@ -146,3 +146,69 @@ def test_metrics_keys_have_one_separator(recordings, tmp_path):
     _, _, _, metrics = compare(recordings["sim"], recordings["real"], "--out", tmp_path / "keys")
     assert not [key for key in metrics if "//" in key or key.startswith("/") or key.endswith("/")]
     assert metrics["real/fleet/send_skew_p99_ms"] == pytest.approx(0.05)
+
+
+# -- a bag of the robots' own topics; progress ------------------------------------------------------
+
+
+def test_a_bag_without_episodes_is_refused_naming_it_and_what_reads_it(recordings, tmp_path):
+    """A user's rosbag2 of the robots' topics has no episodes: refused before any report folder exists, naming the
+    bag as the user has it and the verbs that read such a bag."""
+    from rosbags.rosbag2 import StoragePlugin
+
+    from tests.unit.test_record_bags import golden_raw, write_rosbag2
+
+    robots_only = [m for m in golden_raw() if not m.topic.startswith("/mrl/")]
+    bag = write_rosbag2(tmp_path / "floor_db3", robots_only, StoragePlugin.SQLITE3)
+    out = tmp_path / "report"
+    line = refused(mrl("compare", recordings["sim"], bag, "--out", out), "compare", str(bag), "no episodes")
+    assert "rosbag2-sqlite3" in line and "mrl calibrate" in line and "mrl replay" in line
+    assert not out.exists()
+    refused(mrl("episodes", bag), "episodes", str(bag), "no episodes")
+
+
+def test_compare_says_each_stage_on_stderr_and_keeps_stdout_for_results(recordings, tmp_path):
+    stdout, stderr, _, _ = compare(recordings["sim"], recordings["real"], "--out", tmp_path / "out")
+    stages = [line for line in stderr.splitlines() if line.startswith("compare: ")]
+    assert [s.split(" (")[0] for s in stages] == [
+        "compare: reading sim 'simrun'",
+        "compare: reading real 'fleet'",
+        "compare: comparing the episodes",
+        "compare: drawing the figures",
+    ], stderr
+    assert str(recordings["sim"]) in stages[0] and "MB" in stages[0]
+    assert all(line.endswith(" s)") for line in stages)
+    assert not [line for line in stdout.splitlines() if "reading" in line]
+
+
+def test_on_a_terminal_reading_a_recording_shows_a_bar_of_its_messages(recordings, tmp_path):
+    """Under a pseudo-terminal (as a user runs it) the reading shows a tqdm bar counting messages; piped, none."""
+    import fcntl
+    import pty
+    import struct
+    import subprocess
+    import termios
+
+    from tests.integration.test_mrl_command import MRL
+
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))  # a terminal has a width
+    with subprocess.Popen(
+        [str(MRL), "episodes", str(recordings["sim"])], stdout=subprocess.DEVNULL, stderr=follower
+    ) as proc:
+        os.close(follower)
+        seen = b""
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # the terminal closes with the process
+                break
+            if not chunk:
+                break
+            seen += chunk
+        assert proc.wait(timeout=120) == 0
+    os.close(leader)
+    text = seen.decode("utf-8", "replace")
+    assert "reading simrun.mcap" in text and "msg" in text, text
+    piped = mrl("episodes", recordings["sim"])
+    assert piped.returncode == 0 and "msg/s" not in piped.stderr and "reading simrun.mcap:" not in piped.stderr

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from pipeline.calibration.actuation import CommandTimeline
-from pipeline.calibration.estimates import bootstrap
+from pipeline.calibration.actuation import CommandTimeline, VelocityTrack
+from pipeline.calibration.calibrate import GAIN_AGREEMENT_TOLERANCE, GainAgreement, deadband_gains
+from pipeline.calibration.estimates import Estimate, bootstrap
 from pipeline.calibration.motors import (
     WheelEpisode,
     _refine,
@@ -21,6 +22,7 @@ from pipeline.calibration.motors import (
     wheel_speeds,
 )
 from pipeline.calibration.options import CalibrationSettings
+from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
 
 NS = 1_000_000_000
 PHYSICS_S = 0.0025
@@ -263,3 +265,33 @@ def test_the_small_sample_factor_makes_a_ten_cluster_bootstrap_cover_95_percent(
         lo, hi = _widened(value, float(lo), float(hi), 10)
         widened += lo <= truth <= hi
     assert plain <= 0.92 * 400 and widened >= 0.94 * 400, (plain, widened)
+
+
+def _track(commands: np.ndarray) -> VelocityTrack:
+    t_ns = np.arange(len(commands), dtype=np.int64) * 100_000_000
+    return VelocityTrack("robot_1", "e0", t_ns, np.zeros((len(commands), 2)), CommandTimeline(t_ns, commands))
+
+
+def test_without_a_deadband_the_simulators_drive_reads_its_own_gains():
+    rng = np.random.default_rng(3)
+    commands = np.column_stack([rng.uniform(0, 0.3, 200), rng.uniform(-1.5, 1.5, 200)])
+    assert deadband_gains([_track(commands)], (0.9, 0.8), 0.0, 0.5) == pytest.approx((0.9, 0.8), rel=1e-12)
+
+
+def test_a_deadband_lowers_the_body_gain_by_the_share_of_speed_under_it():
+    """Pure turns: each wheel's rim speed is w * b / 2; half the commands leave both wheels under the deadband."""
+    half_rim = NOMINAL_WHEEL_SEPARATION_M / 2
+    deadband = 1.0  # rad/s at the wheel: 0.034 m/s at the rim
+    under = 0.5 * deadband * NOMINAL_WHEEL_RADIUS_M / half_rim  # a turn whose wheels stay under it
+    over = 4.0 * deadband * NOMINAL_WHEEL_RADIUS_M / half_rim
+    commands = np.array([[0.0, under], [0.0, -under], [0.0, over], [0.0, -over]] * 10)
+    _, angular = deadband_gains([_track(commands)], (1.0, 1.0), deadband, 0.5)
+    assert angular == pytest.approx(over**2 / (over**2 + under**2), rel=1e-12)
+
+
+def test_gains_read_two_ways_agree_within_the_interval_and_its_stated_slack():
+    fit = Estimate("ok", 0.80, 0.005, (0.79, 0.81), "ratio")
+    assert GainAgreement("angular", fit, 0.85, 0.80).agrees
+    assert GainAgreement("angular", fit, 0.85, 0.81 * (1 + GAIN_AGREEMENT_TOLERANCE) - 1e-3).agrees
+    far = GainAgreement("angular", fit, 0.95, 0.90)
+    assert not far.agrees and "differ" in far.sentence() and "0.900" in far.sentence()
