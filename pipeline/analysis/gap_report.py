@@ -113,9 +113,8 @@ def write_report(
     tables: dict[str, dict[str, list[pl.DataFrame]]] = {w: {} for w in WORLDS}
     for item in items:
         recording = Recording(item.path, progress=progress is not None)
-        stage(
-            f"reading {item.world} {item.label!r} ({item.shown or item.path}, {_size_text(item.shown or recording.path)})"
-        )
+        shown = item.shown or item.path
+        stage(f"reading {item.world} {item.label!r} ({shown}, {_size_text(shown)})")
         table = recording.episodes_table().with_columns(pl.lit(item.label).alias("label"))
         tables[item.world].setdefault(item.label, []).append(table)
         recordings.append((item, recording))

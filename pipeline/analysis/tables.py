@@ -289,7 +289,7 @@ class Recording:
         counts = self.log.message_counts() if self.progress else {}
         with tqdm(
             total=sum(counts.get(t, 0) for t in wanted) or None,
-            desc=f"reading {self.path.name}",
+            desc=f"reading {self.path.stem}",
             unit="msg",
             unit_scale=True,
             disable=None if self.progress else True,  # a bar on a terminal only

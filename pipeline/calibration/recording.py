@@ -25,12 +25,14 @@ motion-capture clocks that are not synchronised with the recorder.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from tqdm import tqdm
 
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.options import Part
@@ -443,7 +445,18 @@ def _read_streams(log: McapLog, wanted: list[str]) -> tuple[dict[str, dict[str, 
     robot."""
     raw: dict[str, dict[str, list[Any]]] = {t: {"log": [], "stamp": [], "data": []} for t in wanted}
     frames: dict[str, str] = {}
-    for m in log.messages(wanted, skip_undecodable=True):
+    counts = log.message_counts() if sys.stderr.isatty() else {}
+    messages = tqdm(
+        log.messages(wanted, skip_undecodable=True),
+        total=sum(counts.get(t, 0) for t in wanted) or None,
+        desc=f"reading {log.path.stem}",
+        unit="msg",
+        unit_scale=True,
+        disable=None,  # a bar on a terminal only
+        leave=False,
+        mininterval=0.5,
+    )
+    for m in messages:
         bucket = raw[m.topic]
         bucket["log"].append(m.log_time_ns)
         kind = m.topic.rsplit("/", 1)[1]

@@ -181,8 +181,8 @@ def test_compare_says_each_stage_on_stderr_and_keeps_stdout_for_results(recordin
     assert not [line for line in stdout.splitlines() if "reading" in line]
 
 
-def test_on_a_terminal_reading_a_recording_shows_a_bar_of_its_messages(recordings, tmp_path):
-    """Under a pseudo-terminal (as a user runs it) the reading shows a tqdm bar counting messages; piped, none."""
+def on_a_terminal(*args: str | Path) -> str:
+    """What ``mrl ARGS`` writes to stderr when it is a terminal 120 columns wide (stdout discarded)."""
     import fcntl
     import pty
     import struct
@@ -193,9 +193,7 @@ def test_on_a_terminal_reading_a_recording_shows_a_bar_of_its_messages(recording
 
     leader, follower = pty.openpty()
     fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))  # a terminal has a width
-    with subprocess.Popen(
-        [str(MRL), "episodes", str(recordings["sim"])], stdout=subprocess.DEVNULL, stderr=follower
-    ) as proc:
+    with subprocess.Popen([str(MRL), *map(str, args)], stdout=subprocess.DEVNULL, stderr=follower) as proc:
         os.close(follower)
         seen = b""
         while True:
@@ -206,9 +204,17 @@ def test_on_a_terminal_reading_a_recording_shows_a_bar_of_its_messages(recording
             if not chunk:
                 break
             seen += chunk
-        assert proc.wait(timeout=120) == 0
+        assert proc.wait(timeout=300) == 0, seen
     os.close(leader)
-    text = seen.decode("utf-8", "replace")
-    assert "reading simrun.mcap" in text and "msg" in text, text
+    return seen.decode("utf-8", "replace")
+
+
+def test_on_a_terminal_reading_a_recording_shows_a_bar_of_its_messages(recordings, tmp_path):
+    """Under a pseudo-terminal (as a user runs it) reading shows a tqdm bar counting messages (episodes, compare and
+    calibrate); piped, none."""
+    text = on_a_terminal("episodes", recordings["sim"])
+    assert "reading simrun:" in text and "msg" in text, text
+    text = on_a_terminal("calibrate", recordings["sim"], "--parts", "lidar", "--bootstrap", "20", "--out", tmp_path)
+    assert "reading simrun:" in text and "msg" in text and "calibrate: lidar (" in text, text
     piped = mrl("episodes", recordings["sim"])
-    assert piped.returncode == 0 and "msg/s" not in piped.stderr and "reading simrun.mcap:" not in piped.stderr
+    assert piped.returncode == 0 and "msg/s" not in piped.stderr and "reading simrun:" not in piped.stderr
