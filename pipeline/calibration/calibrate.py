@@ -288,8 +288,9 @@ class GainAgreement:
 
     def sentence(self) -> str:
         lo, hi = self.body_fit.interval or (math.nan, math.nan)
+        bites = self.with_deadband < (1 - GAIN_AGREEMENT_TOLERANCE) * self.wheel_chain
         verdict = (
-            "they agree: the body-velocity fit's smaller gain is the deadband's"
+            ("they agree: the deadband accounts for the body-velocity fit's smaller gain" if bites else "they agree")
             if self.agrees
             else f"they differ by more than {GAIN_AGREEMENT_TOLERANCE:.0%}: the deadband does not explain the "
             "body-velocity fit's gain, the drive is not the simulator's model (a lag or limit the simulator lacks)"

@@ -21,6 +21,7 @@ import polars as pl
 import pytest
 
 import pipeline
+from pipeline.bench.hosts import HostsUnavailable, OtherHost, other_host
 from pipeline.bench.sweep import SweepError, _scenario_here, check_address
 from pipeline.bench.trials import Trial
 from pipeline.ros.ros1 import free_port
@@ -43,9 +44,9 @@ class RecipeCluster:
     """Nodes started with ``ray start ... --block`` in sessions of their own, on a free port of loopback, with a home
     of their own (the token the recipe makes goes there, not into the user's ``~/.ray``)."""
 
-    def __init__(self, cwd: Path) -> None:
+    def __init__(self, cwd: Path, ip: str = "127.0.0.1") -> None:
         self.port = free_port()
-        self.address = f"127.0.0.1:{self.port}"
+        self.address = f"{ip}:{self.port}"
         self.cwd = cwd
         self.home = cwd / "home"
         self.home.mkdir(exist_ok=True)
@@ -60,12 +61,16 @@ class RecipeCluster:
                               check=True, env=self.env)  # fmt: skip
         return done.stdout.strip().splitlines()[-1]
 
-    def start(self, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
-        """A node as the recipe starts it: token authentication on, the head's token handed to the others."""
+    def start(
+        self, *args: str, env: dict[str, str] | None = None, host: OtherHost | None = None
+    ) -> subprocess.Popen[bytes]:
+        """A node as the recipe starts it: token authentication on, the head's token handed to the others; on
+        `host` (another host's network) where given."""
         token = {} if "--head" in args else {"RAY_AUTH_TOKEN": self.token()}
         log = (self.cwd / f"node{self.started}.log").open("wb")
         self.started += 1
         command = [str(RAY), "start", *args, "--num-cpus", "1", "--disable-usage-stats", "--block"]
+        command = host.command(*command) if host is not None else command
         proc = subprocess.Popen(
             command, cwd=self.cwd, stdout=log, stderr=subprocess.STDOUT,
             env={**self.env, "RAY_AUTH_MODE": "token", **token, **(env or {})}, start_new_session=True,
@@ -262,3 +267,35 @@ def test_a_scenario_file_travels_to_a_node_that_lacks_it(tmp_path):
     present.write_text(text + "\n# changed on this node\n")  # another text than the driver's: the driver's wins
     assert _scenario_here(str(present), text).read_text() == text
     assert _scenario_here("empty", None) is None
+
+
+def test_a_worker_node_on_another_host_joins_the_head_here_and_takes_trials(tiny_params, tmp_path):
+    """A lab's cluster: the head on this host, bound to the interface that reaches the other host; a worker node
+    there (its own network, reached over a veth pair) joins it as the recipe says; the sweep's trials land on both,
+    and the table equals a local run's."""
+    room = tmp_path / "room.yaml"
+    shutil.copyfile(SCENARIOS_DIR / "empty.yaml", room)
+    try:
+        hosts = other_host("r")
+        host = hosts.__enter__()
+    except HostsUnavailable as exc:
+        pytest.skip(str(exc))
+    cluster = RecipeCluster(tmp_path, host.here_addr)
+    try:
+        cluster.token()
+        cluster.start("--head", "--port", str(cluster.port), "--node-ip-address", host.here_addr,
+                      "--include-dashboard", "false")  # fmt: skip
+        cluster.wait_for(1)
+        cluster.start("--address", cluster.address, "--node-ip-address", host.there_addr, host=host)
+        nodes = cluster.wait_for(2)
+        text = finished(sweep(tiny_params, tmp_path / "across", room, (0, 2), cluster.address, env=cluster.env))
+        assert f"cluster at {cluster.address}: 2 nodes with this package's source, 2 CPUs" in text
+        rows = pl.read_parquet(tmp_path / "across" / "results.parquet")
+        assert rows.height == 2 and set(rows["node_id"]) == set(nodes), text
+    finally:
+        for proc in reversed(cluster.nodes):
+            cluster.kill(proc)
+        hosts.__exit__(None, None, None)
+    finished(sweep(tiny_params, tmp_path / "local", room, (0, 2)))
+    local = pl.read_parquet(tmp_path / "local" / "results.parquet")
+    assert rows.drop(TIMING).equals(local.drop(TIMING))
