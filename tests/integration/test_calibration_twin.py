@@ -412,6 +412,7 @@ def test_the_lab_gains_read_at_the_body_and_at_the_wheels_are_reconciled(lab_cal
     # turns are where the lab's 0.6 rad/s deadband holds wheels still: the angular gain drops by more than 5 %
     assert agreements["angular"].with_deadband < 0.95 * agreements["angular"].wheel_chain
     assert "the deadband accounts for" in agreements["angular"].sentence()
+    for channel, agreement in agreements.items():
         assert result.world_overrides()["actuation"][f"{channel}_gain"] == pytest.approx(agreement.wheel_chain, 1e-5)
     folder = tmp_path / "out"
     write_calibration(result, folder)
