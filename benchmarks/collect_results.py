@@ -38,13 +38,22 @@ LOOP_FILES = (
     "logs/replay/replay.md",
     "logs/scripted/metrics.json",
     "logs/stages/*.json",
+    "dvc.lock",
 )
 
 
+RUN_RECORDS = ("dvc.lock",)
+"""Tracked files that a run itself writes (dvc.lock: the hashes of each stage's inputs and outputs, as this run made
+them): not local changes of the tree it ran from; they are copied with the results."""
+
+
 def commit_of(root: Path) -> str:
+    """The commit checked out at `root`, with ``+local changes`` when a tracked file other than the run's own
+    records (:data:`RUN_RECORDS`) differs from it."""
     done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=False)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True,
-                           text=True, check=False).stdout.strip()  # fmt: skip
+    status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True,
+                            text=True, check=False).stdout  # fmt: skip
+    dirty = [line for line in status.splitlines() if line[3:].strip() not in RUN_RECORDS]
     return done.stdout.strip() + ("+local changes" if dirty else "")
 
 
