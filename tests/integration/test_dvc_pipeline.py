@@ -57,7 +57,9 @@ def fleet_transport(middleware: str) -> str:
     return "ros1" if ros1_missing() is None else "dds"
 
 
-@pytest.fixture(scope="module", params=["ros1", pytest.param("rclpy", marks=pytest.mark.ros2)])
+# the loop over rclpy is in the slow tier (and `-m ros2`): the suite's run stays under its time, and the rclpy fleet
+# itself is in it (test_rclpy_fleet.py: mrl deploy --fleet twin_rclpy records a whole session)
+@pytest.fixture(scope="module", params=["ros1", pytest.param("rclpy", marks=[pytest.mark.ros2, pytest.mark.slow])])
 def repo(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str], str]:
     if shutil.which("git") is None:
         pytest.skip("git is not installed")
