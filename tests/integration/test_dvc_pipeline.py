@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from pipeline.bench.tiny_loop import copy_checkout, tiny_params
 from pipeline.record import McapLog
 from pipeline.ros.rclpy_transport import rclpy_missing
 from pipeline.ros.ros1 import ros1_missing
@@ -23,23 +24,6 @@ from tests.integration.conftest import write_fleet
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.integration
-
-TINY = {
-    "world": {"max_steps": 60},
-    "scripted_eval": {"episodes": 2},
-    "train": {
-        "total_steps": 1600,
-        "n_envs": 4,
-        "net_arch": [16, 16],
-        "checkpoint_every_episodes": 5,
-        "ppo": {"n_steps": 32, "minibatch_size": 64},
-    },
-    "export": {"golden_observations": 8},
-    "eval_sim": {"episodes": 3},
-    "deploy": {"episodes": 3, "time_scale": 3.0},
-    "calibrate": {"bootstrap": 20},
-    "replay": {"max_episodes": 3, "horizon_s": 3.0},
-}
 
 
 def run(cmd: list[str], cwd: Path, env: dict[str, str], timeout: int = 900) -> subprocess.CompletedProcess[str]:
@@ -64,20 +48,8 @@ def repo(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
     if shutil.which("git") is None:
         pytest.skip("git is not installed")
     transport = fleet_transport(str(request.param))
-    dest = tmp_path_factory.mktemp("repo")
-    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
-    for name in files:
-        src = ROOT / name
-        if src.is_file():
-            (dest / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dest / name)
-    params = yaml.safe_load((dest / "params.yaml").read_text())
-    for section, changes in TINY.items():
-        for key, value in changes.items():
-            if isinstance(value, dict):
-                params[section][key].update(value)
-            else:
-                params[section][key] = value
+    dest = copy_checkout(ROOT, tmp_path_factory.mktemp("repo"))
+    params = tiny_params(yaml.safe_load((dest / "params.yaml").read_text()))
     fleet = write_fleet(dest / "fleet.yaml", transport=transport, twin={"profile": "harsh", "time_scale": 4.0})
     params["deploy"]["fleet"] = fleet.name
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
