@@ -38,7 +38,7 @@ CATEGORIES = ("lidar.no_return",)
 
 from pipeline.core.stats import newcombe_interval  # noqa: E402
 from pipeline.params import read_calibration_file  # noqa: E402
-from pipeline.record.results import SessionMetrics, read_session_metrics  # noqa: E402
+from pipeline.record.results import SessionMetrics, read_episodes_csv, read_session_metrics  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 BLOCK = re.compile(r"(<!-- results: (?P<name>[a-z0-9-]+) -->\n)(?P<body>.*?)(<!-- /results -->)", re.S)
@@ -120,7 +120,7 @@ def loop_lab() -> str:
                 f"**The loop on the `lab` twin** (`{run['command']}` with the defaults: PPO, 500 000 steps, one "
                 "network shared by the three robots; 200 sim and 50 twin episodes per round; "
                 "[benchmarks/results/loop/lab/](benchmarks/results/loop/lab/run.json), "
-                f"{run['wall_s']:.0f} s end to end on 2 cores with a low-priority training beside it):"
+                f"{run['wall_s']:.0f} s end to end on 2 cores at {run['commit'][:7]}; {stage_line(logs / 'stages')}):"
             ),
             "",
             "| round | sim at its values, robot / team | twin (`lab`, 3x), robot / team | aborted | gap sim - twin "
@@ -134,14 +134,50 @@ def loop_lab() -> str:
                 f"the network as it is (loss {est('network.loss_prob'):.3f} for {truth['network']['loss_prob']:g}, "
                 f"bursts of {est('network.burst_len'):.1f} for {truth['network']['burst_len']:g}, an "
                 f"{est('lidar.rate_hz'):.1f} Hz lidar, clock drift {est('clock.drift_ppm'):.0f} ppm for "
-                f"{truth['clock']['drift_ppm']:g}) and the calibrated round trained in it: its simulator predicts the "
-                f"twin within {abs(gap_cal):.1f} points. Replaying the nominal deployment's commands open loop, the "
+                f"{truth['clock']['drift_ppm']:g}) and the calibrated round trained in it: "
+                + gap_sentence(gap_cal, logs / "real" / "calibrated" / "episodes.csv")
+                + " Replaying the nominal deployment's commands open loop, the "
                 f"nominal simulator is {replay['replay/nominal_commands_in_nominal_sim/error_10s_m']:.3f} m off the "
                 "recorded path after 10 s, the calibrated one "
                 f"{replay['replay/nominal_commands_in_calibrated_sim/error_10s_m']:.3f} m "
                 "([replay.md](benchmarks/results/loop/lab/logs/replay/replay.md)).",
             ),
         ]
+    )
+
+
+LOOP_GAP_TARGET = 3.0
+"""Points: the calibrated simulator predicts the twin when its robot success is within this of the twin's."""
+
+
+def stage_line(folder: Path) -> str:
+    """The stage table in words: seconds of the stages that took most of the run, the rest summed."""
+    seconds: dict[str, float] = {}
+    for path in folder.glob("*.json"):
+        record = json.loads(path.read_text(encoding="utf-8"))
+        name = str(record["stage"]).partition("@")[0]
+        seconds[name] = seconds.get(name, 0.0) + float(record["seconds"])
+    if not seconds:
+        return "no stage table"
+    big = sorted((k for k, v in seconds.items() if v >= 60), key=lambda k: -seconds[k])
+    rest = sum(v for k, v in seconds.items() if k not in big)
+    return "stages: " + ", ".join(f"{k} {seconds[k]:.0f} s" for k in big) + f", the other {rest:.0f} s"
+
+
+def gap_sentence(gap_points: float, episodes_csv: Path) -> str:
+    """Whether the calibrated simulator predicts the twin (within :data:`LOOP_GAP_TARGET` points), and where it does
+    not, the robot that fails on the twin and how."""
+    if abs(gap_points) <= LOOP_GAP_TARGET:
+        return f"its simulator predicts the twin within {abs(gap_points):.1f} points."
+    rows = read_episodes_csv(episodes_csv)
+    robots = sorted({str(r["robot"]) for r in rows})
+    worst = min(robots, key=lambda name: sum(bool(r["success"]) for r in rows if r["robot"] == name))
+    mine = [r for r in rows if r["robot"] == worst]
+    collided = sum(bool(r["collided"]) for r in mine)
+    return (
+        f"its simulator does not predict the twin: {gap_points:+.1f} points, beyond the {LOOP_GAP_TARGET:g} aimed at; "
+        f"on the twin {worst} collided in {collided} of {len(mine)} episodes "
+        "([docs/experiments/calibrated-collision.md](docs/experiments/calibrated-collision.md))."
     )
 
 

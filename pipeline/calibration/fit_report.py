@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from pipeline.calibration.calibrate import Calibration, Source
+from pipeline.calibration.calibrate import REAL_LIDAR_KEYS, Calibration, Source
 from pipeline.calibration.estimates import Estimate
 from pipeline.calibration.lidar import SPECTRUM_OUTLIER_M
 
@@ -300,6 +300,13 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
     if calibration.actuation is not None and calibration.actuation.residual_rms is not None:
         v, w = calibration.actuation.residual_rms
         notes.append(f"actuation fit residual rms: {v:.4f} m/s, {w:.4f} rad/s")
+    for key in REAL_LIDAR_KEYS:
+        est = calibration.values.get(f"lidar.{key}")
+        if est is not None and est.weak:
+            notes.append(
+                f"lidar.{key} is weak: not applied to the calibrated world (the simulator keeps params.yaml's value); "
+                "a real-sensor property enters it only where its interval is narrower than its value"
+            )
     gains = calibration.body_gains()
     if gains is not None:
         notes.append(

@@ -61,11 +61,13 @@ def test_the_file_holds_profile_uncertainty_world_unidentified_and_source(tmp_pa
         "effective",
         "ambiguous",
         "trade_offs",
+        "gains",
         "speed_limits",
         "source",
     }
     assert data["speed_limits"] == {} and data["effective"] == {} and data["ambiguous"] == []  # no actuation fit
     assert data["trade_offs"] == []  # no lidar fit with a slope
+    assert data["gains"] == {}  # no motors fit: one reading of the gains
     assert data["profile"]["lidar"] == {
         "beams": 360,
         "rate_hz": 10.0,
@@ -250,3 +252,18 @@ def test_eval_sim_runs_a_round_at_its_values_unless_asked_for_its_randomization(
         assert replace(randomized, randomize=at_values.randomize) == at_values
     calibrated = evaluation_world(params, "calibrated")
     assert calibrated.actuation.delay_s == 0.04 and calibrated.odometry.drift_per_m == 0.041
+
+
+def test_a_real_lidar_property_enters_the_calibrated_world_only_where_it_is_not_weak(tmp_path):
+    """A weak mixed-pixel estimate (its interval wider than its value) is left out of the world and said so in the
+    report; an ok one is applied."""
+    weak = replace(ok(0.037, 0.01, "probability"), status="weak", interval=(0.021, 0.081), reason="wide")
+    cal = calibration(**{"lidar.mixed_pixel_prob": weak, "lidar.beam_noise_spread": ok(0.1, 0.01, "log-sd")})
+    lidar = cal.world_overrides()["lidar"]
+    assert "mixed_pixel_prob" not in lidar and lidar["beam_noise_spread"] == pytest.approx(0.1)
+    write_calibration(cal, tmp_path)
+    report = (tmp_path / "calibration.md").read_text()
+    assert "lidar.mixed_pixel_prob is weak: not applied to the calibrated world" in report
+    assert calibrated_world(WorldConfig(), tmp_path / "calibration.yaml").lidar.mixed_pixel_prob == 0.0
+    applied = calibration(**{"lidar.mixed_pixel_prob": ok(0.05, 0.005, "probability")})
+    assert applied.world_overrides()["lidar"]["mixed_pixel_prob"] == pytest.approx(0.05)
