@@ -113,8 +113,8 @@ def write_report(
     tables: dict[str, dict[str, list[pl.DataFrame]]] = {w: {} for w in WORLDS}
     for item in items:
         recording = Recording(item.path, progress=progress is not None)
-        shown = item.shown or item.path
-        stage(f"reading {item.world} {item.label!r} ({shown}, {_size_text(shown)})")
+        given = item.shown or item.path
+        stage(f"reading {item.world} {item.label!r} ({given}, {_size_text(given)})")
         table = recording.episodes_table().with_columns(pl.lit(item.label).alias("label"))
         tables[item.world].setdefault(item.label, []).append(table)
         recordings.append((item, recording))

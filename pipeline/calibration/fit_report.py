@@ -301,8 +301,8 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
         v, w = calibration.actuation.residual_rms
         notes.append(f"actuation fit residual rms: {v:.4f} m/s, {w:.4f} rad/s")
     for key in REAL_LIDAR_KEYS:
-        est = calibration.values.get(f"lidar.{key}")
-        if est is not None and est.weak:
+        found = calibration.values.get(f"lidar.{key}")
+        if found is not None and found.weak:
             notes.append(
                 f"lidar.{key} is weak: not applied to the calibrated world (the simulator keeps params.yaml's value); "
                 "a real-sensor property enters it only where its interval is narrower than its value"
