@@ -31,6 +31,7 @@ from pipeline.analysis.plots import plot_learning_curves, plot_success_rates, pl
 from pipeline.analysis.tables import Recording
 from pipeline.analysis.timing import TIMING_TOPIC, TimingFigures, timing_figures, timing_markdown
 from pipeline.core.episode import ABORT_KINDS
+from pipeline.record.bags import bag_size
 
 REPORT_NAME = "report.md"
 METRICS_NAME = "metrics.json"
@@ -114,7 +115,7 @@ def write_report(
     for item in items:
         recording = Recording(item.path, progress=progress is not None)
         given = item.shown or item.path
-        stage(f"reading {item.world} {item.label!r} ({given}, {_size_text(given)})")
+        stage(f"reading {item.world} {item.label!r} ({given}, {bag_size(given) / 1e6:.1f} MB)")
         table = recording.episodes_table().with_columns(pl.lit(item.label).alias("label"))
         tables[item.world].setdefault(item.label, []).append(table)
         recordings.append((item, recording))
@@ -157,11 +158,6 @@ def write_report(
     report_path = out / REPORT_NAME
     report_path.write_text(markdown, encoding="utf-8")
     return Report(report_path, metrics_path, figures, comparison, episodes)
-
-
-def _size_text(path: Path) -> str:
-    size = sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) if path.is_dir() else path.stat().st_size
-    return f"{size / 1e6:.1f} MB"
 
 
 def _session_name(world: str, label: str) -> str:

@@ -88,11 +88,11 @@ def recorded_world(bag: ImportedBag, role: str) -> tuple[str, str]:
 
 def same_input(first: Path, second: Path) -> str:
     """A warning line when `first` and `second` are one file (one path once resolved, or one SHA-256); else ''."""
-    from pipeline.record.bags import bag_sha256
+    from pipeline.record.bags import bag_sha256, bag_size
 
     if first.resolve() == second.resolve():
         return f"both inputs are the same file ({first.resolve()}): the report compares a recording with itself"
-    if _size(first) != _size(second):
+    if bag_size(first) != bag_size(second):
         return ""
     digest = bag_sha256(first)
     if digest != bag_sha256(second):
@@ -101,14 +101,6 @@ def same_input(first: Path, second: Path) -> str:
         f"both inputs are the same file: {first} and {second} have the same content (SHA-256 {digest[:16]}), "
         "the report compares a recording with itself"
     )
-
-
-def _files(path: Path) -> list[Path]:
-    return sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-
-
-def _size(path: Path) -> int:
-    return sum(f.stat().st_size for f in _files(path))
 
 
 def input_labels(bags: Sequence[ImportedBag], worlds: Sequence[str]) -> list[str]:

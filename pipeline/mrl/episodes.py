@@ -58,12 +58,13 @@ def run(args: argparse.Namespace) -> int:
     import polars as pl
 
     from pipeline.analysis.tables import Recording
+    from pipeline.record.bags import bag_size
 
     out = _table_path(args.out)
     with imported(args, [args.bag]) as (bag,):
         require_episodes(bag, NAME)
         stage = stage_line(NAME)
-        stage(f"reading {bag.source} ({bag.path.stat().st_size / 1e6:.1f} MB)")
+        stage(f"reading {bag.source} ({bag_size(bag.source) / 1e6:.1f} MB)")
         table = Recording(bag.path, session=source_name(bag), progress=True).episodes_table()
         stage(f"{table['episode'].n_unique()} episodes of {table['robot'].n_unique()} robots read")
         if bag.converted:

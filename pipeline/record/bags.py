@@ -805,12 +805,21 @@ def _write(
     return ImportedBag(mcap, path, source_format, True, plan.robots, topics, start_ns, end_ns, skipped, salvaged)
 
 
+def bag_files(path: Path) -> list[Path]:
+    """The files of a bag: the file itself, or a bag folder's files in name order."""
+    return sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+
+
+def bag_size(path: Path) -> int:
+    """Bytes of a bag file, or of all a bag folder's files."""
+    return sum(f.stat().st_size for f in bag_files(path))
+
+
 def bag_sha256(path: Path) -> str:
     """SHA-256 of a bag file, or of a bag folder's files (their names relative to it and their bytes, in name
     order): the user's own bag as given, whatever it was read through."""
     digest = hashlib.sha256()
-    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    for f in files:
+    for f in bag_files(path):
         if path.is_dir():
             digest.update(str(f.relative_to(path)).encode())
         with f.open("rb") as handle:

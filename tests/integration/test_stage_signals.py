@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from pipeline.bench.tiny_loop import tiny_params
 from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.messages.convert import EVENT_NAMES
 from pipeline.record import McapLog
@@ -25,13 +26,7 @@ pytestmark = pytest.mark.integration
 
 
 def params_in(tmp: Path, **sections: dict) -> Path:
-    data = yaml.safe_load((ROOT / "params.yaml").read_text())
-    for name, changes in sections.items():
-        for key, value in changes.items():
-            if isinstance(value, dict):
-                data[name][key].update(value)
-            else:
-                data[name][key] = value
+    data = tiny_params(yaml.safe_load((ROOT / "params.yaml").read_text()), sections)
     path = tmp / "params.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
