@@ -9,8 +9,8 @@ import pytest
 from scipy.signal import lfilter
 
 from pipeline.calibration.actuation import CommandTimeline, VelocityTrack
-from pipeline.calibration.calibrate import GAIN_AGREEMENT_TOLERANCE, GainAgreement, deadband_gains
 from pipeline.calibration.estimates import Estimate, bootstrap
+from pipeline.calibration.gains import GAIN_AGREEMENT_TOLERANCE, GainAgreement, deadband_gains
 from pipeline.calibration.motors import (
     WheelEpisode,
     _refine,
