@@ -88,6 +88,13 @@ RANGE_BIN_M = 0.5
 MIN_BIN_SAMPLES = 50
 EDGE_OWN_M = 0.08
 """An edge beam's returns within this of its cast range read its own surface."""
+SPAN_OUTLIER_SCALES = 5.0
+"""A still return further than this many robust scales from its beam's median in the span is left out of the beam's
+mean there (see :func:`_span_inliers`); its deviation stays for the noise's clipped moments to judge."""
+MAPPED_EDGE_SHARE = 0.2
+"""A depth-edge beam counts toward the mixed pixels only where at least this share of its still returns lie on one of
+the two surfaces the map has there (mixed pixels are at most half of an edge beam's returns: the drawn realities go to
+0.5)."""
 BEAM_ANGLE_ERROR_RAD = 0.002
 """How far a beam may point off its stated angle (a tenth of a degree: the angular accuracy 2-D lidars' datasheets
 give); unidentified from still scans, it widens the mounting yaw's interval."""
@@ -744,6 +751,21 @@ class NoiseFit:
     notes: tuple[str, ...] = ()
 
 
+def _span_inliers(r: np.ndarray, valid: np.ndarray, step_m: float) -> np.ndarray:
+    """(n_scans, beams) the valid returns within `SPAN_OUTLIER_SCALES` robust scales (1.4826 x the median absolute
+    deviation, at least the range step and 0.5 mm) of their beam's median over the span: what its mean is taken
+    over. A mixed pixel or something passing through the beam, a metre off in one scan of 50, would move the mean
+    of every other return of the beam by 2 cm: the beam's noise read too high, and its spread over beams."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a beam without a valid return: no median, no inliers
+        seen = np.where(valid, r, np.nan)
+        median = np.nanmedian(seen, axis=0)
+        mad = np.nanmedian(np.abs(seen - median[None, :]), axis=0)
+    scale = np.maximum(1.4826 * np.nan_to_num(mad), max(step_m, 0.0005))
+    near = np.abs(np.where(valid, r, 0.0) - np.nan_to_num(median)[None, :]) <= SPAN_OUTLIER_SCALES * scale
+    return np.asarray(valid & near, dtype=bool)
+
+
 def _within_span_noise(
     spans: Sequence[ScanSpan],
     masks: Sequence[np.ndarray],
@@ -760,18 +782,22 @@ def _within_span_noise(
     rng_of: list[np.ndarray] = []
     who: list[np.ndarray] = []
     beam_of: list[np.ndarray] = []
+    inflated: list[np.ndarray] = []
     robots: dict[str, int] = {}
     for k, (span, mask) in enumerate(zip(spans, masks, strict=True)):
         r = span.ranges
         valid = valid_returns(r, span) & mask
-        n = valid.sum(axis=0)
+        inlier = _span_inliers(r, valid, step_m)
+        n = inlier.sum(axis=0)
         keep = n >= 2
         if not keep.any():
             continue
-        mean = np.where(valid, r, 0.0).sum(axis=0) / np.maximum(n, 1)
-        d = (np.where(valid, r, mean[None, :]) - mean[None, :]) * np.sqrt(n / np.maximum(n - 1, 1))[None, :]
+        mean = np.where(inlier, r, 0.0).sum(axis=0) / np.maximum(n, 1)
+        inflation = n / np.maximum(n - 1, 1)
+        d = (np.where(valid, r, mean[None, :]) - mean[None, :]) * np.sqrt(inflation)[None, :]
         sel = valid & keep[None, :]
         dev.append(d[sel])
+        inflated.append(np.broadcast_to(inflation[None, :], r.shape)[sel])
         rng_of.append(np.broadcast_to(mean[None, :] - bias_m, r.shape)[sel])
         who.append(np.full(int(sel.sum()), k))
         lidar_unit = robots.setdefault(span.robot, len(robots))  # each robot's lidar is a unit of its own
@@ -780,7 +806,17 @@ def _within_span_noise(
         reason = "no beam returned twice within a stationary span"
         return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
     d, R, owner, beam = np.concatenate(dev), np.concatenate(rng_of), np.concatenate(who), np.concatenate(beam_of)
-    return _noise_fit(d, R, owner, len(spans), lambda used: _Clusters.of(spans, used), rng, settings, step_m, beam=beam)
+    return _noise_fit(
+        d,
+        R,
+        owner,
+        len(spans),
+        lambda used: _Clusters.of(spans, used),
+        rng,
+        settings,
+        step_m,
+        beam=(beam, np.concatenate(inflated)),
+    )
 
 
 def _noise_fit(
@@ -792,14 +828,15 @@ def _noise_fit(
     rng: np.random.Generator,
     settings: CalibrationSettings,
     step_m: float,
-    beam: np.ndarray | None = None,
+    beam: tuple[np.ndarray, np.ndarray] | None = None,
     at_m: float | None = None,
     rel_sd: float = 0.0,
 ) -> NoiseFit:
     """The noise line from deviations `d` (m, each one return's, of variance noise(R)^2 + step^2 / 12) at true
     ranges `R` (m), owned by `n_owners` spans or scans (`owner`) that `clusters_of` (their used mask) groups for the
-    bootstrap; the beams' spread where `beam` names each deviation's beam; the determined noise at `at_m` (default:
-    the median range seen)."""
+    bootstrap; the beams' spread where `beam` names each deviation's beam and its n / (n - 1) (the mean of its span's
+    n returns taken out and the deviation scaled back up); the determined noise at `at_m` (default: the median range
+    seen)."""
     bins = np.floor(R / RANGE_BIN_M).astype(np.int64)
     labels = np.unique(bins)
     rows = []  # (bin, centre, half-width of the clip)
@@ -877,7 +914,7 @@ def _noise_fit(
     # the noise differs per beam: the beams seen carry a mean square of their factors that the profile's is not
     per_beam = (
         beam_spread(
-            [(beam[loose], d[loose], R[loose])],
+            [(beam[0][loose], d[loose], R[loose], beam[1][loose])],
             lambda x: float(full[0]) + (float(full[1]) if slope else 0.0) * x,
             step_m,
         )
@@ -1208,6 +1245,7 @@ def estimate_lidar(
     drops = np.zeros(len(spans))
     trials = np.zeros(len(spans))
     edges: list[tuple[np.ndarray, ...]] = []  # (returns, own surface, near, far, beam) at depth edges
+    unmapped_edges = 0
     changes: list[np.ndarray] = []
     missing = {"inf": 0, "nan": 0, "zero": 0, "max": 0}
     for k, span in enumerate(spans):
@@ -1216,8 +1254,11 @@ def estimate_lidar(
         # map sends past it, and those counted as dropouts (0.0120 for 0.0116 on a calibration drive)
         use = _usable(room, span, yaw, settings, settings.lidar_edge_rad, mount_xy) & ~blocked[span.ranges.shape[1]]
         cast, _, _ = _cast_span(geometry, span, np.array([yaw]), mount_xy)
-        cast = cast[0]
-        free = _robot_free(span, yaw, cast, geometry.robot_radius_m, settings.lidar_robot_margin_m)
+        fitted, fitted_surface, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
+        # another robot hides a beam up to the further of the map's surface and the fitted room's: past a box corner
+        # that the map places a few centimetres over, the beam sees the robot beyond it
+        reach = np.fmax(cast[0], fitted[0])
+        free = _robot_free(span, yaw, reach, geometry.robot_radius_m, settings.lidar_robot_margin_m)
         mask = free & use[None, :]
         masks.append(mask)
         r = span.ranges
@@ -1226,7 +1267,6 @@ def estimate_lidar(
         drops[k] = (mask & ~valid).sum()
         kept = mask & valid
         count = kept.sum(axis=0)
-        fitted, fitted_surface, _ = _cast_span(room, span, np.array([yaw]), mount_xy)  # in the room the fit moved
         cast_kept = np.where(kept, fitted[0][None, :], 0.0)  # no arithmetic on the casts of beams not kept (inf)
         per_span_res.append((np.where(kept, r, 0.0) - cast_kept)[kept])  # against the calibrated map: noise left
         per_span_rng.append(np.broadcast_to(fitted[0][None, :], r.shape)[kept])
@@ -1264,7 +1304,12 @@ def estimate_lidar(
                 near_own = np.abs(seen_at - side[None, :]) < EDGE_OWN_M
                 refined = np.nanmedian(np.where(near_own, seen_at, np.nan), axis=0)
             centre = np.where(np.isfinite(refined), refined, side)
-            keep = np.isfinite(seen_at)
+            # a beam that mostly returns from neither surface sees something the fitted map lacks (a robot standing
+            # where the others' poses do not place it, an object): its steady returns are no mixed pixels
+            on_map = (np.abs(seen_at - lo_m[None, :]) < EDGE_OWN_M) | (np.abs(seen_at - hi_m[None, :]) < EDGE_OWN_M)
+            mapped = on_map.sum(axis=0) >= MAPPED_EDGE_SHARE * np.isfinite(seen_at).sum(axis=0)
+            unmapped_edges += int((~mapped).sum())
+            keep = np.isfinite(seen_at) & mapped[None, :]
             edges.append(
                 (
                     seen_at[keep],
@@ -1313,6 +1358,11 @@ def estimate_lidar(
     notes.append(convention_note)
     spacing = float(np.median(np.abs(np.diff(spans[0].beam_angles_rad)))) if spans[0].beam_angles_rad.size > 1 else 0.0
     mixed = _mixed_pixels(edges, noise, spacing)
+    if unmapped_edges:
+        notes.append(
+            f"{counted(unmapped_edges, 'edge beam')} of still spans returned mostly from neither of the map's surfaces "
+            "there (something the map lacks): left out of the mixed pixels"
+        )
     spans_used = int(np.sum(trials > 0))
     if spans_used >= MIN_SPANS_FOR_BOOTSTRAP:
         drop_est = dropout_estimate(drops, trials)

@@ -251,33 +251,58 @@ def log_add(value: float, interval: tuple[float, float], rel_sd: float) -> tuple
     return (value * math.exp(-down) if math.isfinite(down) else 0.0), value * math.exp(up)
 
 
+OWN_SCALE_TRIM = 5.0
+"""A still return further than this many of its beam's own robust scales (the median absolute deviation over 0.6745)
+from the beam's mean is left out of the beams' spread: a leak of something passing through the beam, not its noise.
+A beam's own tails, however wide, stay in (a Gaussian loses 6e-7 of its returns there)."""
+
+
+def _group_median(values: np.ndarray, group: np.ndarray, groups: int) -> np.ndarray:
+    """The median of `values` within each of `groups` groups (`group` each value's, 0..groups-1; every group used)."""
+    order = np.lexsort((values, group))
+    ordered = values[order]
+    count = np.bincount(group, minlength=groups)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    return np.asarray(0.5 * (ordered[start + (count - 1) // 2] + ordered[start + count // 2]), dtype=np.float64)
+
+
 def beam_spread(
-    deviations: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    deviations: Sequence[tuple[np.ndarray, ...]],
     sigma_of: Callable[[np.ndarray], np.ndarray],
     step_m: float = 0.0,
 ) -> tuple[float, float, tuple[float, float], int]:
     """(s, its standard error, its 95 % interval, beams) of the per-beam noise factor exp(s z - s^2) from (beam
-    index, deviation, range) triples (gross outliers left out, the tails kept: a noisy beam's are its own): per beam,
-    its mean square deviation less the rounding's step^2 / 12, over the fitted noise's square at its ranges, is its
-    factor squared; the variance of its log beyond sampling (chi-square's trigamma(n / 2), scaled for the rounding
-    taken out) is 4 s^2. Beams whose spread is mostly rounding are left out. The interval from a bootstrap over
-    beams."""
+    index, deviation, range[, inflation]) arrays (gross outliers left out, the tails kept: a noisy beam's are its own;
+    `inflation` each deviation's n / (n - 1), where its span's mean of n returns was taken out and the deviation
+    scaled back up: its beam's square then has fewer degrees of freedom than returns): per beam, its mean square
+    deviation less the rounding's step^2 / 12, over the fitted noise's square at its ranges, is its factor squared;
+    the variance of its log beyond sampling (chi-square's trigamma(dof / 2) at the beam's effective degrees of
+    freedom, scaled for the rounding taken out) is 4 s^2. Returns beyond `OWN_SCALE_TRIM` of their beam's own robust
+    scale are left out, and beams whose spread is mostly rounding. The interval from a bootstrap over beams."""
     if not deviations:
         return math.nan, math.nan, (math.nan, math.nan), 0
     beam = np.concatenate([d[0] for d in deviations])
     dev = np.concatenate([d[1] for d in deviations])
     rng_m = np.concatenate([d[2] for d in deviations])
+    inflation = np.concatenate([d[3] if len(d) > 3 else np.ones(len(d[0])) for d in deviations])
     step_var = step_m**2 / 12
     _, inverse = np.unique(beam, return_inverse=True)
-    n = np.bincount(inverse).astype(np.float64)
-    square = np.bincount(inverse, weights=dev**2) / n
-    model = np.bincount(inverse, weights=np.maximum(sigma_of(rng_m) ** 2, 1e-18)) / n
+    groups = int(inverse.max()) + 1 if len(inverse) else 0
+    own = _group_median(np.abs(dev), inverse, groups) / 0.6745
+    # a beam whose returns mostly repeat one value (noise under the range step) has no scale of its own to trim by
+    inside = (np.abs(dev) <= OWN_SCALE_TRIM * own[inverse]) | (own[inverse] <= 0.5 * step_m)
+    beam, dev, rng_m, inflation, inverse = beam[inside], dev[inside], rng_m[inside], inflation[inside], inverse[inside]
+    n = np.bincount(inverse, minlength=groups).astype(np.float64)
+    used = np.maximum(n, 1)
+    square = np.bincount(inverse, weights=dev**2, minlength=groups) / used
+    model = np.bincount(inverse, weights=np.maximum(sigma_of(rng_m) ** 2, 1e-18), minlength=groups) / used
+    dof = n**2 / np.maximum(np.bincount(inverse, weights=inflation, minlength=groups), 1e-12)
     keep = (n >= 20) & (square > 1.5 * step_var) & (square > 0)
     if keep.sum() < 20:
         return math.nan, math.nan, (math.nan, math.nan), int(keep.sum())
     signal = square[keep] - step_var
     y = np.log(signal / model[keep])
-    sampling = special.polygamma(1, n[keep] / 2) * (square[keep] / signal) ** 2
+    sampling = special.polygamma(1, dof[keep] / 2) * (square[keep] / signal) ** 2
 
     def s_of(idx: np.ndarray) -> float:
         excess = float(np.var(y[idx], ddof=1) - np.mean(sampling[idx]))
@@ -292,7 +317,7 @@ def beam_spread(
     low = max(float(lo) + shift, 0.0)
     # at the bound the bootstrap cannot say whether 0 is in: Bartlett's test of equal variances over the beams can
     ratio = square[keep] / model[keep]
-    dof = n[keep] - 1
+    dof = dof[keep]
     total = float(dof.sum())
     pooled = float(np.sum(dof * ratio)) / total
     stat = total * math.log(pooled) - float(np.sum(dof * np.log(ratio)))

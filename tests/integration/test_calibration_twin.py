@@ -309,6 +309,16 @@ def test_the_lab_reality_is_calibrated_where_it_is_identifiable(lab_calibration)
         )
 
 
+def test_the_lab_lidar_s_absent_artefacts_are_not_read_into_it(lab_calibration):
+    """The lab's lidar has one noise for every beam and no mixed pixels, while the other robots drive through the
+    still robots' beams and stand in front of box corners: both intervals hold 0 (a passing robot's returns do not
+    move a beam's mean, a robot standing at a depth edge is no mixed pixel)."""
+    _, result = lab_calibration
+    for key in ("lidar.beam_noise_spread", "lidar.mixed_pixel_prob"):
+        est = result.values[key]
+        assert est.interval is not None and est.interval[0] == 0.0, (key, est)
+
+
 def test_the_lab_drive_replayed_is_what_its_effective_values_stand_for(lab_recording, lab_calibration):
     """The lab's drive (a driver's delay and lag, motors that lag, a deadband, an acceleration limit) is not the
     simulator's one-lag model. Replayed noise-free under the recording's commands through the lab profile's own

@@ -171,6 +171,51 @@ def test_mixed_pixels_at_depth_edges_are_rated_and_kept_out_of_the_noise():
     assert clean.mixed_pixel_prob.value < 0.05
 
 
+def edge_beams(pose: tuple[float, float, float], beams: int = 720) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(beam indices, near, far) of the beams at the room's depth edges from `pose`, as `still_span` finds them."""
+    angles = 2 * math.pi * np.arange(beams) / beams
+    hits = GEOMETRY.cast(np.array(pose[:2]), pose[2] + angles)
+    true, before = hits.range_m, np.roll(hits.range_m, 1)
+    both = np.isfinite(true) & np.isfinite(before)
+    edge = both & (np.abs(np.where(both, true - before, 0.0)) > 0.1) & (hits.surface != np.roll(hits.surface, 1))
+    return np.flatnonzero(edge), np.minimum(true, before)[edge], np.maximum(true, before)[edge]
+
+
+def test_an_edge_beam_that_steadily_sees_something_the_map_lacks_is_no_mixed_pixel():
+    """A lidar without mixed pixels whose edge beams see, in every scan, a surface between the two the map has there
+    (another robot standing in front of a box corner, an object the map lacks): no mixed pixels are read from them
+    (the interval holds 0), and the notes say why those beams were left out."""
+    rng = np.random.default_rng(9)
+    poses = [(1.0, 1.0, 0.3), (4.0, 2.0, 3.0), (1.0, 3.0, -1.0), (3.0, 1.2, 1.0), (5.0, 3.0, 2.0), (1.6, 2.2, 0.8)]
+    data = []
+    for k, pose in enumerate(poses):
+        span = still_span(rng, pose, 0.004, 0.001, scans=30, label=f"s{k}")
+        cols, near, far = edge_beams(pose)
+        steady = near + 0.4 * (far - near)  # a surface 40 % of the way into the gap, the same in every scan
+        span.ranges[:, cols] = steady[None, :] + 0.005 * rng.standard_normal((30, len(cols)))
+        data.append(span)
+    fit = estimate_lidar(GEOMETRY, data, SETTINGS, rng)
+    assert fit.mixed_pixel_prob.interval is not None and fit.mixed_pixel_prob.interval[0] == 0.0
+    assert fit.mixed_pixel_prob.value < 0.01
+    assert any("returned mostly from neither of the map's surfaces" in n for n in fit.notes)
+
+
+def test_a_return_far_off_its_beam_in_one_scan_does_not_inflate_the_beam_s_noise():
+    """Beams of one noise (spread 0) in which, now and then (1 % of the returns), one scan returns half a metre off
+    (something passing through the beam): the beam's mean is taken without it, so the noise and its spread over
+    beams read what the same scans read without those returns."""
+    for seed in range(200, 206):
+        fits = []
+        for share in (0.0, 0.01):
+            rng = np.random.default_rng(seed)
+            span = still_span(rng, (1.0, 1.0, 0.3), 0.004, 0.001, scans=40)
+            span.ranges[rng.random(span.ranges.shape) < share] += 0.5
+            fits.append(estimate_lidar(GEOMETRY, [span], SETTINGS, rng))
+        clean, passed = fits
+        assert passed.beam_noise_spread.value == pytest.approx(clean.beam_noise_spread.value, abs=0.01), seed
+        assert passed.noise_at_range[1].value == pytest.approx(clean.noise_at_range[1].value, rel=0.01), seed
+
+
 # -- weakly determined, the sweep's wander ----------------------------------------------------------
 
 
