@@ -120,10 +120,11 @@ def loop_lab() -> str:
                 f"**The loop on the `lab` twin** (`{run['command']}` with the defaults: PPO, 500 000 steps, one "
                 "network shared by the three robots; 200 sim and 50 twin episodes per round; "
                 "[benchmarks/results/loop/lab/](benchmarks/results/loop/lab/run.json), "
-                f"{run['wall_s']:.0f} s end to end on 2 cores at {run['commit'][:7]}; {stage_line(logs / 'stages')}):"
+                f"{run['wall_s']:.0f} s end to end on 2 cores at {run['commit'][:7]}; {stage_line(logs / 'stages')}; "
+                f"{scales_line(logs / 'real')}):"
             ),
             "",
-            "| round | sim at its values, robot / team | twin (`lab`, 3x), robot / team | aborted | gap sim - twin "
+            "| round | sim at its values, robot / team | twin (`lab`), robot / team | aborted | gap sim - twin "
             "| stale s per robot (twin) |",
             "|---|---|---|---|---|---|",
             *rows,
@@ -162,6 +163,22 @@ def stage_line(folder: Path) -> str:
     big = sorted((k for k, v in seconds.items() if v >= 60), key=lambda k: -seconds[k])
     rest = sum(v for k, v in seconds.items() if k not in big)
     return "stages: " + ", ".join(f"{k} {seconds[k]:.0f} s" for k in big) + f", the other {rest:.0f} s"
+
+
+def scales_line(folder: Path) -> str:
+    """The time scales the twin was asked for per round (from each round's episodes.csv) and how many episodes kept
+    their clock."""
+    parts = []
+    kept = total = 0
+    for name in ("nominal", "calibrated"):
+        rows = read_episodes_csv(folder / name / "episodes.csv")
+        by_episode = {int(r["episode"]): r for r in rows}
+        asked = sorted({float(r["time_scale_asked"]) for r in by_episode.values()})
+        kept += sum(int(r["clock_kept"]) for r in by_episode.values())
+        total += len(by_episode)
+        span = f"{asked[0]:g}x" if len(asked) == 1 else f"{asked[0]:g}-{asked[-1]:g}x"
+        parts.append(f"{name} {span}")
+    return f"the twin at the time scale asked ({', '.join(parts)}), its clock kept in {kept} of {total} episodes"
 
 
 def gap_sentence(gap_points: float, episodes_csv: Path) -> str:
@@ -377,6 +394,9 @@ COVERAGE_EXCITATION_FINE_40 = "calibration_coverage/excitation_fine_40"
 COVERAGE_POLICY_20 = "calibration_coverage/policy_20"
 COVERAGE_REAL_LIDAR = "calibration_coverage/real_lidar"
 COVERAGE_REAL_LIDAR_DRIVING = "calibration_coverage/real_lidar_driving"
+COVERAGE_REAL_LIDAR_ROBUST = "calibration_coverage/real_lidar_robust_mean"
+"""Those recordings' lidar, odometry and network parts again after a beam's mean in a still span was taken without
+its far-off returns (and the beams' spread at the degrees of freedom those means leave)."""
 COVERAGE_LOOP_LAB = "calibration_coverage/loop_lab"
 """The loop's own recordings: the nominal policy on the lab twin, 50 episodes at 3x, four seeds."""
 COVERAGE_LOOP_LAB_RESCORED = "calibration_coverage/loop_lab_rescored"
@@ -460,7 +480,7 @@ def _coverage_line(name: str) -> str:
 
 def coverage() -> str:
     real = run_of(RESULTS / COVERAGE_REAL_LIDAR)
-    rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_DRIVING)
+    robust = run_of(RESULTS / COVERAGE_REAL_LIDAR_ROBUST)
     return prose(
         "**Interval coverage on robots calibration was not drawn for** (realities drawn over the ranges of real "
         "robots, each deployed on the twin and its recording calibrated; [docs/calibration.md](docs/calibration.md"
@@ -468,8 +488,9 @@ def coverage() -> str:
         "per-beam noise, mixed pixels, no-return conventions, wandering sweeps, lost scans; 20 realities at "
         f"{real['commit']}: `{real['command']}`): "
         + _coverage_line(COVERAGE_REAL_LIDAR)
-        + f"; their lidar, odometry and network parts again at {rescored['commit']}: "
-        + _coverage_line(COVERAGE_REAL_LIDAR_DRIVING)
+        + f"; their lidar, odometry and network parts again at {robust['commit'][:7]} (a beam's mean in a still span "
+        "taken without its far-off returns): "
+        + _coverage_line(COVERAGE_REAL_LIDAR_ROBUST)
         + ". With ideal lidars, driven by the policy (20 realities, pooled): "
         + _coverage_line(COVERAGE_POLICY_20)
         + "; driven by the calibration drive with turns of every size (40 realities, pooled): "
@@ -509,6 +530,7 @@ def lidar_docs() -> str:
     recordings = len({r["recording"] for r in rows})
     coverage = run_of(RESULTS / COVERAGE_REAL_LIDAR)
     rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_DRIVING)
+    robust = run_of(RESULTS / COVERAGE_REAL_LIDAR_ROBUST)
     link = f"../benchmarks/results/{COVERAGE_REAL_LIDAR}"
     return "\n".join(
         [
@@ -544,6 +566,19 @@ def lidar_docs() -> str:
             ),
             "",
             coverage_docs(COVERAGE_REAL_LIDAR_DRIVING).split("\n", 2)[2],
+            "",
+            prose(
+                f"The same recordings, the same parts again at {robust['commit'][:7]} (`{robust['command']}`: a beam's "
+                "mean in a still span taken without its returns more than 5 robust scales off its median, where one "
+                "return a metre off had moved every other return's deviation; the beams' spread read at the degrees "
+                "of freedom those means leave and without returns 5 of the beam's own robust scales off; edge beams "
+                "that mostly see neither of the map's surfaces left out of the mixed pixels; other robots masked up "
+                f"to the fitted room's surface; [run.json]({link}_robust_mean/run.json)): "
+                + _coverage_line(COVERAGE_REAL_LIDAR_ROBUST)
+                + ":",
+            ),
+            "",
+            coverage_docs(COVERAGE_REAL_LIDAR_ROBUST).split("\n", 2)[2],
         ]
     )
 
