@@ -125,7 +125,7 @@ class ActionCodec:
                 raise ActionError(f"continuous actions must have shape (n_robots, 2), got {a.shape}")
             if not np.isfinite(a).all():
                 raise ActionError(f"continuous actions must be finite, got {a.tolist()}")
-            a = np.clip(a, -1.0, 1.0)
+            a = np.minimum(np.maximum(a, -1.0), 1.0)
             if not self.reverse:
                 a = np.stack([0.5 * (a[:, 0] + 1.0), a[:, 1]], axis=1)
             if self.robot_limits:

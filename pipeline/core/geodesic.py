@@ -126,8 +126,8 @@ def _cells(
     """Grid cell (ix, iy) of each point (n, 2) and its position inside the cell (tx, ty in [0, 1)); clamped."""
     p = np.asarray(xy, dtype=np.float64)
     nx, ny = shape[0], shape[1]
-    fx = np.clip((p[:, 0] - x0) / resolution_m, 0.0, nx - 1.000001)
-    fy = np.clip((p[:, 1] - y0) / resolution_m, 0.0, ny - 1.000001)
+    fx = np.minimum(np.maximum((p[:, 0] - x0) / resolution_m, 0.0), nx - 1.000001)
+    fy = np.minimum(np.maximum((p[:, 1] - y0) / resolution_m, 0.0), ny - 1.000001)
     ix, iy = fx.astype(int), fy.astype(int)
     return ix, iy, fx - ix, fy - iy
 

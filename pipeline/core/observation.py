@@ -237,4 +237,4 @@ class ObservationBuilder:
         """Observations from scans and odometry poses (n_robots, 3) x, y (m), yaw (rad)."""
         ranges = self.reduce(scans, geometry)
         obs = self.layout.build(odom_pose, ranges, self.goals, self.limits, self.previous)
-        return Observed(ranges=ranges, obs=np.clip(obs, self.low, self.high))
+        return Observed(ranges=ranges, obs=np.minimum(np.maximum(obs, self.low), self.high))

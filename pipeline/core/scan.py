@@ -119,4 +119,4 @@ def reduce_scan(
         out = np.where(table, clean[..., None, :], np.inf).min(axis=-1)
     else:
         raise ScanError(f"unknown reduction {method!r}; allowed: 'pick', 'sector_min'")
-    return np.clip(np.where(np.isinf(out) & (out > 0), range_max_m, out), range_min_m, range_max_m)
+    return np.minimum(np.maximum(np.where(np.isinf(out) & (out > 0), range_max_m, out), range_min_m), range_max_m)

@@ -60,7 +60,6 @@ class SimWorld:
             float(f32(lidar.range_max_m)),
         )
         self._dirs = lidar_directions(lidar.sim_beams)
-        self._vec = np.zeros(lidar.sim_beams * 3)
         self._pnt = np.zeros(3)
         self._geomid = np.zeros(lidar.sim_beams, dtype=np.int32)
         self._dist = np.zeros(lidar.sim_beams)
@@ -220,22 +219,25 @@ class SimWorld:
         if self.surfaces.shape != out.shape:
             self.surfaces = np.zeros(out.shape, dtype=np.int32)
         dx, dy = lidar.mount_xy_m
+        # every robot's beam directions in one pass (the same products as one robot at a time: cos and sin from math)
+        yaws = [float(yaw) + self.mount_yaw_rad for yaw in self.truth[:, 2]]
+        cs = np.array([[math.cos(yaw), math.sin(yaw)] for yaw in yaws])
+        c, s = cs[:, 0, None], cs[:, 1, None]
+        vecs = np.zeros((self.n, lidar.sim_beams, 3))
+        vecs[:, :, 0] = c * self._dirs[None, :, 0] - s * self._dirs[None, :, 1]
+        vecs[:, :, 1] = s * self._dirs[None, :, 0] + c * self._dirs[None, :, 1]
+        vecs = vecs.reshape(self.n, -1)
         for i in range(self.n):
             x, y, yaw = self.truth[i]
             if dx != 0.0 or dy != 0.0:
                 cb, sb = math.cos(yaw), math.sin(yaw)
                 x, y = x + cb * dx - sb * dy, y + sb * dx + cb * dy
-            yaw += self.mount_yaw_rad
-            c, s = math.cos(yaw), math.sin(yaw)
-            vec = self._vec.reshape(-1, 3)
-            vec[:, 0] = c * self._dirs[:, 0] - s * self._dirs[:, 1]
-            vec[:, 1] = s * self._dirs[:, 0] + c * self._dirs[:, 1]
             self._pnt[:] = (x, y, lidar.height_m)
             mujoco.mj_multiRay(
                 self.model,
                 self.data,
                 self._pnt,
-                self._vec,
+                vecs[i],
                 self._geomgroup,
                 1,
                 int(self.index.body[i]),
