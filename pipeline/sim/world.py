@@ -223,10 +223,10 @@ class SimWorld:
         yaws = [float(yaw) + self.mount_yaw_rad for yaw in self.truth[:, 2]]
         cs = np.array([[math.cos(yaw), math.sin(yaw)] for yaw in yaws])
         c, s = cs[:, 0, None], cs[:, 1, None]
-        vecs = np.zeros((self.n, lidar.sim_beams, 3))
-        vecs[:, :, 0] = c * self._dirs[None, :, 0] - s * self._dirs[None, :, 1]
-        vecs[:, :, 1] = s * self._dirs[None, :, 0] + c * self._dirs[None, :, 1]
-        vecs = vecs.reshape(self.n, -1)
+        beam_dirs = np.zeros((self.n, lidar.sim_beams, 3))
+        beam_dirs[:, :, 0] = c * self._dirs[None, :, 0] - s * self._dirs[None, :, 1]
+        beam_dirs[:, :, 1] = s * self._dirs[None, :, 0] + c * self._dirs[None, :, 1]
+        vecs = beam_dirs.reshape(self.n, -1)
         for i in range(self.n):
             x, y, yaw = self.truth[i]
             if dx != 0.0 or dy != 0.0:
