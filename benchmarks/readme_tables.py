@@ -109,6 +109,8 @@ def loop_lab() -> str:
     calibrated = read_session_metrics(logs / "real" / "calibrated" / "metrics.json", "real")
     sim_cal = read_session_metrics(logs / "sim" / "calibrated" / "metrics.json", "eval")
     gap_cal = 100 * (sim_cal.robot_success.value - calibrated.robot_success.value)
+    trained = json.loads((folder / "models" / "nominal" / "train_metrics.json").read_text(encoding="utf-8"))
+    steps = f"{int(trained['train/world_steps']):,}".replace(",", " ")
 
     def est(key: str) -> float:
         value = cal.keys[key].value
@@ -117,7 +119,7 @@ def loop_lab() -> str:
     return "\n".join(
         [
             prose(
-                f"**The loop on the `lab` twin** (`{run['command']}` with the defaults: PPO, 500 000 steps, one "
+                f"**The loop on the `lab` twin** (`{run['command']}` with the defaults: PPO, {steps} steps, one "
                 "network shared by the three robots; 200 sim and 50 twin episodes per round; "
                 "[benchmarks/results/loop/lab/](benchmarks/results/loop/lab/run.json), "
                 f"{run['wall_s']:.0f} s end to end on 2 cores at {run['commit'][:7]}; {stage_line(logs / 'stages')}; "
