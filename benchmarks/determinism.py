@@ -26,30 +26,16 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from pipeline.bench.tiny_loop import tiny_train_config  # noqa: E402
 from pipeline.learn.checkpoint import load_checkpoint  # noqa: E402
 from pipeline.learn.export import export_policy, golden_observations  # noqa: E402
 from pipeline.learn.trainer import train  # noqa: E402
-from pipeline.mappings import from_mapping, merge, to_mapping  # noqa: E402
-from pipeline.params import EvalSimConfig, TrainConfig, world_config  # noqa: E402
+from pipeline.params import EvalSimConfig, world_config  # noqa: E402
 from pipeline.policy.runtime import PolicyRuntime  # noqa: E402
 from pipeline.record import McapLog  # noqa: E402
 from pipeline.rollout.sim import evaluate_session  # noqa: E402
 from pipeline.sim import make_world  # noqa: E402
 
-TINY = {
-    "total_steps": 240,
-    "n_envs": 2,
-    "net_arch": [16, 16],
-    "batch_size": 16,
-    "buffer_size": 2000,
-    "learning_starts": 40,
-    "updates_per_transition": 0.25,
-    "train_every_steps": 2,
-    "checkpoint_every_episodes": 1,
-    "ppo": {"n_steps": 16, "n_epochs": 2, "minibatch_size": 32},
-    "dqn": {"target_update_interval": 50},
-    "seed": 7,
-}
 CELLS = (("sac", "shared"), ("dqn", "independent"), ("ppo", "centralized"))
 
 
@@ -71,9 +57,7 @@ def run_cell(algorithm: str, mode: str, out: Path) -> dict[str, object]:
     kind = "discrete" if algorithm == "dqn" else "continuous"
     world_keys = {"scenario": "obstacles", "n_robots": 2, "observation": "rich", "max_steps": 60}
     scenario, world = make_world(world=world_config({**world_keys, "actions": {"kind": kind}}))
-    cfg = from_mapping(
-        TrainConfig, merge(to_mapping(TrainConfig()), {**TINY, "algorithm": algorithm, "mode": mode}), "<digests>"
-    )
+    cfg = tiny_train_config(seed=7, algorithm=algorithm, mode=mode)
     folder = out / f"{algorithm}_{mode}"
     result = train(scenario, world, cfg, folder, progress=False)
     exported = export_policy(result.checkpoint, folder / "policy", golden_observations(scenario, world, 12, seed=3))

@@ -11,6 +11,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from pipeline.mappings import from_mapping, merge, to_mapping
+from pipeline.params import TrainConfig
+
 TINY_LOOP: dict[str, dict[str, Any]] = {
     "world": {"max_steps": 60},
     "scripted_eval": {"episodes": 2},
@@ -28,6 +31,29 @@ TINY_LOOP: dict[str, dict[str, Any]] = {
     "replay": {"max_episodes": 3, "horizon_s": 3.0},
 }
 """Per params.yaml section, the keys changed (nested mappings merged key by key)."""
+
+TINY_TRAINING: dict[str, Any] = {
+    "total_steps": 240,
+    "n_envs": 2,
+    "net_arch": [16, 16],
+    "batch_size": 16,
+    "buffer_size": 2000,
+    "learning_starts": 40,
+    "updates_per_transition": 0.25,
+    "train_every_steps": 2,
+    "checkpoint_every_episodes": 1,
+    "ppo": {"n_steps": 16, "n_epochs": 2, "minibatch_size": 32},
+    "dqn": {"target_update_interval": 50},
+}
+"""A training of a few hundred steps (TrainConfig's keys changed): every algorithm's and mode's machinery, gradient
+steps included, in seconds; for tests and the determinism digests, not for policies."""
+
+
+def tiny_train_config(**overrides: Any) -> TrainConfig:
+    """TrainConfig's defaults with `TINY_TRAINING` and then `overrides` merged in (nested mappings key by key)."""
+    return from_mapping(
+        TrainConfig, merge(merge(to_mapping(TrainConfig()), TINY_TRAINING), overrides), "<tiny training>"
+    )
 
 
 def tiny_params(params: Mapping[str, Any], changes: Mapping[str, Mapping[str, Any]] = TINY_LOOP) -> dict[str, Any]:

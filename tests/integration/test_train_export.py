@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.bench.tiny_loop import tiny_train_config
 from pipeline.errors import ConfigError
 from pipeline.learn.checkpoint import load_checkpoint
 from pipeline.learn.errors import CheckpointError
 from pipeline.learn.export import export_policy
 from pipeline.learn.trainer import train
-from pipeline.mappings import from_mapping, merge, to_mapping
 from pipeline.params import TrainConfig, world_config
 from pipeline.policy.errors import PolicyError, PolicyMismatch
 from pipeline.policy.runtime import PolicyRuntime
@@ -23,23 +23,9 @@ from pipeline.sim.env import MultiRobotSim
 
 pytestmark = pytest.mark.integration
 
-TINY = {
-    "total_steps": 240,
-    "n_envs": 2,
-    "net_arch": [16, 16],
-    "batch_size": 16,
-    "buffer_size": 2000,
-    "learning_starts": 40,
-    "updates_per_transition": 0.25,
-    "train_every_steps": 2,
-    "checkpoint_every_episodes": 1,
-    "ppo": {"n_steps": 16, "n_epochs": 2, "minibatch_size": 32},
-    "dqn": {"target_update_interval": 50},
-}
-
 
 def tiny_config(**overrides: object) -> TrainConfig:
-    return from_mapping(TrainConfig, merge(merge(to_mapping(TrainConfig()), TINY), overrides), "<test>")
+    return tiny_train_config(**overrides)
 
 
 def world_for(algorithm: str, n_robots: int = 2, max_steps: int = 60):
