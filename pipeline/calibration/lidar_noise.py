@@ -274,8 +274,9 @@ def beam_spread(
     """(s, its standard error, its 95 % interval, beams) of the per-beam noise factor exp(s z - s^2) from (beam
     index, deviation, range[, inflation]) arrays (gross outliers left out, the tails kept: a noisy beam's are its own;
     `inflation` each deviation's n / (n - 1), where its span's mean of n returns was taken out and the deviation
-    scaled back up: its beam's square then has fewer degrees of freedom than returns): per beam, its mean square
-    deviation less the rounding's step^2 / 12, over the fitted noise's square at its ranges, is its factor squared;
+    scaled back up: its beam's square then has fewer degrees of freedom than returns): per beam, the mean of its
+    squared deviations less the rounding's step^2 / 12, each over the fitted noise's square at its range, is its
+    factor squared;
     the variance of its log beyond sampling (chi-square's trigamma(dof / 2) at the beam's effective degrees of
     freedom, scaled for the rounding taken out) is 4 s^2. Returns beyond `OWN_SCALE_TRIM` of their beam's own robust
     scale are left out, and beams whose spread is mostly rounding. The interval from a bootstrap over beams."""
@@ -294,14 +295,18 @@ def beam_spread(
     beam, dev, rng_m, inflation, inverse = beam[inside], dev[inside], rng_m[inside], inflation[inside], inverse[inside]
     n = np.bincount(inverse, minlength=groups).astype(np.float64)
     used = np.maximum(n, 1)
-    square = np.bincount(inverse, weights=dev**2, minlength=groups) / used
-    model = np.bincount(inverse, weights=np.maximum(sigma_of(rng_m) ** 2, 1e-18), minlength=groups) / used
+    # each deviation over the fitted noise at its own range: a beam seen at several ranges (from several spans) then
+    # has the sampling of its degrees of freedom; its mean square over the mean model square would weigh the far
+    # returns' deviations more and spread wider than that sampling says
+    model = np.maximum(sigma_of(rng_m) ** 2, 1e-18)
+    square = np.bincount(inverse, weights=dev**2 / model, minlength=groups) / used
+    rounding = np.bincount(inverse, weights=step_var / model, minlength=groups) / used
     dof = n**2 / np.maximum(np.bincount(inverse, weights=inflation, minlength=groups), 1e-12)
-    keep = (n >= 20) & (square > 1.5 * step_var) & (square > 0)
+    keep = (n >= 20) & (square > 1.5 * rounding) & (square > 0)
     if keep.sum() < 20:
         return math.nan, math.nan, (math.nan, math.nan), int(keep.sum())
-    signal = square[keep] - step_var
-    y = np.log(signal / model[keep])
+    signal = square[keep] - rounding[keep]
+    y = np.log(signal)
     sampling = special.polygamma(1, dof[keep] / 2) * (square[keep] / signal) ** 2
 
     def s_of(idx: np.ndarray) -> float:
@@ -316,7 +321,7 @@ def beam_spread(
     shift = s - float(np.median(boot))
     low = max(float(lo) + shift, 0.0)
     # at the bound the bootstrap cannot say whether 0 is in: Bartlett's test of equal variances over the beams can
-    ratio = square[keep] / model[keep]
+    ratio = square[keep]
     dof = dof[keep]
     total = float(dof.sum())
     pooled = float(np.sum(dof * ratio)) / total
