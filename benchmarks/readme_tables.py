@@ -572,8 +572,9 @@ def lidar_docs() -> str:
             prose(
                 f"The same recordings, the same parts again at {robust['commit'][:7]} (`{robust['command']}`: a beam's "
                 "mean in a still span taken without its returns more than 5 robust scales off its median, where one "
-                "return a metre off had moved every other return's deviation; the beams' spread read at the degrees "
-                "of freedom those means leave and without returns 5 of the beam's own robust scales off; edge beams "
+                "return a metre off had moved every other return's deviation; the beams' spread read per deviation "
+                "over the noise at its own range, at the degrees of freedom those means leave and without returns 5 "
+                "of the beam's own robust scales off; edge beams "
                 "that mostly see neither of the map's surfaces left out of the mixed pixels; other robots masked up "
                 f"to the fitted room's surface; [run.json]({link}_robust_mean/run.json)): "
                 + _coverage_line(COVERAGE_REAL_LIDAR_ROBUST)
