@@ -129,7 +129,8 @@ def test_ctrl_c_during_deployment_stops_robots_and_closes_the_recording(tiny_pol
     (tmp_path / "models" / "nominal").mkdir(parents=True)
     (tmp_path / "models" / "nominal" / "policy").symlink_to(tiny_policy)
     fleet = write_fleet(tmp_path / "fleet.yaml")
-    params_in(tmp_path, deploy={"fleet": str(fleet), "episodes": 1000})
+    # the fleet file's 2x (time_scale 0), not params.yaml's auto: the signal is timed past the first episode
+    params_in(tmp_path, deploy={"fleet": str(fleet), "episodes": 1000, "time_scale": 0.0})
     proc = start("deploy", tmp_path)
     staged = tmp_path / "logs" / "real" / "nominal" / STAGING / "session.mcap"
     mcap = tmp_path / "logs" / "real" / "nominal" / "session.mcap"
