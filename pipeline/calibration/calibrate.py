@@ -33,7 +33,7 @@ import numpy as np
 from pipeline.calibration.actuation import ActuationFit, CommandTimeline, SpeedLimit, VelocityTrack, estimate_actuation
 from pipeline.calibration.clock import ClockFit, estimate_clock
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
-from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.estimates import Estimate, six_digits
 from pipeline.calibration.floor import estimate_floor
 from pipeline.calibration.gains import GainAgreement, deadband_gains
 from pipeline.calibration.lidar import LidarFit, ScanSpan, estimate_lidar, stationary_spans
@@ -322,9 +322,9 @@ class Calibration:
                 continue
             group, name, indices = split_key(key)
             if indices:
-                pairs.setdefault((group, name), {})[indices] = _short(est.value)
+                pairs.setdefault((group, name), {})[indices] = six_digits(est.value)
             else:
-                value: float | int = round(est.value) if name == "beams" else _short(est.value)
+                value: float | int = round(est.value) if name == "beams" else six_digits(est.value)
                 out.setdefault(group, {})[name] = value
         for (group, name), parts in pairs.items():
             if len(next(iter(parts))) == 1:
@@ -401,16 +401,17 @@ class Calibration:
         def put(group: str, key: str, source: str) -> None:
             est = self.simulator_estimate(source)
             if est is not None and est.ok and est.value is not None:
-                out.setdefault(group, {})[key] = round(est.value) if key == "sim_beams" else _short(est.value)
+                out.setdefault(group, {})[key] = round(est.value) if key == "sim_beams" else six_digits(est.value)
 
         for key in ("noise_sigma_m", "dropout_prob", "bias_m", "mount_yaw_rad"):
             put("lidar", key, f"lidar.{key}")
         per_m = self.values.get("lidar.noise_per_m")
         if per_m is not None and per_m.ok and per_m.value is not None:
-            out.setdefault("lidar", {})["noise_per_m"] = _short(min(max(per_m.value, 0.0), 0.2))
+            out.setdefault("lidar", {})["noise_per_m"] = six_digits(min(max(per_m.value, 0.0), 0.2))
         mount = [self.values.get(f"lidar.mount_xy_m[{i}]") for i in range(2)]
         if all(m is not None and m.ok and m.value is not None for m in mount):
-            out.setdefault("lidar", {})["mount_xy_m"] = [_short(m.value) for m in mount if m and m.value is not None]
+            xy = [six_digits(m.value) for m in mount if m and m.value is not None]
+            out.setdefault("lidar", {})["mount_xy_m"] = xy
         put("lidar", "sim_beams", "lidar.beams")
         for key in REAL_LIDAR_KEYS:  # what real lidars add, so the calibrated round trains with it: ok ones only
             est = self.values.get(f"lidar.{key}")
@@ -426,15 +427,15 @@ class Calibration:
         if gains is not None:
             for c, name in enumerate(("linear_gain", "angular_gain")):
                 if self.actuation is None or not self.actuation.ambiguous_gain(c):  # a limit's reading is kept there
-                    out.setdefault("actuation", {})[name] = _short(gains[c])
+                    out.setdefault("actuation", {})[name] = six_digits(gains[c])
         arc = self.arc_per_m()
         if arc is not None:
-            out.setdefault("actuation", {})["yaw_rate_per_mps"] = _short(arc)
+            out.setdefault("actuation", {})["yaw_rate_per_mps"] = six_digits(arc)
         put("actuation", "deadband_radps", "base.deadband_radps")
         for limit in self.speed_limits():
             key = "max_linear_mps" if limit.channel == "linear" else "max_angular_radps"
             if limit.limit.value is not None:
-                out.setdefault("actuation", {})[key] = _short(limit.limit.value)
+                out.setdefault("actuation", {})[key] = six_digits(limit.limit.value)
         put("odometry", "drift_per_m", "odometry.drift_per_m")
         for key, source in NETWORK_SOURCES.items():
             put("network", key, source)  # within their ranges: the estimates are checked (within_physical_ranges)
@@ -474,16 +475,13 @@ class Calibration:
             if fitted is not None:  # widened to the spread that the recorded transitions ask for
                 lo, hi = min(lo, fitted[0]), max(hi, fitted[1])
             lo, hi = max(lo, low_bound), min(hi, high_bound)
-            out.setdefault(group, {})[name] = [_short(lo), _short(max(hi, lo))]  # an interval below the bound: [b, b]
+            # an interval below the bound: [b, b]
+            out.setdefault(group, {})[name] = [six_digits(lo), six_digits(max(hi, lo))]
         arc = self.arc_per_m()
         if arc is not None:
             half = max(abs(arc) * MIN_RANDOMIZE_HALF_WIDTH, _arc_half_width(self.values, self.wheels))
-            out.setdefault("actuation", {})["yaw_rate_per_mps"] = [_short(arc - half), _short(arc + half)]
+            out.setdefault("actuation", {})["yaw_rate_per_mps"] = [six_digits(arc - half), six_digits(arc + half)]
         return out
-
-
-def _short(x: float) -> float:
-    return float(f"{x:.6g}")
 
 
 def _trajectories(

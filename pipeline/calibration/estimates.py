@@ -94,10 +94,15 @@ class Estimate:
         return out
 
 
+def six_digits(x: float) -> float:
+    """`x` to six significant digits: how calibration files write numbers."""
+    return float(f"{x:.6g}")
+
+
 def _round(x: float | None) -> float | None:
     if x is None or not math.isfinite(x):
         return None
-    return float(f"{x:.6g}")
+    return six_digits(x)
 
 
 def normal_interval(value: float, std_error: float) -> tuple[float, float]:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.calibration.actuation import VelocityTrack
-from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.estimates import Estimate, six_digits
 from pipeline.calibration.wheels import NOMINAL_WHEEL_RADIUS_M, NOMINAL_WHEEL_SEPARATION_M
 
 GAIN_AGREEMENT_TOLERANCE = 0.05
@@ -54,10 +54,10 @@ class GainAgreement:
     def as_mapping(self) -> dict[str, object]:
         lo, hi = self.body_fit.interval or (math.nan, math.nan)
         return {
-            "body_fit": _six(self.body_fit.value or math.nan),
-            "body_fit_interval": [_six(lo), _six(hi)],
-            "simulator": _six(self.wheel_chain),
-            "simulator_with_deadband": _six(self.with_deadband),
+            "body_fit": six_digits(self.body_fit.value or math.nan),
+            "body_fit_interval": [six_digits(lo), six_digits(hi)],
+            "simulator": six_digits(self.wheel_chain),
+            "simulator_with_deadband": six_digits(self.with_deadband),
             "agrees": self.agrees,
         }
 
@@ -80,7 +80,3 @@ def deadband_gains(
         uu = float(np.sum(u[:, c] ** 2))
         out.append(float(np.sum(body[:, c] * u[:, c])) / uu if uu > 0.0 else math.nan)
     return out[0], out[1]
-
-
-def _six(x: float) -> float:
-    return float(f"{x:.6g}")

@@ -292,7 +292,7 @@ def beam_spread(
     own = _group_median(np.abs(dev), inverse, groups) / 0.6745
     # a beam whose returns mostly repeat one value (noise under the range step) has no scale of its own to trim by
     inside = (np.abs(dev) <= OWN_SCALE_TRIM * own[inverse]) | (own[inverse] <= 0.5 * step_m)
-    beam, dev, rng_m, inflation, inverse = beam[inside], dev[inside], rng_m[inside], inflation[inside], inverse[inside]
+    dev, rng_m, inflation, inverse = dev[inside], rng_m[inside], inflation[inside], inverse[inside]
     n = np.bincount(inverse, minlength=groups).astype(np.float64)
     used = np.maximum(n, 1)
     # each deviation over the fitted noise at its own range: a beam seen at several ranges (from several spans) then

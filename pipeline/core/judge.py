@@ -8,7 +8,6 @@ radius plus a margin).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Literal
@@ -16,7 +15,7 @@ from typing import Literal
 import numpy as np
 
 from pipeline.core.geodesic import DistanceField, GoalFields
-from pipeline.core.scenario import Scenario
+from pipeline.core.scenario import Scenario, box_table, boxes_clearance
 from pipeline.mappings import setting
 
 ProgressDistance = Literal["geodesic", "euclidean"]
@@ -98,11 +97,7 @@ class EpisodeJudge:
         self.capture_m = scenario.target.capture_distance_m if scenario.target is not None else None
         self.half_goal_m = scenario.goal_size_m / 2
         self.radius_m = scenario.radii  # (n_robots,) each robot's body
-        # every box's centre, rotation and half sizes as arrays: the clearance to all of them in one pass
-        boxes = scenario.obstacles
-        self._box_xy = np.array([[b.x_m, b.y_m] for b in boxes], dtype=np.float64).reshape(-1, 2)
-        self._box_cs = np.array([[math.cos(b.yaw_rad), math.sin(b.yaw_rad)] for b in boxes]).reshape(-1, 2)
-        self._box_half = np.array([[b.size_x_m / 2, b.size_y_m / 2] for b in boxes], dtype=np.float64).reshape(-1, 2)
+        self._boxes = box_table(scenario.obstacles)  # the clearance to every box in one pass
 
     def track(self, target_xy: np.ndarray) -> None:
         """A pursuit's target is now at `target_xy` (2,): every robot's goal from the next judgement on."""
@@ -171,14 +166,8 @@ class EpisodeJudge:
             np.minimum(xy[:, 1] - room.y_min_m, room.y_max_m - xy[:, 1]),
         )
         gap = walls - self.radius_m
-        if len(self._box_xy):
-            # box_clearance's arithmetic for every box at once: (n_robots, n_boxes)
-            d0 = xy[:, 0, None] - self._box_xy[None, :, 0]
-            d1 = xy[:, 1, None] - self._box_xy[None, :, 1]
-            c, s = self._box_cs[None, :, 0], self._box_cs[None, :, 1]
-            ex = np.maximum(np.abs(c * d0 + s * d1) - self._box_half[None, :, 0], 0.0)
-            ey = np.maximum(np.abs(-s * d0 + c * d1) - self._box_half[None, :, 1], 0.0)
-            gap = np.minimum(gap, np.hypot(ex, ey).min(axis=1) - self.radius_m)
+        if len(self._boxes):
+            gap = np.minimum(gap, boxes_clearance(self._boxes, xy).min(axis=1) - self.radius_m)
         if len(xy) > 1:
             diff = xy[:, None, :] - xy[None, :, :]
             dist = np.hypot(diff[..., 0], diff[..., 1]) - (self.radius_m[:, None] + self.radius_m[None, :])

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
@@ -401,13 +402,25 @@ def box_corners(box: Box) -> np.ndarray:
     return np.asarray(local @ np.array([[c, s], [-s, c]]) + np.array([box.x_m, box.y_m]))
 
 
+def box_table(boxes: Sequence[Box]) -> np.ndarray:
+    """(k, 6) per box: centre x, y (m), cos and sin of its yaw, half sizes (m); what :func:`boxes_clearance` takes."""
+    rows = [[b.x_m, b.y_m, math.cos(b.yaw_rad), math.sin(b.yaw_rad), b.size_x_m / 2, b.size_y_m / 2] for b in boxes]
+    return np.array(rows, dtype=np.float64).reshape(-1, 6)
+
+
+def boxes_clearance(table: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n, k) distance (m) from each of `points` (n, 2) to each box surface of `table` (:func:`box_table`); 0 inside."""
+    d0 = points[:, 0, None] - table[None, :, 0]
+    d1 = points[:, 1, None] - table[None, :, 1]
+    c, s = table[None, :, 2], table[None, :, 3]
+    ex = np.maximum(np.abs(c * d0 + s * d1) - table[None, :, 4], 0.0)
+    ey = np.maximum(np.abs(-s * d0 + c * d1) - table[None, :, 5], 0.0)
+    return np.asarray(np.hypot(ex, ey))
+
+
 def box_clearance(box: Box, points: np.ndarray) -> np.ndarray:
     """Distance (m) from each of `points` (n, 2) to the box surface; 0 inside."""
-    c, s = math.cos(box.yaw_rad), math.sin(box.yaw_rad)
-    d = points - np.array([box.x_m, box.y_m])
-    local = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
-    excess = np.abs(local) - np.array([box.size_x_m / 2, box.size_y_m / 2])
-    return np.asarray(np.hypot(*np.maximum(excess, 0.0).T))
+    return boxes_clearance(box_table((box,)), np.asarray(points, dtype=np.float64))[:, 0]
 
 
 def bundled_scenarios() -> tuple[str, ...]:

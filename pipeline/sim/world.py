@@ -60,6 +60,7 @@ class SimWorld:
             float(f32(lidar.range_max_m)),
         )
         self._dirs = lidar_directions(lidar.sim_beams)
+        self._beam_dirs = np.zeros((self.n, lidar.sim_beams, 3))  # every robot's ray directions, z stays 0
         self._pnt = np.zeros(3)
         self._geomid = np.zeros(lidar.sim_beams, dtype=np.int32)
         self._dist = np.zeros(lidar.sim_beams)
@@ -223,7 +224,7 @@ class SimWorld:
         yaws = [float(yaw) + self.mount_yaw_rad for yaw in self.truth[:, 2]]
         cs = np.array([[math.cos(yaw), math.sin(yaw)] for yaw in yaws])
         c, s = cs[:, 0, None], cs[:, 1, None]
-        beam_dirs = np.zeros((self.n, lidar.sim_beams, 3))
+        beam_dirs = self._beam_dirs
         beam_dirs[:, :, 0] = c * self._dirs[None, :, 0] - s * self._dirs[None, :, 1]
         beam_dirs[:, :, 1] = s * self._dirs[None, :, 0] + c * self._dirs[None, :, 1]
         vecs = beam_dirs.reshape(self.n, -1)
