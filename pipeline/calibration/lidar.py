@@ -270,9 +270,10 @@ def _unidentifiable(reason: str, notes: Sequence[str] = (), **kw: object) -> Lid
 
 
 def _span_means(span: ScanSpan) -> tuple[np.ndarray, np.ndarray]:
-    """Per beam: mean of the valid returns over the span's scans (m) and how many there were."""
+    """Per beam: mean of the valid returns over the span's scans (m) and how many there were; returns far off the
+    beam's median (:func:`_span_inliers`: a mixed pixel, something passing through the beam) are left out."""
     r = span.ranges
-    valid = valid_returns(r, span)
+    valid = _span_inliers(r, valid_returns(r, span), 0.0)
     count = valid.sum(axis=0)
     total = np.where(valid, r, 0.0).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -629,7 +630,27 @@ def _fit_geometry(
     if n_beam >= 2:
         _at_least_sandwich(by_beam, n_beam, wr, inv, p, se, interval)
         method += f"; at least a cluster-robust sandwich over {n_beam} beams"
+        _with_angle_prior(by_beam, n_beam, w[:, None] * j * j[:, :1], inv, p, se, interval)
+        method += f"; widened for beams off their stated angles (up to {BEAM_ANGLE_ERROR_RAD:g} rad each)"
     return _Geometry(p, se, interval, seen, method, total)
+
+
+def _with_angle_prior(
+    cluster: np.ndarray, n: int, wa: np.ndarray, inv: np.ndarray, p: np.ndarray, se: np.ndarray, interval: np.ndarray
+) -> None:
+    """Widen `se` and `interval` (in place, all but the yaw's: :func:`_with_beam_angle_errors` widens it) for beams
+    off their stated angles, which no still scan identifies: each beam's error (one per beam, shared by every span it
+    is used in; `BEAM_ANGLE_ERROR_RAD` as its standard deviation, the prior) moves its ranges by the range's
+    derivative by the angle, and through the fit every parameter; its spread is added in quadrature. `wa`: each
+    beam row's weight x Jacobian row x the row's derivative by the angle; `cluster` (rows,) its beam. A box seen
+    at a slant by a few dozen beams moves by a millimetre under errors the residuals of so few beams do not show."""
+    per_beam = np.zeros((n, wa.shape[1]))
+    np.add.at(per_beam, cluster, wa)
+    sd = BEAM_ANGLE_ERROR_RAD * np.sqrt(np.maximum(np.diag(inv @ (per_beam.T @ per_beam) @ inv), 0.0))
+    for k in range(1, len(p)):
+        lo, hi = interval[k]
+        interval[k] = (p[k] - math.hypot(p[k] - lo, Z_95 * sd[k]), p[k] + math.hypot(hi - p[k], Z_95 * sd[k]))
+        se[k] = math.hypot(se[k], sd[k])
 
 
 def _at_least_sandwich(
@@ -1440,10 +1461,10 @@ def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit, spac
     """The probability that a beam at a depth edge returns between the near and the far surface (a mixed pixel),
     from the still returns at the fitted room's depth edges: a return further than a margin (4 noise sigmas at its
     range, for the noisiest beams) from the beam's own surface (the cast surface nearer its median return, refined by
-    its returns near it) and between the two cast surfaces is mixed; a mixed return spread evenly over the gap
-    lands that far from the surface with probability 1 - margin / gap, which turns the count into a probability (the
-    edge beams' counts as :func:`dropout_estimate` takes the spans': a Wilson interval on the counts divided by their
-    design effect)."""
+    its returns near it) and from the other surface, between the two, is mixed; a mixed return spread evenly over
+    the gap lands that far from both with probability 1 - (both margins) / gap, which turns the count into a
+    probability (the edge beams' counts as :func:`dropout_estimate` takes the spans': a Wilson interval on the counts
+    divided by their design effect)."""
     unit = "probability"
     if not edges:
         return Estimate.unidentifiable("no depth edge of the room seen clear of robots while still", unit)
@@ -1451,9 +1472,13 @@ def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit, spac
     sigma = noise.sigma.value if noise.sigma.ok and noise.sigma.value is not None else 0.01
     per_m = noise.per_m.value if noise.per_m.ok and noise.per_m.value is not None else 0.0
     spread = noise.beam_spread.value if noise.beam_spread.ok and noise.beam_spread.value is not None else 0.0
+    # the other surface: a return there is the beam seeing past (or short of) the edge, a robot still but for a
+    # millimetre's sway moves the edge across it; no mixed pixel
+    other = np.where(np.abs(centre - near) <= np.abs(centre - far), far, near)
     margin = CLIP_SIGMAS * (sigma + per_m * centre) * math.exp(3 * spread) + 0.005
-    inner = (np.abs(r - centre) > margin) & (r > near - 0.02) & (r < far + 0.02)
-    share = np.clip(1 - margin / np.maximum(far - near, 1e-9), 0.0, 1.0)
+    margin_other = CLIP_SIGMAS * (sigma + per_m * other) * math.exp(3 * spread) + 0.005
+    inner = (np.abs(r - centre) > margin) & (np.abs(r - other) > margin_other) & (r > near - 0.02) & (r < far + 0.02)
+    share = np.clip(1 - (margin + margin_other) / np.maximum(far - near, 1e-9), 0.0, 1.0)
     trials = float(share.sum())
     if trials < 20:
         return Estimate.unidentifiable(f"only {len(r)} still returns at depth edges wide enough to tell", unit, len(r))
