@@ -503,10 +503,15 @@ def _normal_equations(
     means: Sequence[tuple[np.ndarray, np.ndarray]],
     sets: Sequence[np.ndarray],
     p: np.ndarray,
+    faces: Sequence[np.ndarray] | None = None,
+    max_incidence_rad: float = math.pi / 2,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per clean beam at parameters `p`: residual of the span-mean range to the model (m), Jacobian rows,
     weight (scans), span index and the beam (its robot's lidar and its index in the scan); plus how many beams see
-    each parameter."""
+    each parameter. With `faces` (per span, the surface each beam meets in the mapped room), a beam that meets
+    another surface in the moved room, more slanted than `max_incidence_rad`, is left out: a box moved a few
+    centimetres shows a beam its corner's other face at a graze, whose range then moves by metres per metre of the
+    box, and a wrong step would hold itself."""
     h_yaw, h_xy = 1e-4, 1e-4
     yaw, mx, my = float(p[0]), float(p[1]), float(p[2])
     room = design.moved(geometry, p)
@@ -515,12 +520,14 @@ def _normal_equations(
     for k, (span, (mean, count), use) in enumerate(zip(spans, means, sets, strict=True)):
         if not use.any():
             continue
-        rng3, surf3, _ = _cast_span(room, span, np.array([yaw - h_yaw, yaw, yaw + h_yaw]), (mx, my))
+        rng3, surf3, cos3 = _cast_span(room, span, np.array([yaw - h_yaw, yaw, yaw + h_yaw]), (mx, my))
         rx = _cast_span(room, span, np.array([yaw]), (mx + h_xy, my))[0][0]
         ry = _cast_span(room, span, np.array([yaw]), (mx, my + h_xy))[0][0]
         # a beam that the moved room lets through a corner, or onto another face, says nothing here
         use = use & np.isfinite(rng3).all(axis=0) & np.isfinite(rx) & np.isfinite(ry)
         use &= (surf3[0] == surf3[1]) & (surf3[2] == surf3[1])
+        if faces is not None:
+            use &= (surf3[1] == faces[k]) | (cos3[1] >= math.cos(max_incidence_rad))
         if not use.any():
             continue
         angles = span.pose[2] + span.beam_angles_rad + yaw
@@ -557,12 +564,13 @@ def _fit_geometry(
     p = np.zeros(size)
     p[0] = yaw0
     edge = settings.lidar_edge_rad + 2 * FINE_STEP_RAD + 0.01
-    sets = []
+    sets, faces = [], []
     for span, (_, count) in zip(spans, means, strict=True):
         use = _usable(geometry, span, yaw0, settings, edge) & (count > 0) & ~blocked[span.ranges.shape[1]]
-        rng0, _, _ = _cast_span(geometry, span, np.array([yaw0]))
+        rng0, surf0, _ = _cast_span(geometry, span, np.array([yaw0]))
         free = _robot_free(span, yaw0, rng0[0], geometry.robot_radius_m, settings.lidar_robot_margin_m).all(axis=0)
         sets.append(use & free)
+        faces.append(surf0[0])
     total = sum(int(s.sum()) for s in sets)
     nan = np.full(size, np.nan)
     if total < 20:
@@ -575,7 +583,9 @@ def _fit_geometry(
     seen = np.zeros(size)
     ridge = np.eye(size) * 1e-9
     for _ in range(GAUSS_NEWTON_STEPS):
-        r, j, w, who, beam_of, seen = _normal_equations(geometry, design, spans, means, sets, p)
+        r, j, w, who, beam_of, seen = _normal_equations(
+            geometry, design, spans, means, sets, p, faces, settings.lidar_max_incidence_rad
+        )
         scale = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)) * np.sqrt(w))) + 1e-6
         delta = HUBER_K * scale / np.sqrt(w)
         w = w * np.minimum(1.0, delta / np.maximum(np.abs(r), 1e-12))
@@ -1487,11 +1497,25 @@ def _mixed_pixels(edges: Sequence[tuple[np.ndarray, ...]], noise: NoiseFit, spac
     _, which = np.unique(beam, return_inverse=True)
     events = np.bincount(which, weights=inner.astype(np.float64))
     tries = np.bincount(which, weights=share)
-    est = dropout_estimate(np.minimum(events, tries), tries)
+    # the noise's own tail: a return that is no mixed pixel lands beyond the margin toward the gap with the normal
+    # tail probability there (a beam's noise factor exp(s z - s^2) averaged over z): the count's background, taken
+    # out of the count (each beam's in proportion); 0 stays in the interval while the background can give the count
+    nodes, node_weights = np.polynomial.hermite_e.hermegauss(9)
+    factor = np.exp(spread * nodes - spread**2)
+    sd = np.maximum((sigma + per_m * centre)[:, None] * factor[None, :], 1e-9)
+    tail = stats.norm.sf(margin[:, None] / sd) @ (node_weights / node_weights.sum())
+    background = float(tail.sum())
+    count = int(inner.sum())
+    net = events * (max(count - background, 0.0) / count if count else 0.0)
+    est = dropout_estimate(np.minimum(net, tries), tries)
     method = (
         f"returns off their beam's surface toward the other, of {len(r)} still returns at {len(tries)} edge beams, "
         "over the share of the gap a mixed return lands in; " + est.method.split(": ", 1)[1]
     )
+    method += f"; {count} found, {background:.2g} expected of the noise's tail (taken out)"
+    if est.interval is not None and float(stats.poisson.sf(count - 1, background)) > 0.025:
+        est = dataclasses.replace(est, interval=(0.0, est.interval[1]))
+        method += ", no more than it can give: 0 in the interval"
     # an edge within a beam's angle error of it lies on the other side of that beam than the map says: the beam never
     # straddles it and dilutes the count (up to 2 x the error over the beam spacing of the edge beams)
     shifted = min(2 * BEAM_ANGLE_ERROR_RAD / spacing_rad, 0.5) if spacing_rad > 0 else 0.0

@@ -224,6 +224,30 @@ def test_an_edge_beam_that_now_and_then_sees_past_its_edge_is_no_mixed_pixel():
     assert fit.mixed_pixel_prob.value < 0.01
 
 
+def test_the_noise_s_own_tail_at_depth_edges_is_no_mixed_pixel():
+    """A lidar without mixed pixels and 5 cm of noise, 200 000 still returns at depth edges 1 m deep: a few land
+    beyond the 4-sigma margin toward the gap (the normal tail, about one in 50 000). They are what the noise gives,
+    taken out of the count: the interval holds 0 (counted as mixed pixels, they excluded it)."""
+    from pipeline.calibration.lidar import NoiseFit, _mixed_pixels
+
+    rng = np.random.default_rng(4)
+    beams, scans = 400, 500
+    centre = np.repeat(rng.uniform(1.0, 3.0, beams), scans)
+    near, far = centre, centre + 1.0
+    r = centre + 0.05 * rng.standard_normal(centre.size)
+    beam = np.repeat(np.arange(beams), scans)
+    noise = NoiseFit(
+        Estimate.of(0.05, 0.0005, (0.049, 0.051), "m", "test", 100_000),
+        Estimate.of(0.0, 0.0001, (0.0, 0.0002), "m/m", "test", 100_000),
+        beam_spread=Estimate.of(0.0, 0.001, (0.0, 0.002), "log-sd", "test", 400),
+    )
+    mixed = _mixed_pixels([(r, centre, near, far, beam)], noise)
+    found = int(mixed.method.split(" found")[0].rsplit(" ", 1)[1])
+    assert found >= 1, "no tail return: the test shows nothing"
+    assert mixed.interval is not None and mixed.interval[0] == 0.0, mixed
+    assert mixed.value < 1e-4
+
+
 def test_a_return_far_off_its_beam_in_one_scan_does_not_inflate_the_beam_s_noise():
     """Beams of one noise (spread 0) in which, now and then (1 % of the returns), one scan returns half a metre off
     (something passing through the beam): the beam's mean is taken without it, so the noise and its spread over
