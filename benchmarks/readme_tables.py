@@ -591,7 +591,9 @@ def lidar_docs() -> str:
                 "which no still scan identifies: each beam's error, 0.002 rad as its standard deviation (the "
                 "datasheets' angular accuracy), carried through the fit and added in quadrature; the still spans' "
                 "mean ranges for the geometry without returns far off the beam's median (mixed pixels had moved "
-                "them); a return on the other surface of a depth edge no mixed pixel; "
+                "them); a beam that a moved box shows another face at a graze left out of the fit; a return on the "
+                "other surface of a depth edge no mixed pixel, and the noise's own tail beyond the margin taken out "
+                "of the mixed pixels' count as its background; "
                 f"[run.json]({link}_angle_prior/run.json)): "
                 + _coverage_line(COVERAGE_REAL_LIDAR_ANGLE)
                 + ":",
