@@ -11,7 +11,9 @@ if it reached its goal without colliding before the abort, and the team fails. T
 also counted apart (``aborted_episodes``), and the rates over the completed episodes alone stand beside
 the headline rates under names that say so (``robot_success_completed``, ``team_success_completed``).
 A robot trial succeeds when the robot reached its goal without colliding; a team trial when every robot
-did in an episode that was not aborted.
+did in an episode that was not aborted. An episode in which a deployment did not keep its clock (a hardware twin that
+fell behind its time scale, control steps that woke late: ``clock_kept`` false) measures the host, not the policy: it
+is no trial, and is counted apart (``clock_not_kept_episodes``).
 Differences are sim - real (a positive success gap: sim is more optimistic than reality).
 """
 
@@ -135,6 +137,16 @@ def _counts(table: pl.DataFrame) -> tuple[_Counts, int, int]:
     return counts, episodes.height, int(episodes["aborted"].sum())
 
 
+def _clock_kept(table: pl.DataFrame) -> tuple[pl.DataFrame, int]:
+    """`table` without the episodes in which a deployment did not keep its clock (they measure the host, not the
+    policy), and how many there were (0 for a table without a ``clock_kept`` column: the simulator's)."""
+    if "clock_kept" not in table.columns:
+        return table, 0
+    kept = pl.col("clock_kept").fill_null(True)
+    episodes = table.group_by(_session_keys(table)).agg(kept.all().alias("kept"))
+    return table.filter(kept), int((~episodes["kept"]).sum())
+
+
 def _abort_kinds(table: pl.DataFrame) -> dict[str, int]:
     """Aborted episodes of `table` by kind (``aborted_<kind>``; all zero for tables without an abort_kind column)."""
     out = {f"aborted_{kind}": 0 for kind in ABORT_KINDS}
@@ -254,9 +266,16 @@ def compare(
     for world, tables in worlds.items():
         for label, table in tables.items():
             _check(table, world, label)
+            table, not_kept = _clock_kept(table)
             c, episodes, aborted = _counts(table)
             counts[(world, label)] = c
-            summary = {"episodes": episodes, "aborted_episodes": aborted, **_abort_kinds(table), **_summary(c, z)}
+            summary = {
+                "episodes": episodes,
+                "aborted_episodes": aborted,
+                **_abort_kinds(table),
+                "clock_not_kept_episodes": not_kept,
+                **_summary(c, z),
+            }
             group_rows.append({"world": world, "label": label, **summary})
             for name, value in summary.items():
                 metrics[metric_key(world, label, name)] = float(value)
@@ -374,6 +393,7 @@ _GROUP_SCHEMA: dict[str, Any] = {
     "episodes": pl.Int64,
     "aborted_episodes": pl.Int64,
     **{f"aborted_{kind}": pl.Int64 for kind in ABORT_KINDS},
+    "clock_not_kept_episodes": pl.Int64,
     **_RATE_COLUMNS,
     **_TEAM_COLUMNS,
     **_OTHER_COLUMNS,

@@ -46,6 +46,10 @@ PACE_EVERY_S = 0.5
 AUTO_LATE_TARGET = 0.25
 """The most the control steps may wake late at ``auto`` (the 95th percentile, a share of the control period) before
 the scale is lowered: well inside the limit past which an episode is marked (`CONTROL_LATE_LIMIT`)."""
+RERUN_SHARE = 0.1
+"""At ``auto``, episodes the twin did not keep its clock in are run again, up to this share of the episodes asked
+for (at least `MIN_RERUNS`): the marked ones stay in the session, counted apart."""
+MIN_RERUNS = 2
 REPORT_WAIT_S = 3 * PACE_EVERY_S
 """How long the end of an episode waits for the twin's next report (one that covers the episode's end)."""
 
@@ -169,6 +173,11 @@ class AutoScale:
             "this host cannot keep even 1x now; run on a quieter host (other work at lower priority: nice -n 19)"
         )
 
+    @staticmethod
+    def reruns_for(episodes: int) -> int:
+        """How many episodes a deployment of `episodes` at ``auto`` may run again."""
+        return max(MIN_RERUNS, math.ceil(RERUN_SHARE * episodes))
+
     def said(self) -> str:
         """What the probe found, for the deployment's output."""
         tried = ", ".join(f"{a:g}x realized {r:.2f}" for a, r in self.tried[1:])
@@ -180,10 +189,11 @@ class AutoScale:
     def episode_started(self) -> None:
         self._episode_from = time.monotonic_ns()
 
-    def after_episode(self, episode: int, outage: bool = False, late: float = math.nan) -> None:
+    def after_episode(self, episode: int, outage: bool = False, late: float = math.nan) -> bool:
         """Lower the scale from the next episode on where the twin did not keep it in the episode just run, the
         runner's control steps woke late (`late`: the 95th percentile as a share of the control period, above
-        `AUTO_LATE_TARGET`), or a robot's outage aborted it (`outage`)."""
+        `AUTO_LATE_TARGET`), or a robot's outage aborted it (`outage`). True where the twin did not keep it (the
+        episode will be marked: it measures the host)."""
         ended = time.monotonic_ns()
         deadline = time.monotonic() + REPORT_WAIT_S
         while not self._since(ended)[1:] and time.monotonic() < deadline:  # a report that covers the episode's end
@@ -195,7 +205,7 @@ class AutoScale:
         behind = not kept(self.scale, got, lag)
         slow = late > AUTO_LATE_TARGET  # NaN: not measured
         if not (behind or slow or outage):
-            return
+            return False
         if behind:
             lower = max(1.0, next_scale(got, self.scale) if math.isfinite(got) else self.scale - SCALE_STEP)
             why = f"the twin fell behind in episode {episode} (realized {got:.2f}x for {self.scale:g}x, most "
@@ -209,10 +219,11 @@ class AutoScale:
                 else f"a robot's outage aborted episode {episode} at {self.scale:g}x (a process starved on a busy host)"
             )
         if lower >= self.scale:
-            return  # at 1x already: the episodes are marked, nothing lower to ask for
+            return behind  # at 1x already: the episodes are marked, nothing lower to ask for
         self.lowered.append((episode, self.scale, got, lower))
         self.say(f"deploy: {why}: time scale {lower:g} from the next episode")
         self._set(lower)
+        return behind
 
 
 BEHIND_WINDOW_S = 5.0

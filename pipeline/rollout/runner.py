@@ -18,6 +18,7 @@ arrived), close the recording and raise DeployAborted with every episode run, th
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -443,27 +444,43 @@ class DeployRunner:
         return tally.result(self.judge, True, why, kind, self.staleness.stale_s(t))
 
     def run(self, episodes: int, seed: int, progress: bool = True) -> list[EpisodeResult]:
-        """Run `episodes` episodes with seeds seed, seed+1, ...; the emitter ticks throughout.
+        """Run `episodes` episodes with seeds seed, seed+1, ...; the emitter ticks throughout. At ``auto`` (a
+        pacer), an episode in which the twin did not keep its clock, or the control steps woke past their limit, is
+        followed by one more (the next seed), up to :meth:`AutoScale.reruns_for` of them: the marked episode stays.
 
         Raises DeployAborted with every episode run (the one a fault or Ctrl-C cut short counted as aborted)
         when the deployment cannot go on."""
         results: list[EpisodeResult] = []
-        bar = tqdm(range(episodes), desc="deploy", unit="ep", disable=not progress, mininterval=1.0)
+        reruns = AutoScale.reruns_for(episodes) if self.pacer is not None else 0
+        total = episodes
+        bar = tqdm(total=episodes, desc="deploy", unit="ep", disable=not progress, mininterval=1.0)
         self._fatal = None
         self.emitter.start()
         try:
-            for k in bar:
+            k = 0
+            while k < total:
                 if self.pacer is not None:
                     self.pacer.episode_started()
                 self.late_ns = []
                 results.append(self.run_episode(k, seed + k))
-                if self.pacer is not None and k + 1 < episodes:
+                bar.update(1)
+                if self.pacer is not None:
                     last = results[-1]
-                    self.pacer.after_episode(k, outage=last.abort_kind == "outage", late=last.control_late_p95)
+                    behind = self.pacer.after_episode(k, outage=last.abort_kind == "outage", late=last.control_late_p95)
+                    if (behind or not last.clock_kept) and total - episodes < reruns:
+                        total += 1
+                        bar.total = total
+                        print(
+                            f"deploy: episode {k} did not keep its clock (marked, not the policy's): one more episode "
+                            f"in its place ({total - episodes} of at most {reruns})",
+                            file=sys.stderr,
+                            flush=True,
+                        )
                 if self._fatal is not None:
                     raise self._fatal
                 rate = np.mean([r.success.mean() for r in results])
                 bar.set_postfix(robot_success=f"{rate:.3f}", aborted=sum(r.aborted for r in results))
+                k += 1
         except DeployAborted as exc:
             cut = self._cut_short(exc.reason, "fault")
             raise DeployAborted(exc.reason, results + ([cut] if cut else []), exc.interrupted) from None

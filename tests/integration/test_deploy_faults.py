@@ -402,7 +402,11 @@ def test_time_scale_auto_picks_what_the_host_keeps_and_lowers_it_when_the_twin_f
 ):
     """``auto``: the twin's pace is watched before the first episode and the scale it keeps is used (said on stderr,
     recorded); a host stall in the first episode lowers the scale from the next one on, and every episode keeps the
-    scale it ran at in episodes.csv and the recording."""
+    scale it ran at in episodes.csv and the recording; the stalled episode, marked, is run again in its place, so the
+    deployment is no invalid measurement."""
+    from pipeline.errors import InvalidMeasurement
+    from pipeline.rollout.deployment import check_clock_kept
+
     fleet = write_fleet(tmp_path / "fleet.yaml", twin={"time_scale": "auto"})
     out = tmp_path / "auto"
     outcome = deploy_into(tiny_policy, fleet, out, episodes=3, twin_extra_args=["--stall", "2.0@0.5"])
@@ -425,3 +429,13 @@ def test_time_scale_auto_picks_what_the_host_keeps_and_lowers_it_when_the_twin_f
     assert set(zip(table["episode"], table["time_scale_asked"], strict=True)) == {
         (r.episode, r.time_scale_asked) for r in outcome.results
     }
+    # the marked episode was run again in its place: the policy is measured in as many episodes as were asked
+    assert "episode 0 did not keep its clock (marked, not the policy's): one more episode in its place" in err
+    assert 4 <= len(outcome.results) <= 3 + 2
+    assert outcome.metrics["real/episodes"] == len(outcome.results)
+    assert outcome.metrics["real/requested_episodes"] == 3
+    if sum(r.clock_kept for r in outcome.results) >= 3:
+        check_clock_kept(outcome, out)  # no InvalidMeasurement: as many kept their clock as were asked
+    else:  # a loaded test host: the other episodes fell behind as well, past what auto may run again
+        with pytest.raises(InvalidMeasurement):
+            check_clock_kept(outcome, out)

@@ -184,3 +184,21 @@ def test_small_statistics():
     assert all(math.isnan(v) for v in two_proportion_z_test(1, 2, 0, 0))
     low, high = newcombe_interval(7, 10, 7, 10)
     assert low < 0 < high and low == pytest.approx(-high)
+
+
+def test_episodes_that_did_not_keep_the_clock_are_no_trials_and_are_counted_apart():
+    """A deployment whose twin fell behind its clock in two episodes (both robots failed there): those episodes
+    measure the host, not the policy; the rates are over the other episodes, as if the two had not run, and the two
+    are counted apart. The simulator's table has no such column: nothing is left out of it."""
+    outcomes = [(True, True)] * 8 + [(False, False)] * 2 + [(True, False)] * 2
+    times = list(np.linspace(9.0, 12.0, 18))
+    real = table(outcomes, times).with_columns(clock_kept=pl.col("episode").is_in([8, 9]).not_())
+    kept_only = table([(True, True)] * 8 + [(True, False)] * 2, times)
+    both = compare(table(SIM, SIM_TIMES), real)
+    plain = compare(table(SIM, SIM_TIMES), kept_only)
+    assert both.metrics[metric_key("real", "", "clock_not_kept_episodes")] == 2
+    assert both.metrics[metric_key("real", "", "episodes")] == 10
+    assert both.metrics[metric_key("sim", "", "clock_not_kept_episodes")] == 0
+    for name in ("robot_success", "team_success", "collision_rate", "robot_success_ci_low", "mean_time_to_goal_s"):
+        assert both.metrics[metric_key("real", "", name)] == plain.metrics[metric_key("real", "", name)], name
+    assert both.gaps.equals(plain.gaps)

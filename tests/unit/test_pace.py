@@ -97,12 +97,12 @@ def test_an_episode_the_twin_did_not_keep_lowers_the_scale_for_the_next(quick):
     try:
         auto.episode_started()
         time.sleep(0.3)
-        auto.after_episode(0)
+        assert auto.after_episode(0) is False
         assert auto.scale == 4.0 and not lines  # kept: unchanged
         host.capacity = 2.5
         auto.episode_started()
         time.sleep(0.4)
-        auto.after_episode(1)
+        assert auto.after_episode(1) is True  # not kept: the runner runs one more in its place
     finally:
         host.stop.set()
     assert auto.scale == 1.0 and host.asked == 1.0 and auto.lowered[0][:2] == (1, 4.0)
@@ -116,7 +116,7 @@ def test_an_episode_a_robots_outage_aborted_lowers_the_scale_though_the_twin_kep
     try:
         auto.episode_started()
         time.sleep(0.3)
-        auto.after_episode(3, outage=True)
+        assert auto.after_episode(3, outage=True) is False  # the twin kept its clock: the episode is the policy's
     finally:
         host.stop.set()
     assert auto.scale == 2.0 and "a robot's outage aborted episode 3 at 4x" in lines[0]
@@ -134,6 +134,10 @@ def test_a_fleet_gone_quiet_is_put_on_the_host_only_where_the_twin_fell_behind()
     silent = behind_note(kept_up, now_ns=kept_up[-1].host_ns + 4e9)
     assert "has not run for 4.0 s" in silent
     assert behind_note([]) == ""
+
+
+def test_reruns_at_auto_are_a_tenth_of_the_episodes_and_at_least_two():
+    assert [AutoScale.reruns_for(n) for n in (1, 3, 20, 50, 200)] == [2, 2, 2, 5, 20]
 
 
 def test_control_steps_that_woke_late_lower_the_scale(quick):
