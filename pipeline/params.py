@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from pipeline.core import quantities as Q
 from pipeline.core.actions import ActionCodec, ActionKind
 from pipeline.core.judge import ProgressDistance, RewardWeights
 from pipeline.core.network import StaleScan
@@ -29,28 +30,28 @@ class LidarConfig:
     beams: int = setting(15, ge=1, le=4096)
     range_min_m: float = setting(0.055, ge=0.0)
     range_max_m: float = setting(5.0, gt=0.0, le=100.0)
-    noise_sigma_m: float = setting(0.01, ge=0.0, le=1.0)
-    dropout_prob: float = setting(0.0, ge=0.0, le=1.0)
-    bias_m: float = setting(0.0, ge=-1.0, le=1.0)
+    noise_sigma_m: float = Q.NOISE_SIGMA_M.setting(0.01)
+    dropout_prob: float = Q.DROPOUT_PROB.setting(0.0)
+    bias_m: float = Q.BIAS_M.setting(0.0)
     sim_beams: int = setting(15, ge=1, le=4096)
     reduction: Reduction = setting("sector_min")
     robot_radius_seen_m: float = setting(0.0, ge=0.0, le=1.0)
     height_m: float = setting(0.1, gt=0.0)
-    mount_yaw_rad: float = setting(0.0, ge=-3.15, le=3.15)
+    mount_yaw_rad: float = Q.MOUNT_YAW_RAD.setting(0.0)
     """The simulated lidar's mounting yaw: beam k of sim_beams points at 2 pi k / sim_beams + mount_yaw_rad."""
-    noise_per_m: float = setting(0.0, ge=0.0, le=0.2, optional=True)
+    noise_per_m: float = Q.NOISE_PER_M.setting(0.0, optional=True)
     """Range-dependent noise: a beam's sigma is noise_sigma_m + noise_per_m * range."""
-    mount_xy_m: tuple[float, ...] = setting((0.0, 0.0), ge=-0.3, le=0.3, min_len=2, max_len=2, optional=True)
+    mount_xy_m: tuple[float, ...] = Q.MOUNT_XY_M.setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
     """Where the beams start in the robot frame (forward, left) (m)."""
-    range_step_m: float = setting(0.0, ge=0.0, le=0.05, optional=True)
+    range_step_m: float = Q.RANGE_STEP_M.setting(0.0, optional=True)
     """Ranges reported in steps of this (m; 0: continuous), as a driver reports them."""
-    beam_noise_spread: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    beam_noise_spread: float = Q.BEAM_NOISE_SPREAD.setting(0.0, optional=True)
     """Each beam's noise scaled by exp(s z - s^2) (mean square 1), drawn per robot and episode."""
-    mixed_pixel_prob: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    mixed_pixel_prob: float = Q.MIXED_PIXEL_PROB.setting(0.0, optional=True)
     """At a depth edge (a beam's range more than 0.1 m from the previous beam's), a return between the two surfaces."""
     no_return: Literal["inf", "zero", "max", "nan"] = setting("inf", optional=True)
     """What a beam without a return reads: +inf, 0, range_max_m or NaN (the observation reads each as nothing seen)."""
-    scan_drop_prob: float = setting(0.0, ge=0.0, le=0.5, optional=True)
+    scan_drop_prob: float = Q.SCAN_DROP_PROB.setting(0.0, optional=True)
     """Whole scans lost in the lidar's driver (before the network): the policy keeps the previous one."""
 
     def check(self) -> list[tuple[str, object, str]]:
@@ -63,7 +64,7 @@ class LidarConfig:
 class OdometryConfig:
     """Odometry error: about `drift_per_m` metres of position error per metre travelled."""
 
-    drift_per_m: float = setting(0.03, ge=0.0, le=1.0)
+    drift_per_m: float = Q.DRIFT_PER_M.setting(0.03)
 
 
 @dataclass(frozen=True)
@@ -80,22 +81,22 @@ class NetworkConfig:
     """Scans per second; 0: one per control step."""
     odom_rate_hz: float = setting(0.0, ge=0.0, le=1000.0, optional=True)
     """Odometry messages per second; 0: one per control step."""
-    loss_prob: float = setting(0.0, ge=0.0, le=0.5, optional=True)
+    loss_prob: float = Q.LOSS_PROB.setting(0.0, optional=True)
     """Share of messages lost (each stream, each robot)."""
-    burst_len: float = setting(1.0, ge=1.0, le=50.0, optional=True)
+    burst_len: float = Q.BURST_LEN.setting(1.0, optional=True)
     """Mean length (messages) of a run of lost messages; 1: independent losses."""
     delay_s: float = setting(0.0, ge=0.0, le=1.0, optional=True)
     """Latency of every message (s)."""
-    jitter_s: float = setting(0.0, ge=0.0, le=0.5, optional=True)
+    jitter_s: float = Q.JITTER_S.setting(0.0, optional=True)
     """Spread of the latency: a half-normal extra delay of this standard deviation (s)."""
     scan_stale_s: float = setting(0.5, gt=0.0, le=10.0, optional=True)
     odom_stale_s: float = setting(0.3, gt=0.0, le=10.0, optional=True)
     stale_scan: StaleScan = setting("hold", optional=True)
     """What the policy observes of a stale robot's scan: the last one held, or no return on any beam. A fleet
     deploying the policy does the same (:func:`pipeline.core.network.observed_scans`)."""
-    clock_offset_s: float = setting(0.0, ge=-1e9, le=1e9, optional=True)
+    clock_offset_s: float = Q.CLOCK_OFFSET_S.setting(0.0, optional=True)
     """The robots' clock against the controller's (s): the stamps of the simulated sensor messages."""
-    clock_drift_ppm: float = setting(0.0, ge=-1e4, le=1e4, optional=True)
+    clock_drift_ppm: float = Q.CLOCK_DRIFT_PPM.setting(0.0, optional=True)
     """How fast the robots' clock runs against the controller's (parts per million): the stamps again."""
 
     @property
@@ -108,17 +109,17 @@ class NetworkConfig:
 class ActuationConfig:
     """How the simulated base follows (v, w) commands: delay, first-order lag, gains."""
 
-    delay_s: float = setting(0.0, ge=0.0, le=1.0)
-    time_constant_s: float = setting(0.05, gt=0.0, le=2.0)
-    linear_gain: float = setting(1.0, gt=0.0, le=5.0)
-    angular_gain: float = setting(1.0, gt=0.0, le=5.0)
+    delay_s: float = Q.DELAY_S.setting(0.0)
+    time_constant_s: float = Q.TIME_CONSTANT_S.setting(0.05)
+    linear_gain: float = Q.LINEAR_GAIN.setting(1.0)
+    angular_gain: float = Q.ANGULAR_GAIN.setting(1.0)
     yaw_rate_per_mps: float = setting(0.0, ge=-2.0, le=2.0, optional=True)
     """Yaw rate (rad/s) per m/s of forward speed: unequal wheels turn a straight command into an arc, which the
     odometry (wheel encoders read with the nominal radii) does not see."""
-    deadband_radps: float = setting(0.0, ge=0.0, le=50.0, optional=True)
+    deadband_radps: float = Q.DEADBAND_RADPS.setting(0.0, optional=True)
     """Wheel speeds (rad/s, from the command by the nominal wheel geometry below) under this stay at 0."""
-    wheel_radius_m: float = setting(SPARK_WHEEL_RADIUS_M, gt=0.0, le=0.5, optional=True)
-    wheel_separation_m: float = setting(SPARK_WHEEL_SEPARATION_M, gt=0.0, le=2.0, optional=True)
+    wheel_radius_m: float = Q.WHEEL_RADIUS_M.setting(SPARK_WHEEL_RADIUS_M, optional=True)
+    wheel_separation_m: float = Q.WHEEL_SEPARATION_M.setting(SPARK_WHEEL_SEPARATION_M, optional=True)
     max_linear_mps: float | None = setting(None, gt=0.0, le=10.0, optional=True)
     """The base's speed limit: forward speeds (after the gain) beyond this are cut to it; None: no limit."""
     max_angular_radps: float | None = setting(None, gt=0.0, le=50.0, optional=True)

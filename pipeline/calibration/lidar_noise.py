@@ -27,6 +27,7 @@ import numpy as np
 from scipy import optimize, special, stats
 
 from pipeline.calibration.estimates import Z_95, Estimate
+from pipeline.core.quantities import NOISE_PER_M, NOISE_SIGMA_M
 
 MIN_STEP_M = 1e-5
 """No 2-D lidar reports ranges finer than this; finer lattices are the float32 the ranges travel in."""
@@ -37,7 +38,8 @@ MIN_CHANGES = 50
 LATTICE_SPAN = 50
 """The lattice is read on changes of up to this many steps."""
 CHI2_95_1DOF = float(stats.chi2.ppf(0.95, 1))
-NOISE_BOUNDS = {"noise_sigma_m": (0.0, 1.0), "noise_per_m": (0.0, 0.2)}
+NOISE_BOUNDS = {q.name: (q.low, q.high) for q in (NOISE_SIGMA_M, NOISE_PER_M)}
+"""The noise's domain (:mod:`pipeline.core.quantities`): where its fits and intervals stay."""
 
 
 def range_step(changes_m: np.ndarray) -> Estimate:

@@ -42,6 +42,7 @@ import typing
 from dataclasses import dataclass, fields
 from typing import Any, Literal
 
+from pipeline.core import quantities as Q
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 from pipeline.mappings import setting
 
@@ -54,21 +55,21 @@ NOMINAL_WHEEL_SEPARATION_M = SPARK_WHEEL_SEPARATION_M
 class LidarProfile:
     beams: int = setting(ge=4, le=4096)
     rate_hz: float = setting(gt=0.0, le=100.0)
-    noise_sigma_m: float = setting(ge=0.0, le=1.0)
-    dropout_prob: float = setting(ge=0.0, lt=1.0)
-    bias_m: float = setting(ge=-0.5, le=0.5)
-    mount_yaw_rad: float = setting(ge=-3.15, le=3.15)
-    noise_per_m: float = setting(0.0, ge=0.0, le=0.2, optional=True)
-    mount_xy_m: tuple[float, ...] = setting((0.0, 0.0), ge=-0.3, le=0.3, min_len=2, max_len=2, optional=True)
+    noise_sigma_m: float = Q.NOISE_SIGMA_M.setting()
+    dropout_prob: float = Q.DROPOUT_PROB.setting()
+    bias_m: float = Q.BIAS_M.setting()
+    mount_yaw_rad: float = Q.MOUNT_YAW_RAD.setting()
+    noise_per_m: float = Q.NOISE_PER_M.setting(0.0, optional=True)
+    mount_xy_m: tuple[float, ...] = Q.MOUNT_XY_M.setting((0.0, 0.0), min_len=2, max_len=2, optional=True)
     blocked_sectors_rad: tuple[tuple[float, ...], ...] = setting((), ge=-7.0, le=7.0, optional=True)
     motion_distortion: bool = setting(False, optional=True)
-    range_step_m: float = setting(0.0, ge=0.0, le=0.05, optional=True)
-    beam_noise_spread: float = setting(0.0, ge=0.0, le=1.0, optional=True)
-    mixed_pixel_prob: float = setting(0.0, ge=0.0, le=1.0, optional=True)
+    range_step_m: float = Q.RANGE_STEP_M.setting(0.0, optional=True)
+    beam_noise_spread: float = Q.BEAM_NOISE_SPREAD.setting(0.0, optional=True)
+    mixed_pixel_prob: float = Q.MIXED_PIXEL_PROB.setting(0.0, optional=True)
     no_return: Literal["inf", "zero", "max", "nan"] = setting("inf", optional=True)
     beam_angle_jitter_rad: float = setting(0.0, ge=0.0, le=0.05, optional=True)
     rate_wander: float = setting(0.0, ge=0.0, le=0.2, optional=True)
-    scan_drop_prob: float = setting(0.0, ge=0.0, lt=1.0, optional=True)
+    scan_drop_prob: float = Q.SCAN_DROP_PROB.setting(0.0, optional=True)
 
     def check(self) -> list[tuple[str, object, str]]:
         bad: list[tuple[str, object, str]] = []
@@ -85,37 +86,37 @@ class LidarProfile:
 
 @dataclass(frozen=True)
 class ActuationProfile:
-    delay_s: float = setting(ge=0.0, le=1.0)
-    time_constant_s: float = setting(gt=0.0, le=2.0)
-    linear_gain: float = setting(gt=0.0, le=5.0)
-    angular_gain: float = setting(gt=0.0, le=5.0)
+    delay_s: float = Q.DELAY_S.setting()
+    time_constant_s: float = Q.TIME_CONSTANT_S.setting()
+    linear_gain: float = Q.LINEAR_GAIN.setting()
+    angular_gain: float = Q.ANGULAR_GAIN.setting()
 
 
 @dataclass(frozen=True)
 class OdometryProfile:
     rate_hz: float = setting(gt=0.0, le=1000.0)
-    drift_per_m: float = setting(ge=0.0, le=1.0)
+    drift_per_m: float = Q.DRIFT_PER_M.setting()
     encoder_ticks_per_rev: int | None = setting(None, ge=1, le=1_000_000, optional=True)
     """None: exact wheel angles."""
 
 
 @dataclass(frozen=True)
 class NetworkProfile:
-    loss_prob: float = setting(ge=0.0, lt=1.0)
-    jitter_s: float = setting(ge=0.0, le=1.0)
-    burst_len: float = setting(1.0, ge=1.0, le=1000.0, optional=True)
+    loss_prob: float = Q.LOSS_PROB.setting()
+    jitter_s: float = Q.JITTER_S.setting()
+    burst_len: float = Q.BURST_LEN.setting(1.0, optional=True)
 
 
 @dataclass(frozen=True)
 class BaseProfile:
     """The drive base: true wheel radii and separation, mass, motors (lag, deadband, acceleration limit), grip."""
 
-    wheel_radius_left_m: float = setting(NOMINAL_WHEEL_RADIUS_M, gt=0.0, le=0.5, optional=True)
-    wheel_radius_right_m: float = setting(NOMINAL_WHEEL_RADIUS_M, gt=0.0, le=0.5, optional=True)
-    wheel_separation_m: float = setting(NOMINAL_WHEEL_SEPARATION_M, gt=0.0, le=2.0, optional=True)
+    wheel_radius_left_m: float = Q.WHEEL_RADIUS_M.setting(NOMINAL_WHEEL_RADIUS_M, optional=True)
+    wheel_radius_right_m: float = Q.WHEEL_RADIUS_M.setting(NOMINAL_WHEEL_RADIUS_M, optional=True)
+    wheel_separation_m: float = Q.WHEEL_SEPARATION_M.setting(NOMINAL_WHEEL_SEPARATION_M, optional=True)
     mass_kg: float = setting(5.0, gt=0.0, le=500.0, optional=True)
     motor_time_constant_s: float = setting(0.0, ge=0.0, le=2.0, optional=True)
-    deadband_radps: float = setting(0.0, ge=0.0, le=50.0, optional=True)
+    deadband_radps: float = Q.DEADBAND_RADPS.setting(0.0, optional=True)
     max_wheel_accel_radps2: float | None = setting(None, gt=0.0, le=10_000.0, optional=True)
     friction: float = setting(1.0, gt=0.0, le=5.0, optional=True)
 
@@ -124,8 +125,8 @@ class BaseProfile:
 class ClockProfile:
     """The robots' clock against the host's: an offset and a rate error."""
 
-    offset_s: float = setting(0.0, ge=-3600.0, le=3600.0, optional=True)
-    drift_ppm: float = setting(0.0, ge=-10_000.0, le=10_000.0, optional=True)
+    offset_s: float = Q.CLOCK_OFFSET_S.setting(0.0, optional=True)
+    drift_ppm: float = Q.CLOCK_DRIFT_PPM.setting(0.0, optional=True)
 
 
 @dataclass(frozen=True)

@@ -69,7 +69,7 @@ def test_wrong_type_is_reported_with_what_is_allowed(params_data, write_params, 
     [
         ("lidar.beams", 0, ">= 1"),
         ("lidar.noise_sigma_m", -0.01, ">= 0.0"),
-        ("lidar.dropout_prob", 1.5, "<= 1.0"),
+        ("lidar.dropout_prob", 1.5, "< 1.0"),
         ("max_steps", 0, ">= 1"),
         ("control_period_s", 0.0, "> 0.0"),
         ("reward.path_clearance_m", -0.1, ">= 0.0"),
