@@ -292,6 +292,10 @@ class DeployRunner:
             self._check_alive()
             time.sleep(0.005)
         self.samples.clear()
+        # the fresh data the reset found are the episode's first samples: a twin that falls behind its clock right
+        # after (a busy host) withholds newer ones as stale at the first control step, and the robots then stand
+        # still as at any stale step (an outage past its limit), not a fleet that never sent anything
+        self.samples.arrays(state)
         self.staleness.reset()
         odom = np.stack([state.robots[ns].odom.pose for ns in self.namespaces])  # type: ignore[union-attr]
         self.odometry.rebase(self.layout.starts, odom)
