@@ -29,17 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+from pipeline.calibration.localize import OccupancyMap
+from pipeline.calibration.map_replay import MapReplay, map_replay
+from pipeline.core.scan import ScanGeometry
+from pipeline.messages import convert as C
+from pipeline.messages.topics import robot_topics
+from pipeline.params import calibrated_world, world_config
+from pipeline.record.writer import McapRecorder
 
-from pipeline.calibration.localize import OccupancyMap  # noqa: E402
-from pipeline.calibration.map_replay import MapReplay, map_replay  # noqa: E402
-from pipeline.core.scan import ScanGeometry  # noqa: E402
-from pipeline.messages import convert as C  # noqa: E402
-from pipeline.messages.topics import robot_topics  # noqa: E402
-from pipeline.params import calibrated_world, world_config  # noqa: E402
-from pipeline.record.writer import McapRecorder  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 MEMORY_LIMIT_MIB = 2048
 BEAMS = 720

@@ -18,15 +18,14 @@ import time
 from pathlib import Path
 
 import yaml
+from calibration_coverage import truth_of
+
+from pipeline.calibration import CalibrationSettings, calibrate
+from pipeline.calibration.localize import OccupancyMap
+from pipeline.core.scenario import load_scenario
+from pipeline.twin.profile import profile_path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_coverage import truth_of  # noqa: E402
-
-from pipeline.calibration import CalibrationSettings, calibrate  # noqa: E402
-from pipeline.calibration.localize import OccupancyMap  # noqa: E402
-from pipeline.core.scenario import load_scenario  # noqa: E402
-from pipeline.twin.profile import profile_path  # noqa: E402
 
 ABS_MARGIN = {"lidar.noise_sigma_m": 0.002, "map.": 0.004, "clock.offset_s": 0.012, "network.jitter_s": 0.003}
 """Absolute margins where a value near zero makes 15 % meaningless (as the twin tests use)."""

@@ -16,25 +16,22 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+from pipeline.bench.tiny_loop import tiny_train_config
+from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.export import export_policy, golden_observations
+from pipeline.learn.trainer import train
+from pipeline.params import EvalSimConfig, world_config
+from pipeline.policy.runtime import PolicyRuntime
+from pipeline.record import McapLog
+from pipeline.rollout.sim import evaluate_session
+from pipeline.sim import make_world
 
-from pipeline.bench.tiny_loop import tiny_train_config  # noqa: E402
-from pipeline.learn.checkpoint import load_checkpoint  # noqa: E402
-from pipeline.learn.export import export_policy, golden_observations  # noqa: E402
-from pipeline.learn.trainer import train  # noqa: E402
-from pipeline.params import EvalSimConfig, world_config  # noqa: E402
-from pipeline.policy.runtime import PolicyRuntime  # noqa: E402
-from pipeline.record import McapLog  # noqa: E402
-from pipeline.rollout.sim import evaluate_session  # noqa: E402
-from pipeline.sim import make_world  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 CELLS = (("sac", "shared"), ("dqn", "independent"), ("ppo", "centralized"))
 

@@ -22,8 +22,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT))  # the test peers (tests/peers) this drives are not an installed package
 from deploy_timing import bare_timer_jitter_ms, fleet_file, scenario_file, tiny_policy  # noqa: E402
 
 from pipeline.analysis.timing import TimingFigures, timing_figures  # noqa: E402

@@ -22,27 +22,24 @@ import argparse
 import math
 import os
 import struct
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+from pipeline.analysis.tables import EPISODE_TOPIC, Recording
+from pipeline.core.scan import ScanGeometry
+from pipeline.core.scenario import load_scenario
+from pipeline.core.timebase import NS_PER_S
+from pipeline.mappings import to_mapping
+from pipeline.messages import convert as C
+from pipeline.messages import message_store
+from pipeline.messages import topics as T
+from pipeline.record import McapLog
+from pipeline.record.session import SessionLog, dumps, session_metadata
 
-from pipeline.analysis.tables import EPISODE_TOPIC, Recording  # noqa: E402
-from pipeline.core.scan import ScanGeometry  # noqa: E402
-from pipeline.core.scenario import load_scenario  # noqa: E402
-from pipeline.core.timebase import NS_PER_S  # noqa: E402
-from pipeline.mappings import to_mapping  # noqa: E402
-from pipeline.messages import convert as C  # noqa: E402
-from pipeline.messages import message_store  # noqa: E402
-from pipeline.messages import topics as T  # noqa: E402
-from pipeline.record import McapLog  # noqa: E402
-from pipeline.record.session import SessionLog, dumps, session_metadata  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TICK_NS = 20_000_000  # 50 Hz
 SLOW_EVERY = 5  # 10 Hz = every 5th tick

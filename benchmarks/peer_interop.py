@@ -34,8 +34,7 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT))  # the test peers (tests/peers) this drives are not an installed package
 from deploy_timing import bare_timer_jitter_ms, tiny_policy  # noqa: E402
 
 from pipeline.analysis.timing import timing_figures  # noqa: E402

@@ -25,20 +25,15 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from coverage_keys import split_by_truth
+
+from pipeline.core.stats import newcombe_interval
+from pipeline.params import read_calibration_file
+from pipeline.record.results import SessionMetrics, read_episodes_csv, read_session_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
-for _path in (ROOT, ROOT / "benchmarks"):  # the package, and coverage_keys beside this file however it is loaded
-    if str(_path) not in sys.path:
-        sys.path.insert(0, str(_path))
-
-from coverage_keys import split_by_truth  # noqa: E402
-
 CATEGORIES = ("lidar.no_return",)
 """Coverage rows that score a choice (found or not), not an interval."""
-
-from pipeline.core.stats import newcombe_interval  # noqa: E402
-from pipeline.params import read_calibration_file  # noqa: E402
-from pipeline.record.results import SessionMetrics, read_episodes_csv, read_session_metrics  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 BLOCK = re.compile(r"(<!-- results: (?P<name>[a-z0-9-]+) -->\n)(?P<body>.*?)(<!-- /results -->)", re.S)
@@ -587,16 +582,14 @@ def lidar_docs() -> str:
             "",
             prose(
                 f"The same recordings, the same parts again at {angle['commit'][:7]} (`{angle['command']}`: the "
-                "geometry's intervals (mounting offsets, range bias, walls, boxes) widened for the beams' angle errors, "
-                "which no still scan identifies: each beam's error, 0.002 rad as its standard deviation (the "
+                "geometry's intervals (mounting offsets, range bias, walls, boxes) widened for the beams' angle "
+                "errors, which no still scan identifies: each beam's error, 0.002 rad as its standard deviation (the "
                 "datasheets' angular accuracy), carried through the fit and added in quadrature; the still spans' "
                 "mean ranges for the geometry without returns far off the beam's median (mixed pixels had moved "
                 "them); a beam that a moved box shows another face at a graze left out of the fit; a return on the "
                 "other surface of a depth edge no mixed pixel, and the noise's own tail beyond the margin taken out "
                 "of the mixed pixels' count as its background; "
-                f"[run.json]({link}_angle_prior/run.json)): "
-                + _coverage_line(COVERAGE_REAL_LIDAR_ANGLE)
-                + ":",
+                f"[run.json]({link}_angle_prior/run.json)): " + _coverage_line(COVERAGE_REAL_LIDAR_ANGLE) + ":",
             ),
             "",
             coverage_docs(COVERAGE_REAL_LIDAR_ANGLE).split("\n", 2)[2],

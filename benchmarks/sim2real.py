@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from calibration_coverage import truth_of
 
 from pipeline.core.stats import newcombe_interval
 from pipeline.params import read_calibration_file
@@ -41,8 +42,6 @@ ROBOTS = 3
 """Robots of the fleet (the obstacles room's three SPARKs): robot-level trials are episodes x robots."""
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_coverage import truth_of  # noqa: E402
 
 
 def stage(name: str, params: Path, round_name: str | None = None) -> None:

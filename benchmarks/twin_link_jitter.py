@@ -20,13 +20,11 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+from pipeline.calibration.network import TRIANGULAR_IQR
+from pipeline.ros.clock import ScaledClock
+from pipeline.twin.twin import LossyLink
 
-from pipeline.calibration.network import TRIANGULAR_IQR  # noqa: E402
-from pipeline.ros.clock import ScaledClock  # noqa: E402
-from pipeline.twin.twin import LossyLink  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TOPICS = 9
 

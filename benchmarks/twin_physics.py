@@ -10,19 +10,16 @@ second; the twin runs at time scales up to 5, so the limit is 5).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+from pipeline.core.scenario import load_scenario
+from pipeline.twin.physics import BaseParams, FleetPhysics
+from pipeline.twin.profile import load_profile
 
-from pipeline.core.scenario import load_scenario  # noqa: E402
-from pipeline.twin.physics import BaseParams, FleetPhysics  # noqa: E402
-from pipeline.twin.profile import load_profile  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 LIMIT = 5.0
 

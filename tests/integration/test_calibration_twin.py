@@ -9,13 +9,13 @@ drift is measured against a clock that does not wander with the host's load.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import pytest
 import yaml
+from drive_replay import replay_drive, replayed_tracks
 
 from pipeline.calibration import PROFILE_KEYS, Calibration, CalibrationSettings, calibrate, write_calibration
 from pipeline.calibration.actuation import estimate_actuation
@@ -25,9 +25,6 @@ from pipeline.core.scenario import load_scenario
 from pipeline.params import WorldConfig, calibrated_world
 from pipeline.twin.profile import load_profile
 from tests.calibration_helpers import TWIN_STEPS, record_twin_session
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from drive_replay import replay_drive, replayed_tracks
 
 pytestmark = pytest.mark.integration
 

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
+from layout_failures import main
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from layout_failures import main  # noqa: E402
 
 
 def test_a_longer_step_limit_is_replayed_and_agrees_by_the_world_limit(

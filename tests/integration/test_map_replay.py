@@ -4,20 +4,18 @@ its own) replayed open loop against its path localized in the map, in the nomina
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from calibration_scale import DRIVE, building, drive, write_bag
 
 from pipeline.calibration.map_replay import REST_S, TICK_S, rest_starts
 from pipeline.sim.open_loop import Track
 from tests.integration.test_mrl_command import mrl, refused
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_scale import DRIVE, building, drive, write_bag  # noqa: E402
 
 pytestmark = pytest.mark.integration
 

@@ -5,10 +5,8 @@ the truth, and the simulator takes what calibration found."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
+from lidar_like_real import fleet_file, profile, tiny_policy
 
 from pipeline.calibration import CalibrationSettings, calibrate, write_calibration
 from pipeline.calibration.calibrate import split_key
@@ -19,9 +17,6 @@ from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_policy
 from pipeline.ros.fleet import load_fleet
 from tests.integration.conftest import free_domain_id
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from lidar_like_real import fleet_file, profile, tiny_policy
 
 pytestmark = pytest.mark.integration
 

@@ -5,14 +5,12 @@ time against the bag's duration is the benchmark's figure, not a test's)."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import pytest
+from calibration_scale import main
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_scale import main  # noqa: E402
 
 pytestmark = pytest.mark.slow
 

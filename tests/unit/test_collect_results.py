@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import yaml
+from collect_results import commit_of
 
 from pipeline.bench.tiny_loop import TINY_LOOP, copy_checkout, tiny_params
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from collect_results import commit_of  # noqa: E402
 
 
 def _repo(path: Path) -> str:

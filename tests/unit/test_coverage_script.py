@@ -7,13 +7,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from calibration_coverage import _jumped, command_path_s, summary, truth_of
+
+from pipeline.calibration.actuation import CommandTimeline
+from pipeline.twin.draw import draw_profile_mapping
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration_coverage import _jumped, command_path_s, summary, truth_of  # noqa: E402
-
-from pipeline.calibration.actuation import CommandTimeline  # noqa: E402
-from pipeline.twin.draw import draw_profile_mapping  # noqa: E402
 
 
 def test_the_truth_of_a_key_comes_from_the_drawn_profile() -> None:

@@ -3,24 +3,22 @@
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from layout_failures import first_contact, later_arrivals, sort_failures
+
+from pipeline.core.episode import EpisodeResult
+from pipeline.core.scenario import load_scenario
+from pipeline.params import WorldConfig
+from pipeline.policy.scripted import GoToGoalController
+from pipeline.rollout.sim import evaluate
+from pipeline.sim import make_world
+from pipeline.sim.env import MultiRobotSim
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from layout_failures import first_contact, later_arrivals, sort_failures  # noqa: E402
-
-from pipeline.core.episode import EpisodeResult  # noqa: E402
-from pipeline.core.scenario import load_scenario  # noqa: E402
-from pipeline.params import WorldConfig  # noqa: E402
-from pipeline.policy.scripted import GoToGoalController  # noqa: E402
-from pipeline.rollout.sim import evaluate  # noqa: E402
-from pipeline.sim import make_world  # noqa: E402
-from pipeline.sim.env import MultiRobotSim  # noqa: E402
 
 
 def _reversing_into_the_box(steps: int = 40) -> np.ndarray:

@@ -5,19 +5,17 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 from scipy import stats as sps
+from seed_spread import main
 
 from pipeline.core.stats import mean_interval
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from seed_spread import main  # noqa: E402
 
 
 def _seed_folder(folder: Path, worlds: dict[str, tuple[float, float, float]]) -> Path:

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 from PIL import Image
+from selection_curves import main
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from selection_curves import main  # noqa: E402
 
 HEADER = "world_steps,episodes,robot_success,team_success,collision_rate,kept\n"
 

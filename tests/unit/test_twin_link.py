@@ -2,22 +2,18 @@
 
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
+from calibration_coverage import realized_jitter
 
 from pipeline.messages import convert as C
 from pipeline.messages.store import message_store
 from pipeline.ros.clock import ScaledClock
 from pipeline.twin.twin import LossyLink
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from calibration_coverage import realized_jitter
 
 NS = 1_000_000_000
 
