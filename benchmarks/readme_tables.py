@@ -527,9 +527,6 @@ def lidar_docs() -> str:
         table.append(f"| `{key}` | {len(judged)} of {len(mine)} | {weak} | {hits} of {len(judged)} |")
     recordings = len({r["recording"] for r in rows})
     coverage = run_of(RESULTS / COVERAGE_REAL_LIDAR)
-    rescored = run_of(RESULTS / COVERAGE_REAL_LIDAR_DRIVING)
-    robust = run_of(RESULTS / COVERAGE_REAL_LIDAR_ROBUST)
-    angle = run_of(RESULTS / COVERAGE_REAL_LIDAR_ANGLE)
     link = f"../benchmarks/results/{COVERAGE_REAL_LIDAR}"
     return "\n".join(
         [
@@ -554,47 +551,49 @@ def lidar_docs() -> str:
             ),
             "",
             coverage_docs(COVERAGE_REAL_LIDAR).split("\n", 2)[2],
-            "",
-            prose(
-                f"The same recordings, the lidar, odometry and network parts calibrated again at "
-                f"{rescored['commit']} (`{rescored['command']}`: mixed pixels counted per edge beam off its own "
-                "surface, the geometry's intervals at least a cluster-robust sandwich over the beams, the noise "
-                "again from the scans while driving; `lidar.noise_at_range` and `lidar.noise_at_range_driving` are "
-                "the noise at the still spans' median range from the still spans and from the scans while driving; "
-                f"[run.json]({link}_driving/run.json)): " + _coverage_line(COVERAGE_REAL_LIDAR_DRIVING) + ":",
+            *_again(
+                COVERAGE_REAL_LIDAR_DRIVING,
+                "the lidar, odometry and network parts calibrated again",
+                "mixed pixels counted per edge beam off its own surface, the geometry's intervals at least a "
+                "cluster-robust sandwich over the beams, the noise again from the scans while driving; "
+                "`lidar.noise_at_range` and `lidar.noise_at_range_driving` are the noise at the still spans' median "
+                "range from the still spans and from the scans while driving",
             ),
-            "",
-            coverage_docs(COVERAGE_REAL_LIDAR_DRIVING).split("\n", 2)[2],
-            "",
-            prose(
-                f"The same recordings, the same parts again at {robust['commit'][:7]} (`{robust['command']}`: a beam's "
-                "mean in a still span taken without its returns more than 5 robust scales off its median, where one "
-                "return a metre off had moved every other return's deviation; the beams' spread read per deviation "
-                "over the noise at its own range, at the degrees of freedom those means leave and without returns 5 "
-                "of the beam's own robust scales off; edge beams "
-                "that mostly see neither of the map's surfaces left out of the mixed pixels; other robots masked up "
-                f"to the fitted room's surface; [run.json]({link}_robust_mean/run.json)): "
-                + _coverage_line(COVERAGE_REAL_LIDAR_ROBUST)
-                + ":",
+            *_again(
+                COVERAGE_REAL_LIDAR_ROBUST,
+                "the same parts again",
+                "a beam's mean in a still span taken without its returns more than 5 robust scales off its median, "
+                "where one return a metre off had moved every other return's deviation; the beams' spread read per "
+                "deviation over the noise at its own range, at the degrees of freedom those means leave and without "
+                "returns 5 of the beam's own robust scales off; edge beams that mostly see neither of the map's "
+                "surfaces left out of the mixed pixels; other robots masked up to the fitted room's surface",
             ),
-            "",
-            coverage_docs(COVERAGE_REAL_LIDAR_ROBUST).split("\n", 2)[2],
-            "",
-            prose(
-                f"The same recordings, the same parts again at {angle['commit'][:7]} (`{angle['command']}`: the "
-                "geometry's intervals (mounting offsets, range bias, walls, boxes) widened for the beams' angle "
+            *_again(
+                COVERAGE_REAL_LIDAR_ANGLE,
+                "the same parts again",
+                "the geometry's intervals (mounting offsets, range bias, walls, boxes) widened for the beams' angle "
                 "errors, which no still scan identifies: each beam's error, 0.002 rad as its standard deviation (the "
                 "datasheets' angular accuracy), carried through the fit and added in quadrature; the still spans' "
                 "mean ranges for the geometry without returns far off the beam's median (mixed pixels had moved "
                 "them); a beam that a moved box shows another face at a graze left out of the fit; a return on the "
                 "other surface of a depth edge no mixed pixel, and the noise's own tail beyond the margin taken out "
-                "of the mixed pixels' count as its background; "
-                f"[run.json]({link}_angle_prior/run.json)): " + _coverage_line(COVERAGE_REAL_LIDAR_ANGLE) + ":",
+                "of the mixed pixels' count as its background",
             ),
-            "",
-            coverage_docs(COVERAGE_REAL_LIDAR_ANGLE).split("\n", 2)[2],
         ]
     )
+
+
+def _again(name: str, how: str, what: str) -> list[str]:
+    """A paragraph and its table: the drawn realities' recordings calibrated again (`how`), with `what` changed."""
+    run = run_of(RESULTS / name)
+    link = f"../benchmarks/results/{name}"
+    lead = f"The same recordings, {how} at {run['commit'][:7]} (`{run['command']}`: {what}; "
+    return [
+        "",
+        prose(lead + f"[run.json]({link}/run.json)): " + _coverage_line(name) + ":"),
+        "",
+        coverage_docs(name).split("\n", 2)[2],
+    ]
 
 
 REAL_BAGS = "real_bags"

@@ -5,6 +5,7 @@ and covering the truth as often as they claim."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -181,23 +182,36 @@ def edge_beams(pose: tuple[float, float, float], beams: int = 720) -> tuple[np.n
     return np.flatnonzero(edge), np.minimum(true, before)[edge], np.maximum(true, before)[edge]
 
 
+EDGE_POSES = [(1.0, 1.0, 0.3), (4.0, 2.0, 3.0), (1.0, 3.0, -1.0), (3.0, 1.2, 1.0), (5.0, 3.0, 2.0), (1.6, 2.2, 0.8)]
+
+
+def edge_spans(
+    rng: np.random.Generator, alter: Callable[[ScanSpan, np.ndarray, np.ndarray, np.ndarray], None]
+) -> list[ScanSpan]:
+    """Still spans of 30 scans at `EDGE_POSES` of a lidar without mixed pixels, each passed to `alter` with its edge
+    beams and their near and far surfaces (to change those beams' returns in place)."""
+    data = []
+    for k, pose in enumerate(EDGE_POSES):
+        span = still_span(rng, pose, 0.004, 0.001, scans=30, label=f"s{k}")
+        alter(span, *edge_beams(pose))
+        data.append(span)
+    return data
+
+
 def test_an_edge_beam_that_steadily_sees_something_the_map_lacks_is_no_mixed_pixel():
     """A lidar without mixed pixels whose edge beams see, in every scan, a surface between the two the map has there
     (another robot standing in front of a box corner, an object the map lacks): no mixed pixels are read from them
     (the interval holds 0), and the notes say why those beams were left out."""
     rng = np.random.default_rng(9)
-    poses = [(1.0, 1.0, 0.3), (4.0, 2.0, 3.0), (1.0, 3.0, -1.0), (3.0, 1.2, 1.0), (5.0, 3.0, 2.0), (1.6, 2.2, 0.8)]
-    data = []
-    for k, pose in enumerate(poses):
-        span = still_span(rng, pose, 0.004, 0.001, scans=30, label=f"s{k}")
-        cols, near, far = edge_beams(pose)
+
+    def steady(span: ScanSpan, cols: np.ndarray, near: np.ndarray, far: np.ndarray) -> None:
         # every other edge beam: a surface 40 % of the way into the gap, the same in every scan (the rest stay clean
         # edge beams, which tell the mixed pixels' probability)
         cols, near, far = cols[::2], near[::2], far[::2]
-        steady = near + 0.4 * (far - near)
-        span.ranges[:, cols] = steady[None, :] + 0.005 * rng.standard_normal((30, len(cols)))
-        data.append(span)
-    fit = estimate_lidar(GEOMETRY, data, SETTINGS, rng)
+        surface = near + 0.4 * (far - near)
+        span.ranges[:, cols] = surface[None, :] + 0.005 * rng.standard_normal((30, len(cols)))
+
+    fit = estimate_lidar(GEOMETRY, edge_spans(rng, steady), SETTINGS, rng)
     assert fit.mixed_pixel_prob.interval is not None and fit.mixed_pixel_prob.interval[0] == 0.0
     assert fit.mixed_pixel_prob.value < 0.01
     assert any("returned mostly from neither of the map's surfaces" in n for n in fit.notes)
@@ -208,18 +222,15 @@ def test_an_edge_beam_that_now_and_then_sees_past_its_edge_is_no_mixed_pixel():
     scan of ten, from the other of the two surfaces the map has there (the edge crossed it), never from between
     them. Those returns are no mixed pixels: the interval holds 0 (counted as mixed, they read about 0.1)."""
     rng = np.random.default_rng(12)
-    poses = [(1.0, 1.0, 0.3), (4.0, 2.0, 3.0), (1.0, 3.0, -1.0), (3.0, 1.2, 1.0), (5.0, 3.0, 2.0), (1.6, 2.2, 0.8)]
-    data = []
-    for k, pose in enumerate(poses):
-        span = still_span(rng, pose, 0.004, 0.001, scans=30, label=f"s{k}")
-        cols, near, far = edge_beams(pose)
+
+    def crossed(span: ScanSpan, cols: np.ndarray, near: np.ndarray, far: np.ndarray) -> None:
         own = np.median(span.ranges[:, cols], axis=0)
         other = np.where(np.abs(own - near) < np.abs(own - far), far, near)
-        crossed = rng.random((30, len(cols))) < 0.1
+        past = rng.random((30, len(cols))) < 0.1
         seen = other[None, :] + (0.004 + 0.001 * other[None, :]) * rng.standard_normal((30, len(cols)))
-        span.ranges[:, cols] = np.where(crossed, seen, span.ranges[:, cols])
-        data.append(span)
-    fit = estimate_lidar(GEOMETRY, data, SETTINGS, rng)
+        span.ranges[:, cols] = np.where(past, seen, span.ranges[:, cols])
+
+    fit = estimate_lidar(GEOMETRY, edge_spans(rng, crossed), SETTINGS, rng)
     assert fit.mixed_pixel_prob.interval is not None and fit.mixed_pixel_prob.interval[0] == 0.0, fit.mixed_pixel_prob
     assert fit.mixed_pixel_prob.value < 0.01
 
