@@ -301,7 +301,7 @@ def _success_section(comparison: Comparison, figures: Mapping[str, Path], out: P
             {
                 "world": row["world"],
                 "label": row["label"],
-                "episodes": row["episodes"],
+                "episodes": _episodes_text(row),
                 "aborted": _aborted_text(row),
                 "robot success [95 % CI]": _rate_text(
                     row["robot_success"],
@@ -407,6 +407,12 @@ def _timing_section(timing: Sequence[tuple[str, TimingFigures]]) -> list[str]:
             timing_markdown(list(timing)),
         ]
     return parts
+
+
+def _episodes_text(row: Mapping[str, Any]) -> str:
+    """The episodes that are trials, and beside them those a deployment did not keep its clock in (left out)."""
+    off = int(row.get("clock_not_kept_episodes") or 0)
+    return f"{row['episodes']}" + (f" (+{off} off the clock: the host's, not the policy's; left out)" if off else "")
 
 
 def _aborted_text(row: Mapping[str, Any]) -> str:

@@ -210,3 +210,13 @@ def test_markdown_table():
         "| 1 | 0.500 | x\\|y | yes |",
         "| 2 | n/a |  | no |",
     ]
+
+
+def test_the_episodes_a_deployment_did_not_keep_its_clock_in_are_shown_beside_the_trials():
+    from pipeline.analysis.gap_report import _episodes_text
+
+    assert _episodes_text({"episodes": 50, "clock_not_kept_episodes": 1}) == (
+        "50 (+1 off the clock: the host's, not the policy's; left out)"
+    )
+    assert _episodes_text({"episodes": 50, "clock_not_kept_episodes": 0}) == "50"
+    assert _episodes_text({"episodes": 20}) == "20"  # a comparison without the column
