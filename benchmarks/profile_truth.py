@@ -21,30 +21,23 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import yaml
+from calibration_coverage import truth_of
 
-from pipeline.calibration.calibrate import calibrate, split_key
+from pipeline.calibration.calibrate import calibrate
 from pipeline.calibration.options import PARTS, CalibrationSettings
 from pipeline.errors import MrlError
-from pipeline.twin.profile import load_profile, profile_path
-
-IDEAL = {"range_step_m": 0.0, "beam_noise_spread": 0.0, "mixed_pixel_prob": 0.0, "rate_wander": 0.0}
-"""Lidar keys a profile may leave out, at the value an ideal sensor has."""
-IDEAL_OPTIONAL = {"noise_per_m": 0.0, "scan_drop_prob": 0.0, "mount_xy_m": [0.0, 0.0], "beam_angle_jitter_rad": 0.0}
+from pipeline.mappings import to_mapping
+from pipeline.twin.profile import load_profile
 
 
-def truth_of(mapping: dict[str, Any], key: str) -> float | None:
-    """The profile's value of the estimate key (``map.box_offsets_m[1][0]``...); None where it has no number."""
-    group, name, index = split_key(key)
-    section = mapping.get(group, {}) or {}
-    value: Any = section.get(name)
-    if value is None and group == "lidar":
-        value = IDEAL.get(name, IDEAL_OPTIONAL.get(name))
-    if value is None and group == "map":
-        value = 0.0 if name == "wall_offset_m" else []
-    for k in index:
-        value = value[k] if isinstance(value, list) and len(value) > k else (0.0 if group == "map" else None)
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+def truth_in(mapping: dict[str, Any], key: str) -> float | None:
+    """The profile's value of the estimate key (:func:`calibration_coverage.truth_of` on the profile with its
+    defaults); a box the profile does not move stands where the map says."""
+    if key.startswith("map.box_offsets_m[") and int(key[len("map.box_offsets_m[")]) >= len(
+        mapping["map"]["box_offsets_m"]
+    ):
+        return 0.0
+    return truth_of(mapping, key)
 
 
 def main() -> int:
@@ -56,8 +49,8 @@ def main() -> int:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     try:
-        load_profile(args.profile)  # a clear error for a profile that is not one
-        mapping = yaml.safe_load(profile_path(args.profile).read_text(encoding="utf-8"))
+        _, profile = load_profile(args.profile)
+        mapping = to_mapping(profile)
         cal = calibrate(args.recording, CalibrationSettings(bootstrap=args.bootstrap, parts=tuple(args.parts)))
     except MrlError as exc:
         print(f"profile_truth: {exc}")
@@ -66,7 +59,7 @@ def main() -> int:
     for key, est in cal.values.items():
         if not key.startswith(("lidar.", "map.")):
             continue
-        truth = truth_of(mapping, key)
+        truth = truth_in(mapping, key)
         lo, hi = est.interval if est.interval is not None else (math.nan, math.nan)
         held = "" if truth is None or est.interval is None else int(lo <= truth <= hi)
         rows.append({"key": key, "status": est.status, "value": est.value, "low": lo, "high": hi, "truth": truth,
