@@ -37,7 +37,10 @@ their keys are scored (e.g. ``--parts lidar``: seconds per recording).
 
 ``clock.offset_s`` is reported unidentifiable on a time-scaled twin (the recorder follows ``/clock``) and is
 not counted. Rows go to --out (CSV); progress on stderr. Last line: ``coverage_min=<lowest coverage over the
-keys> keys_at_target=<k>/<n> identifiable_within_15pct=<k>/<n>``.
+keys> keys_at_target=<k>/<n> identifiable_within_15pct=<k>/<n> keys_consistent_with_95=<k>/<n>
+determined_within_15pct=<k>/<n> pooled_coverage=<share>`` (`summary`: a key's coverage with its Clopper-Pearson
+interval and a binomial test against 95 %, as a per-key 90 % target over 20 realities fails exact intervals by
+chance; the relative error also over the estimates whose interval is narrower than their value).
 """
 
 from __future__ import annotations
@@ -498,12 +501,51 @@ def _pool(files: list[Path]) -> int:
     return 0
 
 
+NOMINAL = 0.95
+"""What every interval claims: the share of drawn realities whose truth it holds."""
+TOO_SURE_LEVEL = 0.05
+"""A key's intervals are called too sure where so few of them hold the truth that, were they 95 % intervals, so few
+or fewer would happen with probability under this level divided by the keys tested (Bonferroni over the keys)."""
+
+
+def coverage_test(covered: int, n: int, keys: int) -> tuple[float, float, float, bool]:
+    """(low, high, p, too_sure) for `covered` of `n` intervals holding the truth: the Clopper-Pearson 95 % interval
+    of the coverage, the one-sided binomial probability of `covered` or fewer were the coverage `NOMINAL`, and
+    whether that is under `TOO_SURE_LEVEL` / `keys`. With 20 realities a key whose intervals are exact 95 % ones
+    falls under 90 % with probability 0.075 (18 or fewer of 20), so of 29 such keys two would; the per-key 90 %
+    target reads such chance as failure, this test does not."""
+    from scipy import stats as st
+
+    low = float(st.beta.ppf(0.025, covered, n - covered + 1)) if covered > 0 else 0.0
+    high = float(st.beta.ppf(0.975, covered + 1, n - covered)) if covered < n else 1.0
+    p = float(st.binom.cdf(covered, n, NOMINAL))
+    return low, high, p, p < TOO_SURE_LEVEL / max(keys, 1)
+
+
+def _weak(row: dict[str, object]) -> bool:
+    """An interval wider than its value (half-width over the value's size): calibration's "weakly determined"."""
+    try:
+        value, low, high = float(row["value"]), float(row["low"]), float(row["high"])  # type: ignore[arg-type]
+    except (KeyError, TypeError, ValueError):
+        return False
+    return (high - low) / 2 > abs(value)
+
+
 def summary(rows: list[dict[str, object]]) -> None:
-    """Per key: how often it was identified, its interval's coverage of the truth and its median relative error;
-    the verdict against the targets (every key >= 90 % covered; identifiable keys within 15 % in the median)."""
+    """Per key: how often it was identified, its interval's coverage of the truth (with its Clopper-Pearson 95 %
+    interval, and whether the intervals are significantly too sure for 95 % ones: `coverage_test`), its median
+    relative error (over every estimate and over the well-determined ones: interval narrower than the value) and
+    median interval half-width; the verdict against the targets (every key >= 90 % covered; identifiable keys
+    within 15 % in the median), the keys too sure, and the coverage pooled over every interval."""
     keys, rows = split_by_truth(rows)  # pooled runs that scored a key against different truths: one line per truth
-    print(f"{'key':34s} {'kind':10s} {'identified':>10s} {'coverage':>8s} {'med rel err':>11s} {'med half-width':>14s}")
-    worst, at_target, counted, close, identifiable = 1.0, 0, 0, 0, 0
+    print(
+        f"{'key':34s} {'kind':10s} {'identified':>10s} {'coverage':>8s} {'95 % of it':>13s} {'med rel err':>11s} "
+        f"{'determined':>10s} {'med half-width':>14s}"
+    )
+    scored = [k for k in keys if k not in CATEGORIES and any(r["key"] == k and "covered" in r for r in rows)]
+    worst, at_target, counted, close, identifiable, sure, too_sure = 1.0, 0, 0, 0, 0, 0, []
+    determined_close, determined_n = 0, 0
+    pooled_hit, pooled_n = 0, 0
     for key in keys:
         mine = [r for r in rows if r["key"] == key]
         if key in CATEGORIES:
@@ -521,20 +563,47 @@ def summary(rows: list[dict[str, object]]) -> None:
         if not ok:
             print(f"{key:34s} {kind:10s} {0:>4d}/{len(mine):<5d} {'-':>8s}")
             continue
-        cov = float(np.mean([int(r["covered"]) for r in ok]))  # type: ignore[call-overload]
+        hits = sum(int(r["covered"]) for r in ok)  # type: ignore[call-overload]
+        cov = hits / len(ok)
+        low, high, _, flagged = coverage_test(hits, len(ok), len(scored))
         rel = [float(r["rel_error"]) for r in ok if math.isfinite(float(r["rel_error"]))]  # type: ignore[arg-type]
+        firm = [
+            float(r["rel_error"])  # type: ignore[arg-type]
+            for r in ok
+            if not _weak(r) and math.isfinite(float(r["rel_error"]))  # type: ignore[arg-type]
+        ]
         half = float(np.median([(float(r["high"]) - float(r["low"])) / 2 for r in ok]))  # type: ignore[arg-type]
         med = f"{np.median(rel):.3f}" if rel else "-"
-        print(f"{key:34s} {kind:10s} {len(ok):>4d}/{len(mine):<5d} {cov:8.2f} {med:>11s} {half:14.4g}")
+        firm_text = f"{np.median(firm):.3f} ({len(firm)})" if firm else "- (0)"
+        mark = " too sure" if flagged else ""
+        print(
+            f"{key:34s} {kind:10s} {len(ok):>4d}/{len(mine):<5d} {cov:8.2f} [{low:.2f}, {high:.2f}] {med:>11s} "
+            f"{firm_text:>10s} {half:14.4g}{mark}"
+        )
         worst = min(worst, cov)
         counted += 1
         at_target += cov >= 0.9
+        pooled_hit, pooled_n = pooled_hit + hits, pooled_n + len(ok)
+        if flagged:
+            too_sure.append(key)
+        sure += not flagged
         if kind.startswith("identif.") and rel:
             identifiable += 1
             close += float(np.median(rel)) <= 0.15
+            if firm:
+                determined_n += 1
+                determined_close += float(np.median(firm)) <= 0.15
+    p_low, p_high, _, _ = coverage_test(pooled_hit, pooled_n, 1) if pooled_n else (math.nan, math.nan, 0.0, False)
+    print(
+        f"coverage pooled over {pooled_n} intervals: {pooled_hit / max(pooled_n, 1):.3f} [{p_low:.3f}, {p_high:.3f}]; "
+        f"too sure for 95 % intervals (one-sided binomial, {TOO_SURE_LEVEL:g} over {counted} keys): "
+        + (", ".join(too_sure) if too_sure else "none")
+    )
     print(
         f"coverage_min={worst:.2f} keys_at_target={at_target}/{counted} "
-        f"identifiable_within_15pct={close}/{identifiable}"
+        f"identifiable_within_15pct={close}/{identifiable} keys_consistent_with_95={sure}/{counted} "
+        f"determined_within_15pct={determined_close}/{determined_n} "
+        f"pooled_coverage={pooled_hit / max(pooled_n, 1):.3f}"
     )
 
 

@@ -27,10 +27,11 @@ import yaml
 from calibration_coverage import drive_replayed, drive_truths, realized_jitter
 
 from pipeline.calibration import calibrate
-from pipeline.calibration.calibrate import _network_streams, arc_per_m
+from pipeline.calibration.keys import arc_per_m
 from pipeline.calibration.network import SHAPE_QUANTILES, pair_rule
 from pipeline.calibration.options import CalibrationSettings
 from pipeline.calibration.recording import read_session
+from pipeline.calibration.streams import network_streams
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 
 CLOSE_NS = 100_000
@@ -38,7 +39,7 @@ CLOSE_NS = 100_000
 
 def jitter_lines(recording: Path) -> list[str]:
     data = read_session(recording, ["network", "odometry", "lidar"])
-    streams = _network_streams("recording", data)
+    streams = network_streams("recording", data)
     with np.load(recording.with_suffix(".link.npz")) as link:
         topics, stamps, handed = link["topic"], link["stamp_ns"], link["handed_ns"]
     lines = []

@@ -1,9 +1,10 @@
 """The result tables of README.md and docs/, and the figures in their sentences, made from committed result files.
 
-Each block in README.md and docs/world.md between ``<!-- results: NAME -->`` and ``<!-- /results -->`` is written
-by one function below from files under ``benchmarks/results/`` (a folder's ``run.json`` names its command, commit,
-machine and date; the layout, pursuit and first ten-robot folders were recorded before run.json existed, and the
-text around their table gives their commands). Nothing in a block is typed by hand:
+Each block between ``<!-- results: NAME -->`` and ``<!-- /results -->`` in the pages of :data:`FILES` (README.md's
+headline, docs/results.md, and the docs pages whose text a block belongs to) is written by one function below from
+files under ``benchmarks/results/`` (a folder's ``run.json`` names its command, commit, machine and date; the layout,
+pursuit and first ten-robot folders were recorded before run.json existed, and the text around their table gives
+their commands). A block's links are relative to the page that holds it. Nothing in a block is typed by hand:
 
     python benchmarks/readme_tables.py            # rewrite the blocks from the result files
     python benchmarks/readme_tables.py --check    # exit 1 naming every block that differs from its files
@@ -236,7 +237,7 @@ def sim2real() -> str:
                 "**Realities drawn at random** (`python benchmarks/sim2real.py --profiles drawn:26 drawn:79`: the "
                 "first two drawn profiles whose network loses >= 4 % of its messages in bursts of >= 4, the loop's "
                 "nominal policy, 200 sim and 50 twin episodes per round; "
-                "[benchmarks/results/sim2real/](benchmarks/results/sim2real/summary.txt)):"
+                "[benchmarks/results/sim2real/](../benchmarks/results/sim2real/summary.txt)):"
             ),
             "",
             "| reality | round | sim at its values | twin, robot / team | aborted | gap sim - twin |",
@@ -272,7 +273,7 @@ def ten() -> str:
         "**Ten robots on the `lab` twin at 1x** (the path teacher's student of "
         f"`benchmarks/settings/ten_dagger.yaml`, seed 1; {twin.episodes} episodes on the same seeds in sim and on the "
         "twin; "
-        "[benchmarks/results/ten/dagger_every_episode/s1/](benchmarks/results/ten/dagger_every_episode/s1/run.json)):"
+        "[benchmarks/results/ten/dagger_every_episode/s1/](../benchmarks/results/ten/dagger_every_episode/s1/run.json)):"
         f" twin {rate_text(twin)} over every episode, {twin.aborted_episodes} aborted (the simulator "
         f"{rate_text(sim)} on the same seeds; team {pct(twin.team_success.value)} on the twin, "
         f"{pct(sim.team_success.value)} in sim: on the twin {', '.join(weak)} arrive in "
@@ -295,9 +296,9 @@ def recount() -> str:
         )
 
     return prose(
-        "**Re-counted with every episode** ([benchmarks/results/recount.json](benchmarks/results/recount.json), from "
-        "the committed episodes of runs made while aborted episodes were left out): the ten-robot student on the lab "
-        f"twin at 1x, {sentence(ten_row)}; the quarter-dropout memory student of seed 3 on random layouts, "
+        "**Re-counted with every episode** ([benchmarks/results/recount.json](../benchmarks/results/recount.json), "
+        "from the committed episodes of runs made while aborted episodes were left out): the ten-robot student on the "
+        f"lab twin at 1x, {sentence(ten_row)}; the quarter-dropout memory student of seed 3 on random layouts, "
         f"{sentence(memory)}. Older twin figures in docs/ that name aborted episodes beside them are completed-only "
         "rates, marked as such there."
     )
@@ -319,7 +320,7 @@ def busy_host() -> str:
 
     auto = m["busy-auto"]
     return prose(
-        f"**A busy host** ([results/busy_host/](benchmarks/results/busy_host/run.json), `python "
+        f"**A busy host** ([results/busy_host/](../benchmarks/results/busy_host/run.json), `python "
         f"benchmarks/busy_host.py --load 6` at {run['commit'][:7]}: the nominal policy on the lab twin, 20 episodes, "
         "6 processes spinning beside it on the 2 cores): the deployment kept its clock in "
         f"{kept('quiet')} episodes at 3x on the quiet host, {kept('busy')} at 3x beside the load (control steps up "
@@ -360,7 +361,7 @@ def scale() -> str:
     )
     return prose(
         f"**Calibration at building scale** (`{run_of(folder)['command']}`; "
-        "[benchmarks/results/calibration_scale/](benchmarks/results/calibration_scale/summary.txt)): a generated "
+        "[benchmarks/results/calibration_scale/](../benchmarks/results/calibration_scale/summary.txt)): a generated "
         f"building of {side:.0f} x {side:.0f} m as a map_server map at {cells.group(3)} m ({cells.group(4)} wall "
         f"faces), a {bag.group(1)} s bag of {bag.group(2)} scans of a {bag.group(3)}-beam lidar without motion "
         f"capture, calibrated with the robot localized in the map: peak memory {last['peak_mib']} MiB "
@@ -393,6 +394,8 @@ COVERAGE_REAL_LIDAR = "calibration_coverage/real_lidar"
 COVERAGE_REAL_LIDAR_DRIVING = "calibration_coverage/real_lidar_driving"
 COVERAGE_REAL_LIDAR_ROBUST = "calibration_coverage/real_lidar_robust_mean"
 COVERAGE_REAL_LIDAR_ANGLE = "calibration_coverage/real_lidar_angle_prior"
+COVERAGE_REAL_LIDAR_TESTED = "calibration_coverage/tested/real_lidar_robust_mean"
+"""The last real-lidar recalibration's rows summarized again with the binomial test against 95 %."""
 """Those recordings' lidar, odometry and network parts again after a beam's mean in a still span was taken without
 its far-off returns (and the beams' spread at the degrees of freedom those means leave)."""
 COVERAGE_LOOP_LAB = "calibration_coverage/loop_lab"
@@ -476,19 +479,41 @@ def _coverage_line(name: str) -> str:
     )
 
 
+def _tested_line(name: str) -> str:
+    """A summary's test of every key's coverage against 95 % and the coverage pooled over its intervals."""
+    lines = (RESULTS / name / "summary.txt").read_text(encoding="utf-8").strip().splitlines()
+    pooled = next(line for line in lines if line.startswith("coverage pooled over"))
+    counts = _coverage_counts(name)
+    consistent, keys = counts["keys_consistent_with_95"].split("/")
+    share, rest = pooled.removeprefix("coverage pooled over ").split(": ", 1)[1].split(" ", 1)
+    bounds = rest.split(";", 1)[0]
+    return (
+        f"{consistent} of {keys} keys' coverage consistent with 95 % intervals (a one-sided binomial test, 0.05 "
+        f"over the keys), {pooled.split(': ', 1)[0].removeprefix('coverage pooled over ')} pooled: {share} "
+        f"{bounds} (Clopper-Pearson)"
+    )
+
+
 def coverage() -> str:
     real = run_of(RESULTS / COVERAGE_REAL_LIDAR)
     angle = run_of(RESULTS / COVERAGE_REAL_LIDAR_ANGLE)
+    robust = run_of(RESULTS / COVERAGE_REAL_LIDAR_ROBUST)
+    tested = run_of(RESULTS / COVERAGE_REAL_LIDAR_TESTED)
     return prose(
         "**Interval coverage on robots calibration was not drawn for** (realities drawn over the ranges of real "
-        "robots, each deployed on the twin and its recording calibrated; [docs/calibration.md](docs/calibration.md"
-        "#coverage-of-the-intervals), [docs/lidar.md](docs/lidar.md)). With the lidars real robots have (range steps, "
+        "robots, each deployed on the twin and its recording calibrated; [docs/calibration.md](calibration.md"
+        "#coverage-of-the-intervals), [docs/lidar.md](lidar.md)). With the lidars real robots have (range steps, "
         "per-beam noise, mixed pixels, no-return conventions, wandering sweeps, lost scans; 20 realities at "
         f"{real['commit']}: `{real['command']}`): "
         + _coverage_line(COVERAGE_REAL_LIDAR)
         + f"; their lidar, odometry and network parts again at {angle['commit'][:7]} (the beams' angle errors "
         "in the geometry's intervals): "
         + _coverage_line(COVERAGE_REAL_LIDAR_ANGLE)
+        + f"; and at {robust['commit'][:7]} (a still span's beam means without their far-off returns): "
+        + _coverage_line(COVERAGE_REAL_LIDAR_ROBUST)
+        + f"; tested at {tested['commit'][:7]} (a per-key 90 % target over 20 realities fails exact 95 % intervals "
+        "by chance, a key 0.075 of the time): "
+        + _tested_line(COVERAGE_REAL_LIDAR_TESTED)
         + ". With ideal lidars, driven by the policy (20 realities, pooled): "
         + _coverage_line(COVERAGE_POLICY_20)
         + "; driven by the calibration drive with turns of every size (40 realities, pooled): "
@@ -822,7 +847,7 @@ SWEEPS = (
     "ppo",
     "centralized_300k",
 )
-"""The committed sweeps in the README's table, in its order (benchmarks/results/sweeps/<name>/)."""
+"""The committed sweeps in the sweeps table of docs/results.md, in its order (benchmarks/results/sweeps/<name>/)."""
 MODE_WORDS = {
     "share": "{mode}, experience shared",
     "dqn_nstep": "{mode}, experience shared, 3-step transitions",
@@ -830,7 +855,7 @@ MODE_WORDS = {
     "dqn_nstep_converge": "{mode}, 3-step transitions",
     "centralized_300k": "{mode}, 300 000 steps",
 }
-"""How the README's table names the mode of a sweep whose settings change it (`share`: `train.share_experience`, one
+"""How the sweeps table names the mode of a sweep whose settings change it (`share`: `train.share_experience`, one
 network per robot with every robot's transitions in every network's replay; `centralized_300k`: three times the
 budget; `dqn_nstep`: `share` with `train.n_step: 3`; `sac_nstep`: `paper` with it; `dqn_nstep_converge`: `paper`'s DQN
 with it, its stop on a perfect evaluation waiting for convergence)."""
@@ -859,8 +884,8 @@ def sweeps() -> str:
         prose(
             "**The paper's cells, swept on Ray** (100 000 world steps per trial unless the mode says otherwise; each "
             "sweep's settings that differ from params.yaml are the file in its row, `paper.yaml` the paper's; rows, "
-            "curves and full tables in [benchmarks/results/sweeps/](docs/benchmarks.md#sweep-results), what each "
-            "change does in [docs/experiments/sweeps.md](docs/experiments/sweeps.md)):"
+            "curves and full tables in [benchmarks/results/sweeps/](benchmarks.md#sweep-results), what each "
+            "change does in [docs/experiments/sweeps.md](experiments/sweeps.md)):"
         ),
         "",
         f"| sweep | settings | algorithm | mode | room | seeds | robot success IQM, % [95 % CI] | converged (within "
@@ -883,8 +908,8 @@ def sweeps() -> str:
         settings = _settings_file(runs[0]["command"], record)
         for s in cell_stats(rows):
             lines.append(
-                f"| [{name}](benchmarks/results/sweeps/{name}/results.md) | "
-                f"[{Path(settings).name}]({settings}) | {s.algorithm} | "
+                f"| [{name}](../benchmarks/results/sweeps/{name}/results.md) | "
+                f"[{Path(settings).name}](../{settings}) | {s.algorithm} | "
                 f"{MODE_WORDS.get(name, '{mode}').format(mode=s.mode)} | {s.scenario} | "
                 f"{s.seeds} | {100 * s.robot_iqm:.1f} {interval_text(s.robot_ci, s.seeds)} | "
                 f"{s.converged_seeds} of {s.seeds} ({s.converged_in_time}) | {'met' if s.meets_target else 'missed'} |"
@@ -938,7 +963,7 @@ def _centralized_budget_line() -> str:
             "the accounting's factor of three covers the robots' gap. Its seeds split on the team: "
             + ", ".join(f"{t:.1f}" for t in teams)
             + " % of the episodes with all three robots at their goals (a summed reward lets a learner settle for "
-            "two robots). [docs/experiments/sweeps.md](docs/experiments/sweeps.md#what-centralized-mode-is)."
+            "two robots). [docs/experiments/sweeps.md](experiments/sweeps.md#what-centralized-mode-is)."
         )
         + "\n\n"
     )
@@ -1048,17 +1073,35 @@ BLOCKS: dict[str, Callable[[], str]] = {
 }
 FILES = (
     ROOT / "README.md",
+    ROOT / "docs" / "results.md",
     ROOT / "docs" / "world.md",
     ROOT / "docs" / "calibration.md",
     ROOT / "docs" / "lidar.md",
     ROOT / "docs" / "deployment.md",
     ROOT / "docs" / "benchmarks.md",
     ROOT / "docs" / "experiments" / "sweeps.md",
+    ROOT / "docs" / "experiments" / "calibration-coverage.md",
 )
 
 
+DOCS_LINK = re.compile(r"\]\((?!https?:|#|/)")
+"""The start of a relative link in a block's text."""
+
+
+def rebased(body: str, where: str) -> str:
+    """A ``-docs`` block's text (its links relative to docs/) for the page `where`: one folder further down for a
+    page in a folder under docs/ (``docs/experiments/``)."""
+    page = Path(where).resolve()
+    docs = (ROOT / "docs").resolve()
+    if page.parent == docs or docs not in page.parents:
+        return body
+    up = "../" * (len(page.relative_to(docs).parts) - 1)
+    return DOCS_LINK.sub(lambda m: m.group(0) + up, body)
+
+
 def regenerate(text: str, where: str) -> tuple[str, list[str]]:
-    """`text` with every results block rewritten; the names of the blocks that changed."""
+    """`text` with every results block rewritten; the names of the blocks that changed. A ``-docs`` block's links
+    are relative to docs/, rebased for a page further down (:func:`rebased`)."""
     changed: list[str] = []
     names = [m.group("name") for m in BLOCK.finditer(text)]
     unknown = sorted(set(names) - set(BLOCKS))
@@ -1066,7 +1109,10 @@ def regenerate(text: str, where: str) -> tuple[str, list[str]]:
         raise SystemExit(f"{where}: results block(s) {unknown} have no generator; known: {sorted(BLOCKS)}")
 
     def fill(match: re.Match[str]) -> str:
-        body = BLOCKS[match.group("name")]() + "\n"
+        name = match.group("name")
+        body = BLOCKS[name]() + "\n"
+        if name.endswith("-docs"):
+            body = rebased(body, where)
         if body != match.group("body"):
             changed.append(match.group("name"))
         return match.group(1) + body + match.group(4)

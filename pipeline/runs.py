@@ -18,7 +18,7 @@ from pipeline.rollout.deployment import DeployRequest, check_clock_kept, deploy_
 
 if TYPE_CHECKING:
     from pipeline.params import DeployConfig
-    from pipeline.policy.runtime import PolicyRuntime
+    from pipeline.policy.protocol import Policy
     from pipeline.rollout.deployment import DeploymentOutcome
     from pipeline.ros.fleet import Fleet
 
@@ -42,7 +42,7 @@ def deploy_request(cfg: DeployConfig, out: Path, params_text: str | None = None)
 
 
 def run_deployment(
-    runtime: PolicyRuntime,
+    runtime: Policy,
     fleet: Fleet,
     cfg: DeployConfig,
     out: Path,

@@ -59,6 +59,7 @@ class ExcitationRuntime:
         self.rng = np.random.default_rng(seed)
         self.mode = mode
         self.name = f"excitation/{mode}"
+        self.session_extra: dict[str, str] = {}  # the policy itself drives
         n = scenario.n_robots
         self._phase = ["stand"] * n
         self._left = np.zeros(n, dtype=int)
@@ -140,7 +141,8 @@ def record_twin_session(
     max_steps: int = 150,
 ) -> Path:
     """Deploy the excitation runtime against the hardware twin (DDS on loopback) into `out` as the deploy stage does
-    (session.mcap beside the deployment's own episodes.csv and metrics.json); the recording's path."""
+    (session.mcap beside the deployment's own episodes.csv and metrics.json); the recording's path. The twin's record
+    of each stamped message's hand-over goes beside the folder (:func:`link_record_of`)."""
     from pipeline.rollout.deployment import DeployRequest, deploy_session
     from pipeline.ros.fleet import load_fleet
     from tests.integration.conftest import write_fleet
@@ -153,8 +155,15 @@ def record_twin_session(
     runtime = ExcitationRuntime(load_scenario(scenario), seed=seed, mode=mode, max_steps=max_steps)
     recording = out / "session.mcap"
     request = DeployRequest(episodes=episodes, seed=seed * 100 + 1, recording=recording, progress=False)
-    deploy_session(runtime, fleet, str(fleet_file), request, out)  # type: ignore[arg-type]
+    link = ["--link-record", str(link_record_of(recording))]
+    deploy_session(runtime, fleet, str(fleet_file), request, out, twin_extra_args=link)  # type: ignore[arg-type]
     return recording
+
+
+def link_record_of(recording: Path) -> Path:
+    """Where :func:`record_twin_session` keeps the twin's link record of `recording` (``--link-record``): beside the
+    deployment's folder, which holds the deployment's files only."""
+    return recording.parent.with_name(f"{recording.parent.name}_link.npz")
 
 
 def simulate_session(

@@ -3,6 +3,7 @@
 Modules (import them directly; this package imports nothing heavy):
 
 - :mod:`pipeline.analysis.decode`: CDR messages of one topic -> numpy columns, vectorised.
+- :mod:`pipeline.analysis.layouts`: the field layouts it reads each recorded type with.
 - :mod:`pipeline.analysis.tables`: :class:`~pipeline.analysis.tables.Recording`, the episodes table
   (one row per episode and robot), per-topic frames and pose frames.
 - :mod:`pipeline.analysis.compare`: success rates with Wilson intervals, sim-vs-real tests.

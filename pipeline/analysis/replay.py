@@ -25,7 +25,7 @@ from pipeline.analysis.errors import ReplayError
 from pipeline.core.scenario import Scenario
 from pipeline.messages import convert as C
 from pipeline.params import RandomizeConfig, WorldConfig, world_config
-from pipeline.policy.runtime import PolicyRuntime
+from pipeline.policy.protocol import Policy
 from pipeline.record import McapLog
 from pipeline.record.episodes import EPISODE_TOPIC, read_episode_windows
 from pipeline.record.session import session_info
@@ -51,7 +51,7 @@ def check_scenario(log: McapLog, expected: str | None, what: str) -> None:
         raise ReplayError(f"{log.path}: recorded in scenario {recorded!r}, but {what} is for {expected!r}")
 
 
-def action_agreement(path: Path, runtime: PolicyRuntime, tolerance: float = 1e-5) -> Agreement:
+def action_agreement(path: Path, runtime: Policy, tolerance: float = 1e-5) -> Agreement:
     """Re-run `runtime` on every recorded control step of `path`; steps need an observation for every robot."""
     log = McapLog(path)
     check_scenario(log, runtime.spec.scenario.name, f"policy {runtime.name}")

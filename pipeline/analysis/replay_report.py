@@ -13,7 +13,7 @@ from matplotlib.figure import Figure
 from pipeline.analysis.replay import Agreement, Divergence, action_agreement, open_loop_divergence
 from pipeline.core.scenario import Scenario
 from pipeline.params import WorldConfig
-from pipeline.policy.runtime import PolicyRuntime
+from pipeline.policy.protocol import Policy
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ class ReplayResult:
 
 def run_replay(
     recordings: dict[str, Path],
-    policies: dict[str, PolicyRuntime],
+    policies: dict[str, Policy],
     scenario: Scenario,
     worlds: dict[str, WorldConfig],
     source: str,

@@ -27,8 +27,9 @@ import numpy as np
 import polars as pl
 from tqdm import tqdm
 
-from pipeline.analysis.decode import DECODABLE, Decoded, Ragged, Strings, concat, decode
+from pipeline.analysis.decode import Decoded, Ragged, Strings, concat, decode
 from pipeline.analysis.errors import AnalysisError
+from pipeline.analysis.layouts import DECODABLE
 from pipeline.core.episode import path_lengths_m, path_times_ns
 from pipeline.core.scenario import Scenario
 from pipeline.core.timebase import CONTROL_LATE_LIMIT, NS_PER_S
@@ -701,7 +702,7 @@ def topic_frame(source: Source, topic: str) -> pl.DataFrame:
     linear_z...); Twist: v_mps, w_radps and the other four components; LaserScan: frame_id, the
     angle (rad), time (s) and range (m) fields, ``ranges_m`` as an Array(Float32, beams) column (a
     List column when the beam count changes), ``intensities`` when recorded; other decodable types
-    (:data:`~pipeline.analysis.decode.DECODABLE`) keep their field names.
+    (:data:`~pipeline.analysis.layouts.DECODABLE`) keep their field names.
     """
     return open_recording(source).topic_frame(topic)
 

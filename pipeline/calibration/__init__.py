@@ -15,9 +15,10 @@ Modules: :mod:`~pipeline.calibration.recording` (reading), :mod:`~pipeline.calib
 :mod:`~pipeline.calibration.fit_report`.
 """
 
-from pipeline.calibration.calibrate import PROFILE_KEYS, Calibration, Source, calibrate
+from pipeline.calibration.calibrate import Calibration, Source, calibrate
 from pipeline.calibration.errors import CalibrationError, ScenarioMismatchError
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.keys import PROFILE_KEYS
 from pipeline.calibration.options import PARTS, CalibrationSettings, calibration_settings
 from pipeline.calibration.output import calibration_mapping, write_calibration
 from pipeline.record.errors import MissingTopicError

@@ -13,8 +13,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from pipeline.calibration.calibrate import REAL_LIDAR_KEYS, Calibration, Source
+from pipeline.calibration.calibrate import Calibration, Source
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.keys import REAL_LIDAR_KEYS
 from pipeline.calibration.lidar import SPECTRUM_OUTLIER_M
 
 LIDAR_PLOT = "lidar_residuals.png"
@@ -289,8 +290,9 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
             "",
             "Each range is its key's 95 % interval widened to at least +-10 % of the value; the actuation keys' "
             "ranges also hold the spread the recorded velocity transitions ask for (the randomization fit in the "
-            "notes), and the gains are centred on the wheel chain's gains where the motors were fitted. A range far "
-            "wider than the interval is that spread of the robot's behaviour, not uncertainty of the value.",
+            "notes), and the gains are centred on the simulator's gains with the deadband where the motors were "
+            "fitted. A range far wider than the interval is that spread of the robot's behaviour, not uncertainty of "
+            "the value.",
         ]
     notes: list[str] = []
     fits = (calibration.lidar, calibration.actuation, calibration.odometry, calibration.network)
@@ -307,12 +309,12 @@ def write_report(calibration: Calibration, out_dir: Path) -> Path:
                 f"lidar.{key} is weak: not applied to the calibrated world (the simulator keeps params.yaml's value); "
                 "a real-sensor property enters it only where its interval is narrower than its value"
             )
-    gains = calibration.body_gains()
+    gains = calibration.simulator_gains()
     if gains is not None:
         notes.append(
-            f"the simulator gets the deadband with the wheel chain's gains at body level ({gains[0]:.3f} linear, "
-            f"{gains[1]:.3f} angular) in place of the body-velocity fit's, which hold the deadband; it has no "
-            "acceleration limit, which its lag and delay absorb"
+            f"the simulator gets the deadband with gains ({gains[0]:.3f} linear, {gains[1]:.3f} angular) that move "
+            "its body over the recorded commands as the body-velocity fit read it (the fit's gains hold the "
+            "deadband); it has no acceleration limit, which its lag and delay absorb"
         )
         notes += [agreement.sentence() for agreement in calibration.gain_agreement()]
     if calibration.odometry is not None and calibration.odometry.component_rms:

@@ -31,8 +31,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pipeline.calibration.calibrate import Calibration, split_key, within_physical_ranges
+from pipeline.calibration.calibrate import Calibration
 from pipeline.calibration.errors import CalibrationError
+from pipeline.calibration.keys import split_key, within_physical_ranges
 from pipeline.errors import ConfigError
 from pipeline.mappings import to_mapping
 from pipeline.params import CALIBRATION_FILE, CALIBRATION_FORMAT, world_config

@@ -23,9 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.calibration.calibrate import NEGLIGIBLE, Calibration, Source
+from pipeline.calibration.calibrate import Calibration, Source
 from pipeline.calibration.errors import CalibrationError
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.keys import NEGLIGIBLE
 from pipeline.calibration.lidar import (
     DEPTH_EDGE_M,
     LidarFit,

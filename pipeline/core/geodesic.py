@@ -120,14 +120,18 @@ class DistanceField:
         return np.asarray(_blend(lambda i, j: v[i, j], ix, iy, tx, ty))
 
 
+_LAST_CELL = 1.000001
+"""Grid positions are clamped this far below the grid's size: inside the last cell, its far corner still on the grid."""
+
+
 def _cells(
     x0: float, y0: float, resolution_m: float, shape: tuple[int, ...], xy: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Grid cell (ix, iy) of each point (n, 2) and its position inside the cell (tx, ty in [0, 1)); clamped."""
     p = np.asarray(xy, dtype=np.float64)
     nx, ny = shape[0], shape[1]
-    fx = np.minimum(np.maximum((p[:, 0] - x0) / resolution_m, 0.0), nx - 1.000001)
-    fy = np.minimum(np.maximum((p[:, 1] - y0) / resolution_m, 0.0), ny - 1.000001)
+    fx = np.minimum(np.maximum((p[:, 0] - x0) / resolution_m, 0.0), nx - _LAST_CELL)
+    fy = np.minimum(np.maximum((p[:, 1] - y0) / resolution_m, 0.0), ny - _LAST_CELL)
     ix, iy = fx.astype(int), fy.astype(int)
     return ix, iy, fx - ix, fy - iy
 
@@ -148,8 +152,27 @@ def _blend(
     )
 
 
+def _blend_scalar(flat: np.ndarray, ny: int, ix: int, iy: int, tx: float, ty: float) -> float:
+    """:func:`_blend` of one point of a grid (nx, ny) held flat (row-major): its operations, in its order, in
+    Python floats."""
+    k = ix * ny + iy
+    take = flat.item
+    return float(
+        take(k) * (1 - tx) * (1 - ty)
+        + take(k + ny) * tx * (1 - ty)
+        + take(k + 1) * (1 - tx) * ty
+        + take(k + ny + 1) * tx * ty
+    )
+
+
 class GoalFields:
-    """Every robot's own distance field at once: robot i's distance and path heading at its position."""
+    """Every robot's own distance field at once: robot i's distance and path heading at its position.
+
+    A judge reads them every control step for a handful of robots, where numpy's per-call cost is most of the work:
+    :meth:`distance` and :meth:`direction` take each robot's cell and blend its corners in Python floats, the
+    same operations in the same order as :func:`_cells` and :func:`_blend` (so the same numbers to the bit; the
+    heading's arctan2 is numpy's on the blended vectors, as before). :meth:`distance_arrays` and
+    :meth:`direction_arrays` are the vectorised reading, for many points and as the reference."""
 
     def __init__(self, fields: list[DistanceField] | tuple[DistanceField, ...]) -> None:
         first = fields[0]
@@ -157,15 +180,62 @@ class GoalFields:
         self.x0, self.y0 = first.x0, first.y0
         self.values = np.stack([f.values for f in fields])  # (n, nx, ny)
         self.unit = np.stack([f.unit for f in fields])  # (n, nx, ny, 2)
+        nx, ny = self.values.shape[1:]
+        self._x_top, self._y_top = nx - _LAST_CELL, ny - _LAST_CELL
+        self._ny = ny
+        self._rows = [
+            (
+                np.ravel(f.values),
+                np.ascontiguousarray(f.unit[..., 0]).ravel(),
+                np.ascontiguousarray(f.unit[..., 1]).ravel(),
+            )
+            for f in fields
+        ]
+
+    def _cell(self, x: float, y: float) -> tuple[int, int, float, float] | None:
+        """:func:`_cells` of one point in Python floats; None where it is not finite (the arrays' reading)."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return None
+        fx = min(max((x - self.x0) / self.resolution_m, 0.0), self._x_top)
+        fy = min(max((y - self.y0) / self.resolution_m, 0.0), self._y_top)
+        ix, iy = int(fx), int(fy)
+        return ix, iy, fx - ix, fy - iy
 
     def distance(self, xy: np.ndarray) -> np.ndarray:
         """(n,) robot i's free-path distance (m) to its goal from point xy[i]."""
+        points = np.asarray(xy, dtype=np.float64)
+        if points.shape != (len(self._rows), 2):
+            return self.distance_arrays(points)
+        out = []
+        for (x, y), (values, _, _) in zip(points.tolist(), self._rows, strict=True):
+            cell = self._cell(x, y)
+            if cell is None:
+                return self.distance_arrays(points)
+            out.append(_blend_scalar(values, self._ny, *cell))
+        return np.array(out)
+
+    def direction(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) heading (rad) of robot i's free path to its goal at point xy[i]."""
+        points = np.asarray(xy, dtype=np.float64)
+        if points.shape != (len(self._rows), 2):
+            return self.direction_arrays(points)
+        ux, uy = [], []
+        for (x, y), (_, unit_x, unit_y) in zip(points.tolist(), self._rows, strict=True):
+            cell = self._cell(x, y)
+            if cell is None:
+                return self.direction_arrays(points)
+            ux.append(_blend_scalar(unit_x, self._ny, *cell))
+            uy.append(_blend_scalar(unit_y, self._ny, *cell))
+        return np.asarray(np.arctan2(np.array(uy), np.array(ux)))
+
+    def distance_arrays(self, xy: np.ndarray) -> np.ndarray:
+        """:meth:`distance`, vectorised."""
         ix, iy, tx, ty = _cells(self.x0, self.y0, self.resolution_m, self.values.shape[1:], xy)
         r, v = np.arange(len(ix)), self.values
         return np.asarray(_blend(lambda i, j: v[r, i, j], ix, iy, tx, ty))
 
-    def direction(self, xy: np.ndarray) -> np.ndarray:
-        """(n,) heading (rad) of robot i's free path to its goal at point xy[i]."""
+    def direction_arrays(self, xy: np.ndarray) -> np.ndarray:
+        """:meth:`direction`, vectorised."""
         ix, iy, tx, ty = _cells(self.x0, self.y0, self.resolution_m, self.values.shape[1:], xy)
         r, u = np.arange(len(ix)), self.unit
         v = _blend(lambda i, j: u[r, i, j], ix, iy, tx[:, None], ty[:, None])

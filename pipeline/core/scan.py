@@ -72,6 +72,20 @@ def _plan(n_src: int, angle_min: float, inc: float, n_out: int, method: Reductio
     return (member,)
 
 
+@lru_cache(maxsize=64)
+def _sectors(n_src: int, angle_min: float, inc: float, n_out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`sector_min`'s table as runs: (the member source beams, sector by sector; where each non-empty sector's run
+    starts in them; (n_out,) which sectors have a member), cached per geometry."""
+    (member,) = _plan(n_src, angle_min, inc, n_out, "sector_min")
+    _, members = np.nonzero(member)  # row-major: sector by sector
+    counts = member.sum(axis=1)
+    filled = counts > 0
+    starts = (np.cumsum(counts) - counts)[filled]
+    for table in (members, starts, filled):
+        table.setflags(write=False)  # shared by every caller of this geometry
+    return members, starts, filled
+
+
 def uncovered_beams(geometry: ScanGeometry, n_beams: int) -> list[int]:
     """The policy beams (indices) that no beam of a scan with `geometry` falls within half a sector of.
 
@@ -103,20 +117,23 @@ def reduce_scan(
     arr = np.asarray(ranges, dtype=np.float64)
     if arr.shape[-1:] != (geometry.n_beams,):
         raise ScanError(f"scan has {arr.shape[-1] if arr.ndim else 0} ranges but its geometry says {geometry.n_beams}")
-    # normalise to REP 117 classes: invalid -> nan, too close -> -inf, no return -> +inf
+    # normalise to REP 117 classes in one pass: a finite value outside the source's limits is invalid and an invalid
+    # one (or NaN) means "nothing seen within range" for a min, as +inf does; -inf is an object closer than range_min
     finite = np.isfinite(arr)
-    clean = np.where(finite & (arr < geometry.range_min_m), np.nan, arr)
-    clean = np.where(finite & (arr > geometry.range_max_m), np.inf, clean)
-    clean = np.where(np.isneginf(clean), range_min_m, clean)
-    # +inf and nan both mean "nothing seen within range" for a min: +inf keeps that meaning
-    clean = np.where(np.isnan(clean), np.inf, clean)
-    (table,) = _plan(
-        geometry.n_beams, float(geometry.angle_min_rad), float(geometry.angle_increment_rad), n_beams, method
+    clean = np.where(
+        finite,
+        np.where((arr < geometry.range_min_m) | (arr > geometry.range_max_m), np.inf, arr),
+        np.where(np.isneginf(arr), range_min_m, np.inf),
     )
+    plan = (geometry.n_beams, float(geometry.angle_min_rad), float(geometry.angle_increment_rad), n_beams)
     if method == "pick":
+        (table,) = _plan(*plan, method)
         out = clean[..., table]
     elif method == "sector_min":
-        out = np.where(table, clean[..., None, :], np.inf).min(axis=-1)
+        members, starts, filled = _sectors(*plan)
+        out = np.full((*arr.shape[:-1], n_beams), np.inf)
+        if len(members):  # each sector's least return, over its own beams only (a min is exact in any order)
+            out[..., filled] = np.minimum.reduceat(clean[..., members], starts, axis=-1)
     else:
         raise ScanError(f"unknown reduction {method!r}; allowed: 'pick', 'sector_min'")
     return np.minimum(np.maximum(np.where(np.isinf(out) & (out > 0), range_max_m, out), range_min_m), range_max_m)

@@ -37,6 +37,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
+from pipeline.learn.sb3 import LoopSAC, progress_remaining
 from pipeline.params import TrainConfig
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3's clamp of the actor's log standard deviation
@@ -105,8 +106,6 @@ class BatchedSAC:
     """K SB3 SAC models (``LoopSAC``) trained by batched gradient steps; see the module docstring."""
 
     def __init__(self, models: Sequence[object], cfg: TrainConfig, seed: int) -> None:
-        from pipeline.learn.learners import LoopSAC  # the learners module builds this class
-
         sacs = [m for m in models if isinstance(m, LoopSAC)]
         if len(sacs) != len(models) or not sacs:
             raise TypeError("BatchedSAC trains LoopSAC models only")
@@ -239,7 +238,7 @@ class BatchedSAC:
     # -- updates -------------------------------------------------------------------------------------
     def _lr(self) -> float:
         model = self.models[0]
-        return float(model.lr_schedule(model._current_progress_remaining))
+        return float(model.lr_schedule(progress_remaining(model)))
 
     def train(self, gradient_steps: int) -> None:
         """`gradient_steps` batched gradient steps of every learner."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -113,6 +114,18 @@ class MessageStore:
         """The DDS type name ROS 2 uses: ``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_``."""
         pkg, kind, name = typename.split("/")
         return f"{pkg}::{kind}::dds_::{name}_"
+
+    def prepare(self, typenames: Iterable[str]) -> None:
+        """Makes the (de)serializers of `typenames` now: the type store generates a type's code at its first use
+        (milliseconds per type), and a recorder that prepares its topics' types when it opens does not spend that
+        inside its first control steps."""
+        for typename in dict.fromkeys(typenames):
+            self.cls(typename)
+            self._ts.get_msgdef(typename)
+
+    def prepared(self, typename: str) -> bool:
+        """Whether the (de)serializers of `typename` are made (:meth:`prepare`, or a message of it seen)."""
+        return typename in self._ts.cache
 
     def serialize(self, msg: Any, typename: str) -> bytes:
         """Little-endian plain CDR (XCDR1, with the 4-byte encapsulation header) of `msg`."""

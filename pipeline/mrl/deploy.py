@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.mrl.common import add_verb, config_from_options, live_options, output_folder
+
+if TYPE_CHECKING:
+    from pipeline.policy.protocol import Policy
 
 NAME = "deploy"
 
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     fleet = load_fleet(cfg.fleet)
     if args.domain_id is not None:  # another DDS domain than the fleet file's, without writing a fleet file
         fleet = replace(fleet, network=replace(fleet.network, domain_id=args.domain_id))
-    runtime: Any = PolicyRuntime(args.policy)
+    runtime: Policy = PolicyRuntime(args.policy)
     if args.drive == "excitation":
         from pipeline.policy.excitation import ExcitationDrive
 

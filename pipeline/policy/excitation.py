@@ -22,15 +22,14 @@ rates say nothing about the policy.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from pipeline.core.actions import ActionCodec
 from pipeline.core.observation import ObservationLayout
 from pipeline.policy.errors import PolicyMismatch
+from pipeline.policy.protocol import Policy
 from pipeline.policy.scripted import GoToGoalController, front_beams, range_ahead
-from pipeline.policy.spec import PolicySpec
 
 PHASES = ("policy", "step", "turn", "stop")
 PHASE_WEIGHTS = (0.25, 0.4, 0.15, 0.2)
@@ -49,28 +48,49 @@ STOP_AHEAD_M = 0.45
 """A step ends (the robot stops) once the free range ahead falls below this."""
 
 
-class DrivenPolicy(Protocol):
-    """What the drive needs of a policy runtime (:class:`~pipeline.policy.runtime.PolicyRuntime`)."""
+class DriveOver:
+    """What a drive over `policy` takes from it unchanged: its spec, layout, codec, document and robots, the fit
+    check, and actions as the codec's encoding of the drive's :meth:`commands`. A subclass says what it drives."""
 
-    spec: PolicySpec
-    layout: ObservationLayout
-    codec: ActionCodec
+    def __init__(self, policy: Policy) -> None:
+        self.policy = policy
+        self.spec = policy.spec
+        self.layout = policy.layout
+        self.codec = policy.codec
 
     @property
-    def name(self) -> str: ...
+    def document(self) -> dict[str, Any]:
+        return self.policy.document
 
     @property
-    def document(self) -> dict[str, Any]: ...
+    def robots(self) -> tuple[str, ...]:
+        return self.spec.robots
 
-    def commands(self, obs: np.ndarray) -> np.ndarray: ...
+    def check_fits(
+        self,
+        robots: Sequence[str],
+        layout: ObservationLayout,
+        action_kind: str | None = None,
+        limits: tuple[float, float] | None = None,
+    ) -> None:
+        self.policy.check_fits(robots, layout, action_kind, limits)
 
-    def check_fits(self, robots: Sequence[str], layout: ObservationLayout, *args: Any, **kwargs: Any) -> None: ...
+    def commands(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def actions(self, obs: np.ndarray) -> np.ndarray:
+        """Actions for the policy's codec: (n_robots, 2) in [-1, 1]."""
+        return self.codec.encode(self.commands(obs))
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.actions(obs)
 
 
-class ExcitationDrive:
-    """Drives `policy`'s robots through phases of the policy's own driving and held steps (the module's text)."""
+class ExcitationDrive(DriveOver):
+    """Drives `policy`'s robots through phases of the policy's own driving and held steps (the module's text); a
+    :class:`~pipeline.policy.protocol.Policy` itself."""
 
-    def __init__(self, policy: DrivenPolicy, seed: int = 0) -> None:
+    def __init__(self, policy: Policy, seed: int = 0) -> None:
         if policy.codec.kind != "continuous":
             raise PolicyMismatch(
                 policy.name,
@@ -81,10 +101,7 @@ class ExcitationDrive:
             )
         if "ranges" not in policy.layout.slices:
             raise PolicyMismatch(policy.name, [f"observation layout {policy.layout.name!r} has no lidar ranges"])
-        self.policy = policy
-        self.spec = policy.spec
-        self.layout = policy.layout
-        self.codec = policy.codec
+        super().__init__(policy)
         self.period_s = float(policy.spec.world.control_period_s)
         self.rng = np.random.default_rng(seed)
         n = len(policy.spec.robots)
@@ -93,19 +110,12 @@ class ExcitationDrive:
         self._hold = np.zeros((n, 2))
         self._limits = self.codec.limits(n)
         self._front = front_beams(self.layout.n_beams)
-        self.session_extra = {"drive": "excitation", "drive_seed": str(seed)}
+        self.session_extra: dict[str, str] = {"drive": "excitation", "drive_seed": str(seed)}
         """Written into the recording's session metadata: its episodes are a calibration drive, not the policy's."""
 
     @property
     def name(self) -> str:
         return f"excitation drive over {self.policy.name}"
-
-    @property
-    def document(self) -> dict[str, Any]:
-        return self.policy.document
-
-    def check_fits(self, robots: Sequence[str], layout: ObservationLayout, *args: Any, **kwargs: Any) -> None:
-        self.policy.check_fits(robots, layout, *args, **kwargs)
 
     def _steps(self) -> int:
         return max(1, round(float(self.rng.uniform(*PHASE_S)) / self.period_s))
@@ -138,39 +148,23 @@ class ExcitationDrive:
             out[driven] = self.policy.commands(np.asarray(obs, dtype=np.float32))[driven]
         return out
 
-    def actions(self, obs: np.ndarray) -> np.ndarray:
-        """Actions for the policy's codec: (n_robots, 2) in [-1, 1]."""
-        return self.codec.encode(self.commands(obs))
 
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        return self.actions(obs)
-
-
-class StillThenDrive:
+class StillThenDrive(DriveOver):
     """A recording as a user's bag often starts: every robot stands still for `still_s`, then drives to its goal
     (the scripted go-to-goal controller where the policy's layout has the goal, else the policy). The robots,
-    layout, limits and world are `policy`'s, so the deployment checks it as it checks the policy."""
+    layout, limits and world are `policy`'s, so the deployment checks it as it checks the policy; a
+    :class:`~pipeline.policy.protocol.Policy` itself."""
 
-    def __init__(self, policy: DrivenPolicy, still_s: float) -> None:
-        self.policy = policy
-        self.spec = policy.spec
-        self.layout = policy.layout
-        self.codec = policy.codec
+    def __init__(self, policy: Policy, still_s: float) -> None:
+        super().__init__(policy)
         self.still_steps = round(still_s / float(policy.spec.world.control_period_s))
         self.controller = GoToGoalController(policy.layout, policy.codec) if policy.layout.has_goal else None
         self._steps = 0
-        self.session_extra = {"drive": "still_then_drive", "still_s": f"{still_s:g}"}
+        self.session_extra: dict[str, str] = {"drive": "still_then_drive", "still_s": f"{still_s:g}"}
 
     @property
     def name(self) -> str:
         return f"still, then driving, over {self.policy.name}"
-
-    @property
-    def document(self) -> dict[str, Any]:
-        return self.policy.document
-
-    def check_fits(self, robots: Sequence[str], layout: ObservationLayout, *args: Any, **kwargs: Any) -> None:
-        self.policy.check_fits(robots, layout, *args, **kwargs)
 
     def commands(self, obs: np.ndarray) -> np.ndarray:
         """(n_robots, 2) (v m/s, w rad/s): zero for the first `still_s`, then the drive's."""
@@ -180,9 +174,3 @@ class StillThenDrive:
         if self.controller is not None:
             return self.controller.commands(np.asarray(obs, dtype=np.float64))
         return self.policy.commands(np.asarray(obs, dtype=np.float32))
-
-    def actions(self, obs: np.ndarray) -> np.ndarray:
-        return self.codec.encode(self.commands(obs))
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        return self.actions(obs)

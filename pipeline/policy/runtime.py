@@ -25,7 +25,8 @@ _OUTPUT_KINDS = {"tensor(float)": "continuous", "tensor(int64)": "discrete"}
 
 
 class PolicyRuntime:
-    """A loaded policy. `actions(obs)` for obs (n_robots, obs_size) float32 in robot order.
+    """A loaded policy (a :class:`~pipeline.policy.protocol.Policy`). `actions(obs)` for obs (n_robots, obs_size)
+    float32 in robot order.
 
     `folder` holds policy.json, policy.onnx and golden.json; loading checks the ONNX file's
     digest and, unless `verify` is False, replays the golden set.
@@ -95,6 +96,11 @@ class PolicyRuntime:
         """The spec as plain data, for the ``policy`` document of a recording."""
         document: dict[str, Any] = to_mapping(self.spec)
         return document
+
+    @property
+    def session_extra(self) -> dict[str, str]:
+        """Nothing beyond the deployment's own session metadata: the policy itself drives."""
+        return {}
 
     def actions(self, obs: np.ndarray) -> np.ndarray:
         """Policy outputs for the codec: (n_robots, 2) in [-1, 1] or (n_robots,) int64 indices."""

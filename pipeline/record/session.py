@@ -169,6 +169,7 @@ class SessionLog:
         """Episode events the network publisher refused (the recording has them all)."""
         self.store = message_store()
         self.topics = fleet_topics(self.robots)
+        self.store.prepare(spec.typename for spec in self.topics.values())
         metadata: dict[str, dict[str, str]] = {SESSION_META: dict(session), "versions": versions_metadata()}
         for name, text in (documents or {}).items():
             metadata[name] = {"text": text}

@@ -9,15 +9,10 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
-import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
@@ -32,7 +27,7 @@ from pipeline.mappings import to_mapping
 from pipeline.messages import topics as T
 from pipeline.messages.topics import TopicSpec
 from pipeline.policy.errors import PolicyMismatch
-from pipeline.policy.runtime import PolicyRuntime
+from pipeline.policy.protocol import Policy
 from pipeline.record import McapLog
 from pipeline.record.live import LiveView
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
@@ -46,15 +41,15 @@ from pipeline.record.session import (
     session_metadata,
 )
 from pipeline.rollout.errors import DeployAborted, FleetConfigMismatch, FleetConflict, FleetNotReady
-from pipeline.rollout.pace import AUTO_START_SCALE, PACE_EVERY_S, AutoScale, Pace, behind_note
+from pipeline.rollout.pace import AUTO_START_SCALE, PACE_EVERY_S, AutoScale, behind_note
 from pipeline.rollout.runner import DeployRunner
+from pipeline.rollout.twin_process import TWIN_START_TIMEOUT_S, TwinProcess, read_timing, stop_twin, with_timing
 from pipeline.ros.clock import Clock, ScaledClock, WallClock
 from pipeline.ros.domains import NoFreeDomainError, lease_free_domain, lock_path, try_lease
 from pipeline.ros.fleet import Fleet
 from pipeline.ros.ros1 import private_master
 from pipeline.ros.transport import NetworkSettings, Transport, open_transport
 
-TWIN_START_TIMEOUT_S = 60.0
 SWITCH_INTERVAL_S = 0.00005
 
 
@@ -74,98 +69,13 @@ class DeployRequest:
     progress: bool = True
 
 
-class TwinProcess:
-    """The hardware twin as a child process; its output is kept for error messages."""
-
-    def __init__(
-        self,
-        fleet_source: str,
-        profile: str,
-        time_scale: float,
-        seed: int,
-        extra: list[str] | None = None,
-        domain_id: int | None = None,
-    ):
-        cmd = [sys.executable, "-m", "pipeline.twin", "--fleet", fleet_source, "--profile", profile]
-        cmd += ["--time-scale", repr(time_scale), "--seed", str(seed), "--exit-with-parent", *(extra or [])]
-        if domain_id is not None:  # the deployment's domain where it is not the fleet file's (mrl deploy --domain-id)
-            cmd += ["--domain-id", str(domain_id)]
-        # its own session keeps a terminal's Ctrl-C for the runner, which stops the robots first; the
-        # lifeline (its stdin, whose other end only this process holds) stops it when this process dies
-        self.proc = subprocess.Popen(
-            cmd,
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            start_new_session=True,
-        )
-        self.lines: deque[str] = deque(maxlen=50)
-        self.paces: list[Pace] = []
-        """Its pace reports (``--pace``), as they arrive."""
-        self.ready = threading.Event()
-        self.participant = ""
-        """The twin's participant on the domain (from its ready line): the only writers the runner will hear."""
-        threading.Thread(target=self._pump, args=(self.proc.stdout,), daemon=True).start()
-        threading.Thread(target=self._pump, args=(self.proc.stderr,), daemon=True).start()
-
-    def _pump(self, stream: object) -> None:
-        for line in stream:  # type: ignore[attr-defined]
-            if line.startswith("twin: pace "):
-                try:
-                    self.paces.append(Pace(**json.loads(line.removeprefix("twin: pace "))))
-                    continue
-                except (ValueError, TypeError):
-                    pass  # kept as any other line
-            self.lines.append(line.rstrip())
-            if line.startswith("twin: ready"):
-                found = re.search(r"participant (\S+)", line)
-                self.participant = found.group(1) if found else ""
-                self.ready.set()
-
-    def ask_scale(self, scale: float) -> None:
-        """Ask the twin (started with ``--pace``) to run at `scale` from its next episode on (at once before the
-        first), over its lifeline."""
-        if self.proc.stdin is not None and not self.proc.stdin.closed:
-            try:
-                self.proc.stdin.write(f"time-scale {scale!r}\n")
-                self.proc.stdin.flush()
-            except (BrokenPipeError, OSError):
-                pass  # a twin that is gone is the runner's fault to report
-
-    def wait_ready(self, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while not self.ready.wait(0.05):
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                problem = self.problem() or f"it did not report ready within {timeout_s:g} s"
-                raise FleetNotReady(f"the hardware twin did not start: {problem}")
-
-    def problem(self) -> str | None:
-        code = self.proc.poll()
-        if code is None:
-            return None
-        tail = " | ".join(line.strip() for line in list(self.lines)[-20:])
-        return f"the hardware twin exited with code {code}" + (f" ({tail})" if tail else "")
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        if self.proc.stdin is not None and not self.proc.stdin.closed:
-            self.proc.stdin.close()
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-
-
 STRAY_WATCH_S = 1.0
 """How long the domain is watched for robots that are already there before the twin is started."""
 SETTLE_S = 0.3
 """Time for late discovery replies before publishers per topic are counted."""
 
 
-def check_policy_fits_fleet(runtime: PolicyRuntime, fleet: Fleet, scenario: Scenario) -> None:
+def check_policy_fits_fleet(runtime: Policy, fleet: Fleet, scenario: Scenario) -> None:
     """Refuse a policy trained for other robots, another layout, beam count or scenario, or that commands
     more than a robot's velocity limits (its commands would be clamped: another action space)."""
     runtime.check_fits(fleet.names, runtime.layout)
@@ -273,7 +183,7 @@ def check_one_publisher_each(transport: Transport, fleet: Fleet) -> None:
 
 
 def deploy_policy(
-    runtime: PolicyRuntime,
+    runtime: Policy,
     fleet: Fleet,
     fleet_source: str,
     request: DeployRequest,
@@ -361,7 +271,7 @@ def _environment(name: str, value: str) -> Iterator[None]:
 
 
 def _deploy(
-    runtime: PolicyRuntime,
+    runtime: Policy,
     fleet: Fleet,
     fleet_source: str,
     request: DeployRequest,
@@ -377,6 +287,7 @@ def _deploy(
     scale = 1.0
     auto = False
     timing: dict[int, dict[str, Any]] = {}
+    timing_dir: str | None = None
     transport = None
     log = None
     runner = None
@@ -413,7 +324,7 @@ def _deploy(
                 "fleet": fleet_source,
                 **clock_metadata(scale),
                 **({"clock_rate": "auto"} if auto else {}),
-                **getattr(runtime, "session_extra", {}),
+                **runtime.session_extra,
             },
         )
         documents = {
@@ -450,8 +361,8 @@ def _deploy(
             results = runner.run(request.episodes, request.seed, request.progress)
         except DeployAborted as exc:
             if twin is not None:  # the episodes run are marked as the twin kept its clock in them
-                _stop_twin(twin)
-                exc.results = _with_timing(exc.results, _read_timing(timing_file))
+                stop_twin(twin)
+                exc.results = with_timing(exc.results, read_timing(timing_file))
             raise
     except (DeployAborted, FleetNotReady) as exc:
         note = behind_note(twin.paces) if twin is not None else ""
@@ -464,10 +375,12 @@ def _deploy(
         if runner is not None:
             runner.close()
         if twin is not None:  # its record of the clock is written as it stops, and goes into the recording
-            _stop_twin(twin)
+            stop_twin(twin)
             if log is not None:
-                timing = _read_timing(timing_file)
+                timing = read_timing(timing_file)
                 log.add_metadata(TWIN_TIMING_META, {str(k): json.dumps(r) for k, r in timing.items()})
+        if timing_dir is not None:  # read or not (a deployment stopped by a fault), it goes
+            shutil.rmtree(timing_dir, ignore_errors=True)
         if runner is not None and log is not None and runner.late_by_episode:
             late = {str(k): repr(v) for k, v in runner.late_by_episode.items()}
             log.add_metadata(CONTROL_TIMING_META, late)
@@ -476,42 +389,8 @@ def _deploy(
         if transport is not None:
             transport.close()
     if twin is not None:
-        results = _with_timing(results, timing)
-        shutil.rmtree(timing_dir, ignore_errors=True)
+        results = with_timing(results, timing)
     return results, profile
-
-
-def _stop_twin(twin: TwinProcess) -> None:
-    if twin.proc.poll() is None:
-        twin.stop()
-
-
-def _read_timing(timing_file: Path) -> dict[int, dict[str, Any]]:
-    """Per episode, how the twin kept its clock (its ``--timing-record``, written as it stopped); empty where a twin
-    that died wrote none (its episodes' failure is already the runtime fault's)."""
-    try:
-        return {int(r["episode"]): r for r in json.loads(timing_file.read_text(encoding="utf-8"))}
-    except (OSError, ValueError, KeyError, TypeError):
-        return {}
-
-
-def _with_timing(results: list[EpisodeResult], records: dict[int, dict[str, Any]]) -> list[EpisodeResult]:
-    """The episodes with how the twin kept its clock in each (`_read_timing`)."""
-    out = []
-    for result in results:
-        record = records.get(result.episode)
-        if record is None:
-            out.append(result)
-            continue
-        out.append(
-            replace(
-                result,
-                time_scale_asked=float(record["time_scale_asked"]),
-                time_scale_realized=float(record["time_scale_realized"]),
-                clock_kept=result.clock_kept and bool(record["kept"]),
-            )
-        )
-    return out
 
 
 SESSION_FILES = ("session.mcap", "metadata.yaml", "episodes.csv", "metrics.json")
@@ -552,7 +431,7 @@ def _holds_an_episode(recording: Path) -> bool:
 
 
 def deploy_session(
-    runtime: PolicyRuntime,
+    runtime: Policy,
     fleet: Fleet,
     fleet_source: str,
     request: DeployRequest,

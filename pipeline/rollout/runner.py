@@ -36,7 +36,7 @@ from pipeline.errors import MrlError
 from pipeline.mdp import mdp_parts
 from pipeline.messages import topics as T
 from pipeline.policy.errors import PolicyMismatch
-from pipeline.policy.runtime import PolicyRuntime
+from pipeline.policy.protocol import Policy
 from pipeline.record.session import SessionLog
 from pipeline.rollout.errors import DeployAborted, FleetConflict, FleetNotReady
 from pipeline.rollout.handshake import ResetHandshake
@@ -66,7 +66,7 @@ class DeployRunner:
 
     def __init__(
         self,
-        runtime: PolicyRuntime,
+        runtime: Policy,
         fleet: Fleet,
         scenario: Scenario,
         transport: Transport,

@@ -17,7 +17,7 @@ from pipeline.messages import convert as C
 from pipeline.messages import topics as T
 from pipeline.params import EvalSimConfig, WorldConfig
 from pipeline.policy.errors import PolicyMismatch
-from pipeline.policy.runtime import PolicyRuntime
+from pipeline.policy.protocol import Policy
 from pipeline.record.live import LiveView
 from pipeline.record.results import SessionFolder, write_episodes, write_metrics
 from pipeline.record.rosbag2 import write_rosbag2_metadata
@@ -30,8 +30,9 @@ from pipeline.sim.env import MultiRobotSim
 EPISODE_GAP_NS = NS_PER_S
 """Simulated time between two recorded episodes, so each starts on a fresh second."""
 
-Policy = Callable[[np.ndarray], np.ndarray]
-"""Maps observations (n_robots, obs_size) to actions for the action codec."""
+ActionFunction = Callable[[np.ndarray], np.ndarray]
+"""Maps observations (n_robots, obs_size) to actions for the action codec: a :class:`Policy`'s ``actions``, a
+scripted controller, a model in training."""
 
 
 def robot_stamp(t_ns: int, world: WorldConfig) -> int:
@@ -59,7 +60,7 @@ def _record_state(log: SessionLog, sim: MultiRobotSim, t_ns: int) -> None:
 
 def run_episode(
     sim: MultiRobotSim,
-    policy: Policy,
+    policy: ActionFunction,
     seed: int,
     episode: int = 0,
     log: SessionLog | None = None,
@@ -119,7 +120,7 @@ def run_episode(
 
 def evaluate(
     sim: MultiRobotSim,
-    policy: Policy,
+    policy: ActionFunction,
     episodes: int,
     seed: int,
     progress: bool = True,
@@ -151,7 +152,7 @@ def evaluate(
     return results
 
 
-def check_world_fits(runtime: PolicyRuntime, scenario: Scenario, world: WorldConfig) -> None:
+def check_world_fits(runtime: Policy, scenario: Scenario, world: WorldConfig) -> None:
     """Refuse a world whose robots, layout or MDP (observation, actions, timing, episode end; :class:`MdpDefinition`)
     differ from the one the policy was trained in: the same outputs would mean other commands or other
     outcomes. Reward settings may differ: evaluation reports outcomes, not returns."""
@@ -170,7 +171,7 @@ def check_world_fits(runtime: PolicyRuntime, scenario: Scenario, world: WorldCon
 def evaluate_policy(
     scenario: Scenario,
     world: WorldConfig,
-    runtime: PolicyRuntime,
+    runtime: Policy,
     cfg: EvalSimConfig,
     recording: Path,
     params_text: str = "",
@@ -220,7 +221,7 @@ SESSION_FILES = ("session.mcap", "metadata.yaml", "episodes.csv", "metrics.json"
 def evaluate_session(
     scenario: Scenario,
     world: WorldConfig,
-    runtime: PolicyRuntime,
+    runtime: Policy,
     cfg: EvalSimConfig,
     out_dir: Path,
     params_text: str = "",

@@ -380,10 +380,6 @@ class DdsTransport(Transport):
     def __init__(self, settings: NetworkSettings) -> None:
         super().__init__(settings)
         self.config = cyclone_config(settings, os.environ.get("CYCLONEDDS_URI") or None)
-        self._lock = threading.RLock()
-        self._closed = False
-        self._publishers: list[DdsPublisher] = []
-        self._subscriptions: list[DdsSubscription] = []
         self._topics: dict[str, tuple[Topic[Any], str]] = {}
         _domains.acquire(settings.domain_id, self.config)
         try:
@@ -416,10 +412,6 @@ class DdsTransport(Transport):
         _live_transports.add(self)
 
     @property
-    def closed(self) -> bool:
-        return self._closed
-
-    @property
     def participant(self) -> DomainParticipant:
         """The underlying cyclonedds participant."""
         if self._participant is None:
@@ -435,14 +427,13 @@ class DdsTransport(Transport):
             except DDSException as exc:
                 raise TransportError(f"topic {spec.name}", f"cannot create a DDS writer: {exc}") from exc
             pub = DdsPublisher(self, spec, writer, dtype)
-            self._publishers.append(pub)
+            self._keep(pub)
             self._announce()
             return pub
 
     def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> DdsSubscription:
         check_topic(spec)
-        if not callable(callback):
-            raise TransportError(f"topic {spec.name}", f"the callback must be callable, got {type(callback).__name__}")
+        self._check_callback(spec, callback)
         with self._lock:
             topic, dtype = self._topic(spec)
             try:
@@ -451,7 +442,7 @@ class DdsTransport(Transport):
             except DDSException as exc:
                 raise TransportError(f"topic {spec.name}", f"cannot create a DDS reader: {exc}") from exc
             sub = DdsSubscription(self, spec, callback, reader, condition, dtype)
-            self._subscriptions.append(sub)
+            self._keep(sub)
             assert self._waitset is not None
             self._waitset.attach(condition)
             self._wake()
@@ -463,12 +454,9 @@ class DdsTransport(Transport):
 
     def matched_count(self, spec: TopicSpec) -> int:
         with self._lock:
-            writers = [p.writer for p in self._publishers if p.spec.name == spec.name]
-            readers = [s.reader for s in self._subscriptions if s.spec.name == spec.name]
-            if not writers and not readers:
-                raise TransportError(
-                    f"topic {spec.name}", "this transport has no publisher or subscription on it to match"
-                )
+            pubs, subs = self._on_topic(spec)
+            writers = [p.writer for p in pubs if isinstance(p, DdsPublisher)]
+            readers = [s.reader for s in subs if isinstance(s, DdsSubscription)]
             own = self.participant.guid
         remote: set[Any] = set()
         try:
@@ -487,18 +475,16 @@ class DdsTransport(Transport):
         return len(remote)
 
     def close(self) -> None:
+        endpoints = self._closing()
+        if endpoints is None:
+            return
         with self._lock:
-            if self._closed:
-                return
-            self._closed = True
             self._stop.set()
             self._wake()
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout=5.0)
-        for sub in list(self._subscriptions):
-            sub.close()
-        for pub in list(self._publishers):
-            pub.close()
+        for endpoint in endpoints:
+            endpoint.close()
         with self._lock:
             if self._graph is not None:
                 self._graph.close()
@@ -533,14 +519,10 @@ class DdsTransport(Transport):
 
     def _forget(self, endpoint: DdsPublisher | DdsSubscription) -> None:
         with self._lock:
-            if isinstance(endpoint, DdsPublisher):
-                if endpoint in self._publishers:
-                    self._publishers.remove(endpoint)
-                    self._announce()
-                return
-            if endpoint in self._subscriptions:
-                self._subscriptions.remove(endpoint)
+            if self._drop(endpoint):
                 self._announce()
+            if isinstance(endpoint, DdsPublisher):
+                return
             if self._waitset is not None and endpoint._condition is not None:
                 self._waitset.detach(endpoint._condition)
 
@@ -553,8 +535,10 @@ class DdsTransport(Transport):
             return gid(data=np.frombuffer(guid.bytes, dtype=np.uint8).copy())
 
         with self._lock:
-            readers = [gid_of(s.reader.guid) for s in self._subscriptions if not s.closed]
-            writers = [gid_of(p.writer.guid) for p in self._publishers if not p.closed]
+            subs = [s for s in self._subscriptions if isinstance(s, DdsSubscription) and not s.closed]
+            pubs = [p for p in self._publishers if isinstance(p, DdsPublisher) and not p.closed]
+            readers = [gid_of(s.reader.guid) for s in subs]
+            writers = [gid_of(p.writer.guid) for p in pubs]
             node = store.cls("rmw_dds_common/msg/NodeEntitiesInfo")(
                 node_namespace="/", node_name=self.node_name, reader_gid_seq=readers, writer_gid_seq=writers
             )
@@ -590,7 +574,7 @@ class DdsTransport(Transport):
                 time.sleep(0.01)
                 continue
             with self._lock:
-                subscriptions = tuple(self._subscriptions)
+                subscriptions = tuple(s for s in self._subscriptions if isinstance(s, DdsSubscription))
             for sub in subscriptions:
                 if self._stop.is_set():
                     return

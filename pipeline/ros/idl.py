@@ -26,6 +26,7 @@ from cyclonedds.idl import types as idl_types
 from cyclonedds.idl.annotations import final
 
 from pipeline.messages.errors import MessageError
+from pipeline.messages.primitives import PRIMITIVES
 from pipeline.messages.store import MessageStore, message_store
 
 Converter = Callable[[Any], Any]
@@ -34,38 +35,13 @@ Converter = Callable[[Any], Any]
 _BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4
 
 _PRIMITIVES: dict[str, Any] = {
-    "bool": bool,
-    "byte": idl_types.byte,
-    "char": idl_types.uint8,  # ROS 2 maps msg `char` to IDL uint8
-    "int8": idl_types.int8,
-    "uint8": idl_types.uint8,
-    "int16": idl_types.int16,
-    "uint16": idl_types.uint16,
-    "int32": idl_types.int32,
-    "uint32": idl_types.uint32,
-    "int64": idl_types.int64,
-    "uint64": idl_types.uint64,
-    "float32": idl_types.float32,
-    "float64": idl_types.float64,
+    name: bool if name == "bool" else getattr(idl_types, "uint8" if name == "char" else name) for name in PRIMITIVES
 }
+"""The cyclonedds type of each primitive (:data:`pipeline.messages.primitives.PRIMITIVES`; ``char`` as IDL uint8)."""
 # numpy element types of primitive arrays, as rosbags deserializes them
-_NUMPY: dict[str, Any] = {
-    "bool": np.bool_,
-    "byte": np.byte,
-    "char": np.uint8,
-    "int8": np.int8,
-    "uint8": np.uint8,
-    "int16": np.int16,
-    "uint16": np.uint16,
-    "int32": np.int32,
-    "uint32": np.uint32,
-    "int64": np.int64,
-    "uint64": np.uint64,
-    "float32": np.float32,
-    "float64": np.float64,
-}
+_NUMPY: dict[str, Any] = {name: p.element for name, p in PRIMITIVES.items()}
 # one-byte elements travel as raw bytes: identical CDR, no per-element work
-_OCTETS = frozenset({"byte", "char", "uint8"})
+_OCTETS = frozenset(name for name, p in PRIMITIVES.items() if p.octet)
 # cyclonedds' subscriptable IDL type constructors (untyped for mypy)
 _array: Any = idl_types.array
 _sequence: Any = idl_types.sequence

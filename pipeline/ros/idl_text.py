@@ -17,24 +17,11 @@ from collections.abc import Iterable
 from typing import Any
 
 from pipeline.messages.errors import MessageError
+from pipeline.messages.primitives import PRIMITIVES
 from pipeline.messages.store import MessageStore, message_store
 from pipeline.ros.idl import _ARRAY, _BASE, _NAME, _SEQUENCE, field_definitions
 
-IDL_PRIMITIVES: dict[str, str] = {
-    "bool": "boolean",
-    "byte": "octet",
-    "char": "octet",
-    "uint8": "octet",
-    "int8": "char",
-    "int16": "short",
-    "uint16": "unsigned short",
-    "int32": "long",
-    "uint32": "unsigned long",
-    "int64": "long long",
-    "uint64": "unsigned long long",
-    "float32": "float",
-    "float64": "double",
-}
+IDL_PRIMITIVES: dict[str, str] = {name: p.idl for name, p in PRIMITIVES.items()}
 """ROS 2 primitive -> IDL type (``int8`` as ``char``: one signed byte in plain CDR, as rosidl's ``int8``)."""
 
 IDL_KEYWORDS = frozenset(

@@ -271,10 +271,6 @@ class RclpyTransport(Transport):
         from rclpy.signals import SignalHandlerOptions
 
         self._rclpy = rclpy
-        self._lock = threading.RLock()
-        self._closed = False
-        self._publishers: list[RclpyPublisher] = []
-        self._subscriptions: list[RclpySubscription] = []
         self._context = Context()
         try:
             with middleware_variables(settings):
@@ -293,76 +289,58 @@ class RclpyTransport(Transport):
         self._thread = threading.Thread(target=self._spin, name=f"rclpy-spin-{settings.domain_id}", daemon=True)
         self._thread.start()
 
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
     def publisher(self, spec: TopicSpec) -> RclpyPublisher:
         check_topic(spec)
         with self._lock:
             self._check_open(spec)
             handle = self._node.create_publisher(_message_class(spec), spec.name, _ros_qos(spec.qos))
             pub = RclpyPublisher(self, spec, handle)
-            self._publishers.append(pub)
+            self._keep(pub)
             return pub
 
     def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> RclpySubscription:
         check_topic(spec)
-        if not callable(callback):
-            raise TransportError(f"topic {spec.name}", f"the callback must be callable, got {type(callback).__name__}")
+        self._check_callback(spec, callback)
         with self._lock:
             self._check_open(spec)
             sub = RclpySubscription(self, spec, callback)
             sub.handle = self._node.create_subscription(
                 _message_class(spec), spec.name, sub.on_message, _ros_qos(spec.qos), raw=True
             )
-            self._subscriptions.append(sub)
+            self._keep(sub)
             return sub
 
     def matched_count(self, spec: TopicSpec) -> int:
         with self._lock:
-            writers: list[Any] = [p._publisher for p in self._publishers if p.spec.name == spec.name and not p.closed]
-            readers: list[Any] = [s.handle for s in self._subscriptions if s.spec.name == spec.name and not s.closed]
-            if not writers and not readers:
-                raise TransportError(
-                    f"topic {spec.name}", "this transport has no publisher or subscription on it to match"
-                )
+            pubs, subs = self._on_topic(spec)
+            writers: list[Any] = [p._publisher for p in pubs if isinstance(p, RclpyPublisher)]
+            readers: list[Any] = [s.handle for s in subs if isinstance(s, RclpySubscription)]
             # every local endpoint also matches this transport's own endpoints of the other kind
             remote_readers = max((int(w.get_subscription_count()) for w in writers), default=0) - len(readers)
             remote_writers = max((int(r.get_publisher_count()) for r in readers), default=0) - len(writers)
         return max(remote_readers, 0) + max(remote_writers, 0)
 
     def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
+        endpoints = self._closing()
+        if endpoints is None:
+            return
         self._stop.set()
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout=5.0)
-        for sub in list(self._subscriptions):
-            sub.close()
-        for pub in list(self._publishers):
-            pub.close()
+        for endpoint in endpoints:
+            endpoint.close()
         self._executor.shutdown()
         self._node.destroy_node()
         self._context.try_shutdown()
 
     # internals
 
-    def _check_open(self, spec: TopicSpec) -> None:
-        if self._closed:
-            raise TransportError(f"topic {spec.name}", "the transport is closed")
-
     def _destroy(self, endpoint: RclpyPublisher | RclpySubscription, handle: Any) -> None:
         with self._lock:
+            self._drop(endpoint)
             if isinstance(endpoint, RclpyPublisher):
-                if endpoint in self._publishers:
-                    self._publishers.remove(endpoint)
                 self._node.destroy_publisher(handle)
             else:
-                if endpoint in self._subscriptions:
-                    self._subscriptions.remove(endpoint)
                 self._node.destroy_subscription(handle)
 
     def _spin(self) -> None:

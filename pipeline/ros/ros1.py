@@ -445,17 +445,9 @@ class Ros1Transport(Transport):
                     os.environ.pop("ROS_HOSTNAME", None)
                 rospy.init_node(f"mrl_{os.getpid()}", anonymous=True, disable_signals=True, log_level=rospy.WARN)
                 _node.update(uri=uri, name=rospy.get_caller_id())
-        self._lock = threading.RLock()
-        self._closed = False
-        self._publishers: list[Ros1Publisher] = []
-        self._subscriptions: list[Ros1Subscription] = []
         self._inbox: queue.SimpleQueue[tuple[Ros1Subscription, bytes, int, int] | None] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._dispatch, name=f"ros1-dispatch-{next(_names)}", daemon=True)
         self._thread.start()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
 
     def identity(self) -> str:
         return _node.get("name", "")
@@ -474,13 +466,12 @@ class Ros1Transport(Transport):
                 tcp_nodelay=True,
             )
             pub = Ros1Publisher(self, spec, handle, raw_class)
-            self._publishers.append(pub)
+            self._keep(pub)
             return pub
 
     def subscribe(self, spec: TopicSpec, callback: MessageCallback) -> Ros1Subscription:
         check_topic(spec)
-        if not callable(callback):
-            raise TransportError(f"topic {spec.name}", f"the callback must be callable, got {type(callback).__name__}")
+        self._check_callback(spec, callback)
         wire = self._checked(spec)
         with self._lock:
             self._check_open(spec)
@@ -488,25 +479,19 @@ class Ros1Transport(Transport):
             sub.handle = self._rospy.Subscriber(
                 spec.name, _raw_class(wire), sub.on_message, queue_size=spec.qos.depth, tcp_nodelay=True
             )
-            self._subscriptions.append(sub)
+            self._keep(sub)
             return sub
 
     def matched_count(self, spec: TopicSpec) -> int:
         with self._lock:
-            pubs = [p for p in self._publishers if p.spec.name == spec.name and not p.closed]
-            subs = [s for s in self._subscriptions if s.spec.name == spec.name and not s.closed]
-            if not pubs and not subs:
-                raise TransportError(
-                    f"topic {spec.name}", "this transport has no publisher or subscription on it to match"
-                )
-            return max((p.connections() for p in pubs), default=0) + max((s.connections() for s in subs), default=0)
+            pubs, subs = self._on_topic(spec)
+            sending = max((p.connections() for p in pubs if isinstance(p, Ros1Publisher)), default=0)
+            return sending + max((s.connections() for s in subs if isinstance(s, Ros1Subscription)), default=0)
 
     def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            endpoints: list[Ros1Publisher | Ros1Subscription] = [*self._subscriptions, *self._publishers]
+        endpoints = self._closing()
+        if endpoints is None:
+            return
         for endpoint in endpoints:
             endpoint.close()
         self._inbox.put(None)
@@ -531,17 +516,8 @@ class Ros1Transport(Transport):
             )
         return wire
 
-    def _check_open(self, spec: TopicSpec) -> None:
-        if self._closed:
-            raise TransportError(f"topic {spec.name}", "the transport is closed")
-
     def _forget(self, endpoint: Ros1Publisher | Ros1Subscription) -> None:
-        with self._lock:
-            if isinstance(endpoint, Ros1Publisher):
-                if endpoint in self._publishers:
-                    self._publishers.remove(endpoint)
-            elif endpoint in self._subscriptions:
-                self._subscriptions.remove(endpoint)
+        self._drop(endpoint)
 
     def _dispatch(self) -> None:
         while True:

@@ -14,11 +14,13 @@ delivery. Times are integer nanoseconds since the Unix epoch (``time.time_ns()``
 from __future__ import annotations
 
 import fcntl
+import importlib
 import ipaddress
 import logging
 import re
 import socket
 import struct
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -352,13 +354,22 @@ class Subscription(ABC):
 
 
 class Transport(ABC):
-    """One participant in a ROS 2 domain; a context manager that closes itself."""
+    """One participant in a ROS 2 domain; a context manager that closes itself.
+
+    The base keeps what every backend keeps: its open publishers and subscriptions (under one re-entrant lock), the
+    closed flag, the checks before an endpoint is made and the endpoints a match count is taken over; a backend
+    adds only how its middleware makes, matches and closes endpoints (:meth:`_keep`, :meth:`_drop`,
+    :meth:`_on_topic`, :meth:`_closing`)."""
 
     poll_interval_s = 0.01
     """How often :meth:`wait_for_match` looks at the match count."""
 
     def __init__(self, settings: NetworkSettings) -> None:
         self.settings = settings
+        self._lock = threading.RLock()
+        self._closed = False
+        self._publishers: list[Publisher] = []
+        self._subscriptions: list[Subscription] = []
 
     @abstractmethod
     def publisher(self, spec: TopicSpec) -> Publisher:
@@ -384,8 +395,54 @@ class Transport(ABC):
         """Closes every publisher and subscription and leaves the domain; idempotent."""
 
     @property
-    @abstractmethod
-    def closed(self) -> bool: ...
+    def closed(self) -> bool:
+        return self._closed
+
+    # the bookkeeping every backend shares
+
+    def _check_open(self, spec: TopicSpec) -> None:
+        """TransportError where the transport is closed (an endpoint asked for on `spec` afterwards)."""
+        if self._closed:
+            raise TransportError(f"topic {spec.name}", "the transport is closed")
+
+    @staticmethod
+    def _check_callback(spec: TopicSpec, callback: object) -> None:
+        if not callable(callback):
+            raise TransportError(f"topic {spec.name}", f"the callback must be callable, got {type(callback).__name__}")
+
+    def _keep(self, endpoint: Publisher | Subscription) -> None:
+        """Count `endpoint` among the transport's own (closed with it, matched by :meth:`_on_topic`)."""
+        with self._lock:
+            if isinstance(endpoint, Publisher):
+                self._publishers.append(endpoint)
+            else:
+                self._subscriptions.append(endpoint)
+
+    def _drop(self, endpoint: Publisher | Subscription) -> bool:
+        """Forget `endpoint` (it closed); whether it was the transport's."""
+        with self._lock:
+            kept: list[Any] = self._publishers if isinstance(endpoint, Publisher) else self._subscriptions
+            if endpoint in kept:
+                kept.remove(endpoint)
+                return True
+            return False
+
+    def _on_topic(self, spec: TopicSpec) -> tuple[list[Publisher], list[Subscription]]:
+        """The open publishers and subscriptions on `spec`; TransportError where there are none (nothing of this
+        transport's to match there). Called under the lock."""
+        pubs = [p for p in self._publishers if p.spec.name == spec.name and not p.closed]
+        subs = [s for s in self._subscriptions if s.spec.name == spec.name and not s.closed]
+        if not pubs and not subs:
+            raise TransportError(f"topic {spec.name}", "this transport has no publisher or subscription on it to match")
+        return pubs, subs
+
+    def _closing(self) -> list[Publisher | Subscription] | None:
+        """Mark the transport closed: its endpoints, subscriptions first, to close; None where it already was."""
+        with self._lock:
+            if self._closed:
+                return None
+            self._closed = True
+            return [*self._subscriptions, *self._publishers]
 
     def wait_for_match(self, spec: TopicSpec, count: int = 1, timeout_s: float = 5.0) -> bool:
         """Waits until at least `count` remote endpoints match on `spec`; False after `timeout_s` seconds."""
@@ -407,21 +464,22 @@ class Transport(ABC):
         self.close()
 
 
+BACKEND_CLASSES: dict[BackendKind, tuple[str, str]] = {
+    "dds": ("pipeline.ros.dds", "DdsTransport"),
+    "rclpy": ("pipeline.ros.rclpy_transport", "RclpyTransport"),
+    "ros1": ("pipeline.ros.ros1", "Ros1Transport"),
+}
+"""Each backend's transport class (module, name), imported when a transport of that kind is opened: a backend's
+middleware is loaded only where it is used, and the backends import this module, never the other way round."""
+
+
 def open_transport(kind: BackendKind = "dds", settings: NetworkSettings | None = None) -> Transport:
     """A transport of backend `kind` ('dds': Cyclone DDS from Python; 'rclpy': a ROS 2 installation; 'ros1': a ROS 1
     master through rospy)."""
     settings = settings if settings is not None else NetworkSettings()
     settings.check_host()
-    if kind == "dds":
-        from pipeline.ros.dds import DdsTransport
-
-        return DdsTransport(settings)
-    if kind == "rclpy":
-        from pipeline.ros.rclpy_transport import RclpyTransport
-
-        return RclpyTransport(settings)
-    if kind == "ros1":
-        from pipeline.ros.ros1 import Ros1Transport
-
-        return Ros1Transport(settings)
-    raise TransportError(f"transport kind {kind!r}", f"must be one of {', '.join(BACKENDS)}")
+    if kind not in BACKEND_CLASSES:
+        raise TransportError(f"transport kind {kind!r}", f"must be one of {', '.join(BACKENDS)}")
+    module, name = BACKEND_CLASSES[kind]
+    backend: type[Transport] = getattr(importlib.import_module(module), name)
+    return backend(settings)

@@ -148,6 +148,7 @@ def policy_6s(tiny_policy: Path, tmp_path: Path) -> Path:
     return edited
 
 
+@pytest.mark.alone  # its strict bounds (no robot stale on the link) failed once beside a second worker on a slow host
 def test_a_twin_on_another_host_is_found_through_the_peers_and_plays_whole_episodes(
     other_host, tiny_policy, tmp_path, monkeypatch
 ):
@@ -359,7 +360,7 @@ def test_an_interface_or_peer_this_host_cannot_use_is_named_before_anything_move
     assert not (tmp_path / "never" / "session.mcap").exists()
 
 
-@pytest.mark.slow  # three rclpy nodes starting at once load the 2-core host more than the suite's timeouts allow
+@pytest.mark.alone  # three rclpy nodes beside a second worker's test starve the 2-core host past the commands' validity
 def test_rclpy_robot_nodes_on_another_host_drive_whole_episodes(other_host, tiny_policy, tmp_path):
     """Three ordinary ROS 2 nodes (rclpy, Fast DDS from the wheels) on the other host, found through their static
     peer; the runner here on Cyclone DDS bound to its end of the pair: whole episodes, every command and scan bit for
@@ -391,7 +392,7 @@ def test_rclpy_robot_nodes_on_another_host_drive_whole_episodes(other_host, tiny
         return drivers.DriverProcess(other_host.command(*peer.command(scenario, index, namespace, log)), namespace, env)
 
     recording, logs, results = drivers.deploy_on_drivers(node_over_there, fleet_file, tiny_policy, tmp_path, 2)
-    # the send time is stamped after the write returns; on a loaded host (two namespaces' processes) that can be
-    # milliseconds later than the receive over the veth
-    drivers.check_whole_episodes(recording, logs, results, episodes=2, write_s=0.02)
+    # arrival is checked against the start of the tick that wrote each command: the recorded send time is stamped
+    # after the write returns, on a loaded host (two namespaces' processes) milliseconds after the receive
+    drivers.check_whole_episodes(recording, logs, results, episodes=2)
     assert McapLog(recording).metadata()["session"]["transport"] == "dds"

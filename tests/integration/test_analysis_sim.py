@@ -15,8 +15,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from pipeline.analysis.decode import DECODABLE, decode
+from pipeline.analysis.decode import decode
 from pipeline.analysis.gap_report import write_report
+from pipeline.analysis.layouts import DECODABLE
 from pipeline.analysis.tables import Recording, episodes_table
 from pipeline.core.episode import EpisodeResult
 from pipeline.mappings import to_mapping

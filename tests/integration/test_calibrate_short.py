@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from pipeline.calibration import calibrate, write_calibration
-from pipeline.calibration.calibrate import PROFILE_KEYS
+from pipeline.calibration.keys import PROFILE_KEYS
 from pipeline.params import WorldConfig, calibrated_world
 from pipeline.policy.runtime import PolicyRuntime
 from pipeline.rollout.deployment import DeployRequest, deploy_session

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 import yaml
+from calibration_coverage import realized_jitter
 from drive_replay import replay_drive, replayed_tracks
 
 from pipeline.calibration import PROFILE_KEYS, Calibration, CalibrationSettings, calibrate, write_calibration
@@ -24,7 +25,7 @@ from pipeline.calibration.localize import OccupancyMap
 from pipeline.core.scenario import load_scenario
 from pipeline.params import WorldConfig, calibrated_world
 from pipeline.twin.profile import load_profile
-from tests.calibration_helpers import TWIN_STEPS, record_twin_session
+from tests.calibration_helpers import TWIN_STEPS, link_record_of, record_twin_session
 
 pytestmark = pytest.mark.integration
 
@@ -126,10 +127,10 @@ TOLERANCES: dict[str, Tolerance] = {
     "network.jitter_s": Tolerance(
         0.003,
         0.3,
-        "pairwise delay differences cancel the receiver's stalls, but at time scale 2 the profile's 5-20 ms are "
-        "2.5-10 ms of wall-clock time, not far above the scheduling granularity of the twin's sender thread: measured "
-        "errors 1.1 ms (mild) and 1.9 ms (harsh) of twin time at 2x (4.6 ms on mild once at 3x under load); "
-        "an estimate of 0 fails both profiles",
+        "scored against the jitter the twin's link realized on the run (its --link-record read by calibration's pair "
+        "rule at the sender): a twin on a busy host adds its own scheduling to the profile's, which at time scale 2 "
+        "is 2.5-10 ms of wall-clock time; against the profile the estimate read 16 ms for 5 (mild) and 45 ms for 20 "
+        "(harsh) beside a busy suite; an estimate of 0 fails both profiles",
     ),
 }
 
@@ -139,8 +140,11 @@ def twin_calibration(request: pytest.FixtureRequest, twin_session):
     """(profile name, the profile as the twin read it, the calibration of one recorded session)."""
     name = request.param
     recording = twin_session(name)
-    truth = yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text())
-    return name, with_ideal_defaults(truth), calibrate(recording, CalibrationSettings(bootstrap=100))
+    truth = with_ideal_defaults(yaml.safe_load((ROOT / "pipeline" / "twin" / "profiles" / f"{name}.yaml").read_text()))
+    realized = realized_jitter(link_record_of(recording))
+    assert realized is not None, "the twin's link record has no two sensor topics"
+    truth["network"]["jitter_s"] = realized  # what the link did on this run, the profile's value beside it
+    return name, truth, calibrate(recording, CalibrationSettings(bootstrap=100))
 
 
 def with_ideal_defaults(truth: dict) -> dict:
@@ -195,6 +199,7 @@ def truth_of_effective(truth: dict, keys: tuple[str, ...]) -> float:
     return sum(float(truth[g][f] or 0.0) for g, f in (k.split(".") for k in keys) if not f.startswith("max_wheel"))
 
 
+@pytest.mark.alone  # beside a second worker: the jitter read 10-16 ms for 5 ms, the linear gain 0.755 for 0.8
 def test_every_estimate_lies_within_its_tolerance_of_the_profile(twin_calibration):
     name, truth, result = twin_calibration
     misses = []
@@ -228,6 +233,7 @@ def test_every_estimate_lies_within_its_tolerance_of_the_profile(twin_calibratio
     assert not misses, f"profile {name}:\n" + "\n".join(misses)
 
 
+@pytest.mark.alone
 def test_the_calibration_file_trains_the_simulator_toward_the_profile(twin_calibration, tmp_path):
     name, truth, result = twin_calibration
     assert isinstance(result, Calibration) and result.sources[0].session["profile"] == name
@@ -411,9 +417,10 @@ def test_the_lab_calibrates_without_motion_capture(lab_recording, lab_calibratio
 
 
 def test_the_lab_gains_read_at_the_body_and_at_the_wheels_are_reconciled(lab_calibration, tmp_path):
-    """The lab's deadband makes the body-velocity fit read smaller gains than the wheels' chain; the simulator takes
-    the wheel chain's gains with the deadband. Run over the recorded commands, that drive must move the body as the
-    body-velocity fit read it, and calibration.yaml, calibration.md and the command's lines say so with one value."""
+    """The lab's deadband makes the body-velocity fit read smaller gains than the wheels' chain. Run over the
+    recorded commands, the wheel chain's gains with the deadband must move the body as the body-velocity fit read
+    it; the simulator takes the gains that do so exactly (near the wheel chain's, which agree), and calibration.yaml,
+    calibration.md and the command's lines say so with one value."""
     _, result = lab_calibration
     agreements = {a.channel: a for a in result.gain_agreement()}
     assert agreements, "the lab's deadband is identified: both readings exist"
@@ -424,12 +431,17 @@ def test_the_lab_gains_read_at_the_body_and_at_the_wheels_are_reconciled(lab_cal
     assert agreements["angular"].with_deadband < 0.95 * agreements["angular"].wheel_chain
     assert "the deadband accounts for" in agreements["angular"].sentence()
     for channel, agreement in agreements.items():
-        assert result.world_overrides()["actuation"][f"{channel}_gain"] == pytest.approx(agreement.wheel_chain, 1e-5)
+        assert result.world_overrides()["actuation"][f"{channel}_gain"] == pytest.approx(agreement.simulator, 1e-5)
+    simulator = result.simulator_gains()
+    fitted = (result.values["actuation.linear_gain"].value, result.values["actuation.angular_gain"].value)
+    assert simulator is not None and result.drive_gains == simulator
+    assert result.deadband_gains is not None and simulator[1] > fitted[1]  # the deadband's share given back
     folder = tmp_path / "out"
     write_calibration(result, folder)
     written = yaml.safe_load((folder / "calibration.yaml").read_text())["gains"]
     report = (folder / "calibration.md").read_text()
     for channel, agreement in agreements.items():
-        assert written[channel]["simulator_with_deadband"] == pytest.approx(agreement.with_deadband, rel=1e-5)
+        assert written[channel]["wheel_chain_with_deadband"] == pytest.approx(agreement.with_deadband, rel=1e-5)
+        assert written[channel]["simulator"] == pytest.approx(agreement.simulator, rel=1e-5)
         assert written[channel]["agrees"] is True
         assert agreement.sentence() in report

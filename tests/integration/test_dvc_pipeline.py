@@ -50,8 +50,11 @@ def repo(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
     transport = fleet_transport(str(request.param))
     dest = copy_checkout(ROOT, tmp_path_factory.mktemp("repo"))
     params = tiny_params(yaml.safe_load((dest / "params.yaml").read_text()))
-    fleet = write_fleet(dest / "fleet.yaml", transport=transport, twin={"profile": "harsh", "time_scale": 4.0})
+    fleet = write_fleet(dest / "fleet.yaml", transport=transport, twin={"profile": "harsh", "time_scale": 1.0})
     params["deploy"]["fleet"] = fleet.name
+    # the fleet's 1x, the robots' own pace: the loop's machinery is under test here, not how fast this host keeps the
+    # twin (at 3x a 2-core host beside the suite's other worker fell behind and the stage rightly refused the session)
+    params["deploy"]["time_scale"] = 0.0
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
     env.pop("ROS_MASTER_URI", None)  # the stages' ROS 1 fleet brings its own master

@@ -27,11 +27,12 @@ def test_the_twin_plays_an_rclpy_fleet_through_whole_episodes(tiny_policy, tmp_p
     check_twin_fleet_plays_two_episodes(tiny_policy, fleet_file, tmp_path, "rclpy")
 
 
+@pytest.mark.alone  # the bundled fleet's twin and runner on Fast DDS beside a second worker's test fell off its clock
 def test_mrl_deploy_on_the_bundled_rclpy_twin_fleet(tiny_policy, tmp_path):
     domain = free_domain_id()
     done = subprocess.run(
         [str(MRL), "deploy", "--policy", str(tiny_policy), "--fleet", "twin_rclpy", "--episodes", "2",
-         "--domain-id", str(domain), "--time-scale", "3", "--out", str(tmp_path / "out")],
+         "--domain-id", str(domain), "--time-scale", "1", "--out", str(tmp_path / "out")],
         capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr

@@ -9,7 +9,7 @@ import pytest
 from lidar_like_real import fleet_file, profile, tiny_policy
 
 from pipeline.calibration import CalibrationSettings, calibrate, write_calibration
-from pipeline.calibration.calibrate import split_key
+from pipeline.calibration.keys import split_key
 from pipeline.core.reality import profile_bounds
 from pipeline.params import WorldConfig, calibrated_world
 from pipeline.policy.excitation import StillThenDrive

@@ -85,7 +85,7 @@ def test_mrl_deploy_on_the_bundled_ros1_twin_fleet_brings_its_own_master(tiny_po
     env = {k: v for k, v in os.environ.items() if k != "ROS_MASTER_URI"}
     done = subprocess.run(
         [str(MRL), "deploy", "--policy", str(tiny_policy), "--fleet", "twin_ros1", "--episodes", "2",
-         "--time-scale", "3", "--out", str(tmp_path / "out")],
+         "--time-scale", "1", "--out", str(tmp_path / "out")],
         env=env, capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr

@@ -19,8 +19,10 @@ pytestmark = pytest.mark.integration
 
 
 def deploy(policy: Path, out: Path, *extra: str) -> subprocess.Popen[str]:
+    """`mrl deploy` of `policy` for one episode at 1x (the robots' own pace: two twins and two runners on a 2-core host
+    fell behind at 2x, and the deployments rightly refused their sessions as the host's)."""
     return subprocess.Popen(
-        [str(MRL), "deploy", "--policy", str(policy), "--episodes", "1", "--time-scale", "2", "--out", str(out),
+        [str(MRL), "deploy", "--policy", str(policy), "--episodes", "1", "--time-scale", "1", "--out", str(out),
          *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip

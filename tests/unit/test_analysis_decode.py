@@ -9,18 +9,8 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from pipeline.analysis.decode import (
-    DECODABLE,
-    LAYOUTS,
-    LEGACY_LAYOUTS,
-    MAX_LAYOUTS_PER_LENGTH,
-    Decoded,
-    Ragged,
-    Strings,
-    concat,
-    decode,
-    layout_for,
-)
+from pipeline.analysis.decode import MAX_LAYOUTS_PER_LENGTH, Decoded, Ragged, Strings, concat, decode
+from pipeline.analysis.layouts import DECODABLE, LAYOUTS, LEGACY_LAYOUTS, layout_for
 from pipeline.core.scan import ScanGeometry
 from pipeline.messages import convert as C
 from pipeline.messages import message_store

@@ -10,7 +10,7 @@ from scipy.signal import lfilter
 
 from pipeline.calibration.actuation import CommandTimeline, VelocityTrack
 from pipeline.calibration.estimates import Estimate, bootstrap
-from pipeline.calibration.gains import GAIN_AGREEMENT_TOLERANCE, GainAgreement, deadband_gains
+from pipeline.calibration.gains import GAIN_AGREEMENT_TOLERANCE, GainAgreement, deadband_gains, drive_gains
 from pipeline.calibration.motors import (
     WheelEpisode,
     _refine,
@@ -291,7 +291,25 @@ def test_a_deadband_lowers_the_body_gain_by_the_share_of_speed_under_it():
 
 def test_gains_read_two_ways_agree_within_the_interval_and_its_stated_slack():
     fit = Estimate("ok", 0.80, 0.005, (0.79, 0.81), "ratio")
-    assert GainAgreement("angular", fit, 0.85, 0.80).agrees
-    assert GainAgreement("angular", fit, 0.85, 0.81 * (1 + GAIN_AGREEMENT_TOLERANCE) - 1e-3).agrees
-    far = GainAgreement("angular", fit, 0.95, 0.90)
+    assert GainAgreement("angular", fit, 0.85, 0.80, 0.85).agrees
+    assert GainAgreement("angular", fit, 0.85, 0.81 * (1 + GAIN_AGREEMENT_TOLERANCE) - 1e-3, 0.85).agrees
+    far = GainAgreement("angular", fit, 0.95, 0.90, 0.85)
     assert not far.agrees and "differ" in far.sentence() and "0.900" in far.sentence()
+
+
+def test_the_simulators_gains_move_its_body_as_the_body_velocity_fit_read_it():
+    """A drive with gains (0.8, 0.75) and a 0.6 rad/s deadband: the body-velocity fit reads the smaller gains that
+    drive shows over the commands. From wheel-chain gains 5 % off, the simulator's gains come back to the drive's own,
+    and with them its drive reproduces the fit's reading; without a deadband they are the fit's."""
+    rng = np.random.default_rng(11)
+    commands = np.column_stack([rng.uniform(-0.03, 0.1, 400), rng.uniform(-0.4, 0.4, 400)])  # many near the deadband
+    tracks = [_track(commands)]
+    truth, deadband = (0.8, 0.75), 0.6
+    read = deadband_gains(tracks, truth, deadband, 0.5)
+    assert read is not None and read[1] < 0.97 * truth[1]  # the deadband takes speed away from the turns
+    found = drive_gains(tracks, read, (0.84, 0.71), deadband, 0.5)
+    assert found == pytest.approx(truth, rel=1e-9)
+    assert deadband_gains(tracks, found, deadband, 0.5) == pytest.approx(read, rel=1e-9)
+    assert drive_gains(tracks, (0.79, 0.74), (0.7, 0.7), 0.0, 0.5) == pytest.approx((0.79, 0.74), rel=1e-12)
+    # a channel the fit did not read keeps the wheel chain's gain
+    assert drive_gains(tracks, (math.nan, read[1]), (0.84, 0.71), deadband, 0.5)[0] == 0.84

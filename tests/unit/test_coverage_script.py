@@ -157,3 +157,22 @@ def test_pooling_names_a_missing_file_and_a_csv_that_is_not_a_coverage_run(tmp_p
     wrong = subprocess.run([sys.executable, script, "--pool", str(other)], capture_output=True, text=True)
     assert wrong.returncode == 2 and "other.csv is not a coverage CSV" in wrong.stdout, wrong.stdout + wrong.stderr
     assert "Traceback" not in wrong.stderr
+
+
+def test_the_coverage_test_passes_exact_intervals_and_flags_too_sure_ones() -> None:
+    """29 keys' intervals over 20 realities: exact 95 % intervals are called too sure in at most about 5 % of runs
+    (Bonferroni over the keys), where the per-key 90 % target fails most runs; 75 % intervals are caught; the
+    Clopper-Pearson interval of a key's coverage holds its true coverage at least 95 % of the time."""
+    import numpy as np
+    from calibration_coverage import coverage_test
+
+    rng = np.random.default_rng(11)
+    runs, keys, n = 400, 29, 20
+    hits = rng.binomial(n, 0.95, size=(runs, keys))
+    flagged = np.array([[coverage_test(int(h), n, keys)[3] for h in run] for run in hits])
+    assert flagged.any(axis=1).mean() <= 0.07
+    assert (hits < 0.9 * n).any(axis=1).mean() > 0.5  # the 90 % target: most runs of exact intervals fail it
+    loose = rng.binomial(n, 0.75, size=(100, keys))
+    assert np.mean([any(coverage_test(int(h), n, keys)[3] for h in run) for run in loose]) > 0.95
+    bounds = np.array([coverage_test(int(h), n, keys)[:2] for h in rng.binomial(n, 0.8, size=2000)])
+    assert np.mean((bounds[:, 0] <= 0.8) & (bounds[:, 1] >= 0.8)) >= 0.95

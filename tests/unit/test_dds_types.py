@@ -30,7 +30,7 @@ _INT_RANGES = {
     "int64": (-(2**63), 2**63 - 1),
     "uint64": (0, 2**64 - 1),
 }
-_DTYPES = {"bool": np.bool_, "byte": np.byte, "char": np.uint8, "float32": np.float32, "float64": np.float64}
+_DTYPES = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "float32": np.float32, "float64": np.float64}
 _TEXT = list("abcxyz_/ -.0189éπ漢")
 
 
@@ -170,3 +170,20 @@ def test_fixed_covariance_arrays_keep_their_length() -> None:
 def test_unknown_type_is_a_message_error() -> None:
     with pytest.raises(MessageError, match="unknown message type"):
         dds_type("nope_msgs/msg/Nothing")
+
+
+def test_the_primitive_types_are_one_table_under_the_dds_types_the_idl_text_and_the_decoder() -> None:
+    """Each primitive's bytes agree everywhere: the decoder's wire type, the array element type, the IDL type."""
+    from pipeline.analysis.layouts import _ROS_DTYPES
+    from pipeline.messages.primitives import PRIMITIVES
+    from pipeline.ros.idl import _NUMPY, _OCTETS, _PRIMITIVES
+    from pipeline.ros.idl_text import IDL_PRIMITIVES
+
+    assert set(_ROS_DTYPES) == set(_NUMPY) == set(_PRIMITIVES) == set(IDL_PRIMITIVES) == set(PRIMITIVES)
+    sizes = {"boolean": 1, "octet": 1, "char": 1, "short": 2, "long": 4, "long long": 8, "float": 4, "double": 8}
+    for name, p in PRIMITIVES.items():
+        wire, element = np.dtype(p.wire), np.dtype(p.element)
+        assert wire.itemsize == element.itemsize == sizes[p.idl.removeprefix("unsigned ")], name
+        if name != "bool":
+            assert wire.kind == element.kind, name  # signed, unsigned or float alike
+    assert sorted(_OCTETS) == ["byte", "char", "uint8"]

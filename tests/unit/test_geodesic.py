@@ -52,6 +52,20 @@ def testgoal_fields_equal_each_robots_own_field(obstacles):
     np.testing.assert_array_equal(joint.direction(pts), [f.direction(pts[i : i + 1])[0] for i, f in enumerate(fields)])
 
 
+def test_the_judges_per_robot_reading_is_the_vectorised_one_to_the_bit(obstacles):
+    """The fields read robot by robot in Python floats (the judge's step) give the vectorised reading's numbers
+    exactly: inside the room, on the grid's lines, outside it (clamped), inside the boxes."""
+    joint = GoalFields([DistanceField(obstacles, g) for g in obstacles.goals])
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-1.0, 7.0, size=(3000, 3, 2))
+    pts[::5] = np.round(pts[::5] / joint.resolution_m) * joint.resolution_m  # on the grid's lines
+    pts[1::5] = rng.uniform([0.2, 0.2], [5.8, 3.8], size=(len(pts[1::5]), 3, 2))
+    for p in pts:
+        np.testing.assert_array_equal(joint.distance(p), joint.distance_arrays(p))
+        np.testing.assert_array_equal(joint.direction(p), joint.direction_arrays(p))
+    assert len({joint.distance(p)[0] for p in pts}) > 2000  # the points meet many different cells
+
+
 def test_heading_term_rewards_turning_toward_the_path(obstacles):
     judge = EpisodeJudge(obstacles, RewardWeights(progress_per_m=0.0, heading_per_rad=2.0), 350, 0.02, "geodesic")
     pose = obstacles.starts.copy()

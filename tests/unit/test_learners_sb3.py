@@ -53,3 +53,16 @@ def test_progress_remaining_is_what_the_schedules_read():
     assert "self._current_progress_remaining" in source
     source = inspect.getsource(BaseAlgorithm._update_learning_rate)
     assert "_current_progress_remaining" in source
+
+
+def test_only_the_adapter_calls_sb3_s_protected_members():
+    """``pipeline/learn/sb3.py`` is the one module that reaches into SB3 (and ``dqn.py``, a subclass of SB3's DQN
+    overriding its ``train()`` as SB3's own algorithms do)."""
+    hooks = re.compile(r"\._(setup_learn|on_step|current_progress_remaining|custom_logger|update_learning_rate)\b")
+    allowed = {"pipeline/learn/sb3.py", "pipeline/learn/dqn.py"}
+    reaching = {
+        path.relative_to(ROOT).as_posix()
+        for path in (ROOT / "pipeline").rglob("*.py")
+        if hooks.search(path.read_text(encoding="utf-8"))
+    }
+    assert reaching <= allowed and "pipeline/learn/sb3.py" in reaching, reaching - allowed

@@ -290,7 +290,7 @@ def test_an_interval_wider_than_its_value_is_weak_not_ok():
 
 def test_a_key_determined_to_be_as_good_as_none_is_not_weak():
     """A sweep that does not wander, continuous ranges: 0 with an interval within what counts as none is determined."""
-    from pipeline.calibration.calibrate import NEGLIGIBLE, _flag_weak
+    from pipeline.calibration.keys import NEGLIGIBLE, _flag_weak
 
     still = Estimate.of(0.0, 0.0, (0.0, 0.0001), "relative", "test", 27421)
     assert _flag_weak("lidar.rate_wander", still).status == "ok"

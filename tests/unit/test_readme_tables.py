@@ -1,4 +1,4 @@
-"""The README's result blocks are what benchmarks/readme_tables.py makes of the committed result files."""
+"""The result blocks of README.md and docs/ are what benchmarks/readme_tables.py makes of the committed result files."""
 
 from __future__ import annotations
 
@@ -33,6 +33,13 @@ def test_every_results_block_of_the_readme_and_docs_agrees_with_its_result_files
     assert sorted(names) == sorted(tables.BLOCKS), "every generator fills one block, and every block has one"
 
 
+def test_the_readme_holds_the_headline_block_alone_and_docs_results_is_checked_beside_it():
+    tables = _tables()
+    assert {ROOT / "README.md", ROOT / "docs" / "results.md"} <= set(tables.FILES)
+    readme = [m.group("name") for m in tables.BLOCK.finditer((ROOT / "README.md").read_text(encoding="utf-8"))]
+    assert readme == ["loop-lab"], "README.md's results are one headline table; the others go in docs/results.md"
+
+
 def test_a_changed_result_file_shows_as_a_block_that_differs(tmp_path, monkeypatch):
     tables = _tables()
     results = tmp_path / "results"
@@ -54,3 +61,13 @@ def test_a_block_without_a_generator_is_refused(tmp_path):
     tables = _tables()
     with pytest.raises(SystemExit, match=r"README\.md: results block\(s\) \['typed-by-hand'\] have no generator"):
         tables.regenerate("<!-- results: typed-by-hand -->\n| 99 % |\n<!-- /results -->\n", "README.md")
+
+
+def test_a_docs_blocks_links_are_rebased_for_a_page_further_down():
+    tables = _tables()
+    body = "[run.json](../benchmarks/results/x/run.json), [lidar.md](lidar.md#measured), [web](https://a.b), [up](#h)"
+    assert tables.rebased(body, str(ROOT / "docs" / "calibration.md")) == body
+    assert tables.rebased(body, str(ROOT / "docs" / "experiments" / "page.md")) == (
+        "[run.json](../../benchmarks/results/x/run.json), [lidar.md](../lidar.md#measured), [web](https://a.b), "
+        "[up](#h)"
+    )

@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from pipeline.calibration.calibrate import PROFILE_KEYS, within_physical_ranges, world_bounds
 from pipeline.calibration.estimates import Estimate
+from pipeline.calibration.keys import PROFILE_KEYS, within_physical_ranges, world_bounds
 from pipeline.core import reality
 from pipeline.core.scenario import SPARK_WHEEL_RADIUS_M, SPARK_WHEEL_SEPARATION_M
 from pipeline.twin import profile as twin_profile
