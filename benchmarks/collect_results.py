@@ -51,6 +51,8 @@ def commit_of(root: Path) -> str:
     """The commit checked out at `root`, with ``+local changes`` when a tracked file other than the run's own
     records (:data:`RUN_RECORDS`) differs from it."""
     done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"collect_results: {root} is in no git worktree; --made-in names the checkout of the run")
     status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True,
                             text=True, check=False).stdout  # fmt: skip
     dirty = [line for line in status.splitlines() if line[3:].strip() not in RUN_RECORDS]
@@ -65,8 +67,12 @@ def main() -> int:
     parser.add_argument("--files", nargs="*", default=list(LOOP_FILES), help="globs relative to --root")
     parser.add_argument("--wall-s", type=float, default=None, help="the run's wall time (s), when it was measured")
     parser.add_argument("--note", default="", help="what else a reader must know (other jobs beside it, ...)")
+    parser.add_argument(
+        "--made-in", type=Path, default=None, help="the checkout the run was made in, if not --root's (default: --root)"
+    )
     args = parser.parse_args()
     root = args.root.resolve()
+    commit = commit_of(args.made_in.resolve() if args.made_in is not None else root)  # before the copies change it
     out = ROOT / "benchmarks" / "results" / args.name
     copied = []
     for pattern in args.files:
@@ -79,7 +85,7 @@ def main() -> int:
         raise SystemExit(f"collect_results: nothing matched {args.files} under {root}")
     run = {
         "command": args.command,
-        "commit": commit_of(root),
+        "commit": commit,
         "machine": f"{platform.node()} ({platform.machine()}, {os.cpu_count()} CPUs, {platform.python_version()})",
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "wall_s": args.wall_s,

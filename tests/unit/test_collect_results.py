@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import pytest
 import yaml
 from collect_results import commit_of
 
@@ -48,3 +49,8 @@ def test_a_copied_checkout_holds_the_tracked_files(tmp_path):
     (tmp_path / "src" / "untracked.txt").write_text("x")
     copy_checkout(tmp_path / "src", tmp_path / "dest")
     assert sorted(p.name for p in (tmp_path / "dest").iterdir()) == ["dvc.lock", "params.yaml"]
+
+
+def test_a_run_folder_outside_any_worktree_is_refused_rather_than_given_no_commit(tmp_path):
+    with pytest.raises(SystemExit, match="in no git worktree"):
+        commit_of(tmp_path)
