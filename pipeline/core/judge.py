@@ -8,6 +8,7 @@ radius plus a margin).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Literal
@@ -97,6 +98,9 @@ class EpisodeJudge:
         self.capture_m = scenario.target.capture_distance_m if scenario.target is not None else None
         self.half_goal_m = scenario.goal_size_m / 2
         self.radius_m = scenario.radii  # (n_robots,) each robot's body
+        self._radii = self.radius_m.tolist()
+        self._pairs = np.triu_indices(scenario.n_robots, k=1)  # every two robots once
+        self._reach = self.radius_m[self._pairs[0]] + self.radius_m[self._pairs[1]]
         self._boxes = box_table(scenario.obstacles)  # the clearance to every box in one pass
 
     def track(self, target_xy: np.ndarray) -> None:
@@ -158,22 +162,30 @@ class EpisodeJudge:
         return np.asarray((d[:, 0] <= self.half_goal_m) & (d[:, 1] <= self.half_goal_m))
 
     def clearance(self, pose: np.ndarray) -> np.ndarray:
-        """(n_robots,) free distance (m) between each robot's body and the nearest wall, box or robot."""
-        xy = np.asarray(pose)[:, :2]
+        """(n_robots,) free distance (m) between each robot's body and the nearest wall, box or robot.
+
+        A handful of robots is read in Python floats (numpy's per-call cost would be most of the work): the walls'
+        and the robots' differences, the minima and the radii taken off are the same operations as on arrays, in
+        the same order, so the same numbers to the bit; the boxes' distances and the robots' from each other are
+        one numpy call each (its hypot), NaN propagates through the minima as numpy's would."""
+        xy = np.asarray(pose, dtype=np.float64)[:, :2]
         room = self.scenario.room
-        walls = np.minimum(
-            np.minimum(xy[:, 0] - room.x_min_m, room.x_max_m - xy[:, 0]),
-            np.minimum(xy[:, 1] - room.y_min_m, room.y_max_m - xy[:, 1]),
-        )
-        gap = walls - self.radius_m
+        radii = self._radii
+        gap = [
+            _least(_least(x - room.x_min_m, room.x_max_m - x), _least(y - room.y_min_m, room.y_max_m - y)) - r
+            for (x, y), r in zip(xy.tolist(), radii, strict=True)
+        ]
         if len(self._boxes):
-            gap = np.minimum(gap, boxes_clearance(self._boxes, xy).min(axis=1) - self.radius_m)
-        if len(xy) > 1:
-            diff = xy[:, None, :] - xy[None, :, :]
-            dist = np.hypot(diff[..., 0], diff[..., 1]) - (self.radius_m[:, None] + self.radius_m[None, :])
-            np.fill_diagonal(dist, np.inf)
-            gap = np.minimum(gap, dist.min(axis=1))
-        return np.asarray(gap)
+            nearest_box = boxes_clearance(self._boxes, xy).min(axis=1).tolist()
+            gap = [_least(g, b - r) for g, b, r in zip(gap, nearest_box, radii, strict=True)]
+        if len(gap) > 1:
+            first, second = self._pairs
+            apart = np.hypot(xy[first, 0] - xy[second, 0], xy[first, 1] - xy[second, 1]) - self._reach
+            nearest = [math.inf] * len(gap)
+            for i, j, d in zip(first.tolist(), second.tolist(), apart.tolist(), strict=True):
+                nearest[i], nearest[j] = _least(nearest[i], d), _least(nearest[j], d)
+            gap = [_least(g, d) for g, d in zip(gap, nearest, strict=True)]
+        return np.array(gap)
 
     def step(
         self, odom_pose: np.ndarray, truth_pose: np.ndarray | None = None, ranges: np.ndarray | None = None
@@ -182,64 +194,79 @@ class EpisodeJudge:
 
         odom_pose, truth_pose: (n_robots, 3) x, y (m), yaw (rad); ranges: (n_robots, n_beams) m,
         used for collisions only when no truth pose is given.
+
+        The terms are formed robot by robot in Python floats: each is the product, difference or choice it is on
+        arrays, and the reward their sum in :data:`REWARD_TERMS`' order from 0, so the same numbers to the bit.
         """
-        active = ~self.done
+        was_done = self.done
+        active = (~was_done).tolist()
+        n = len(active)
         pose = truth_pose if truth_pose is not None else odom_pose
         self.steps += 1
         if truth_pose is not None:
-            gap = self.clearance(truth_pose)
+            gap = self.clearance(truth_pose).tolist()
         elif ranges is not None:
-            gap = np.asarray(ranges).min(axis=1) - self.radius_m
+            gap = (np.asarray(ranges).min(axis=1) - self.radius_m).tolist()
         else:
-            gap = np.full(len(active), np.inf)
-        hit = gap < self.margin_m
-        arrived = self.in_goal(pose)
-        new_collided = active & hit
-        new_reached = active & arrived & ~hit
-        if self.capture_m is not None and new_reached.any():  # one robot's capture is the whole team's
-            new_reached = active & ~hit
+            gap = [math.inf] * n
+        hit = [g < self.margin_m for g in gap]
+        arrived = self.in_goal(pose).tolist()
+        new_collided = [a and h for a, h in zip(active, hit, strict=True)]
+        new_reached = [a and g and not h for a, g, h in zip(active, arrived, hit, strict=True)]
+        if self.capture_m is not None and any(new_reached):  # one robot's capture is the whole team's
+            new_reached = [a and not h for a, h in zip(active, hit, strict=True)]
         dist = self.goal_distance(pose)
         w = self.weights
-        zeros = np.zeros(len(active))
-        heading_err = self.heading_error(pose) if w.heading_per_rad else zeros
+        heading_err = self.heading_error(pose) if w.heading_per_rad else np.zeros(n)
+        prev_dist, prev_heading = self._prev_dist.tolist(), self._prev_heading_err.tolist()
+        closeness = _closeness(np.array(gap), w.proximity_m).tolist() if w.proximity else None
+        progress = [w.progress_per_m * (p - d) for p, d in zip(prev_dist, dist.tolist(), strict=True)]
+        turned = [w.heading_per_rad * (p - e) for p, e in zip(prev_heading, heading_err.tolist(), strict=True)]
         terms = {
-            "progress": np.where(active, w.progress_per_m * (self._prev_dist - dist), 0.0),
-            "heading": np.where(active, w.heading_per_rad * (self._prev_heading_err - heading_err), 0.0),
-            "goal": np.where(new_reached, w.goal, 0.0),
-            "team": zeros.copy(),
-            "collision": np.where(new_collided, w.collision, 0.0),
-            "step": np.where(active, w.step, 0.0),
-            "proximity": np.where(active, w.proximity * _closeness(gap, w.proximity_m), 0.0)
-            if w.proximity
-            else zeros.copy(),
+            "progress": [v if a else 0.0 for a, v in zip(active, progress, strict=True)],
+            "heading": [v if a else 0.0 for a, v in zip(active, turned, strict=True)],
+            "goal": [w.goal if r else 0.0 for r in new_reached],
+            "team": [0.0] * n,
+            "collision": [w.collision if c else 0.0 for c in new_collided],
+            "step": [w.step if a else 0.0 for a in active],
+            "proximity": [w.proximity * c if a else 0.0 for a, c in zip(active, closeness, strict=True)]
+            if closeness is not None
+            else [0.0] * n,
         }
-        self._prev_dist = np.where(active, dist, self._prev_dist)
-        self._prev_heading_err = np.where(active, heading_err, self._prev_heading_err)
-        self.reached |= new_reached
-        self.collided |= new_collided
-        events = [(int(i), "collision") for i in np.flatnonzero(new_collided)]
-        events += [(int(i), "goal") for i in np.flatnonzero(new_reached)]
+        keep = np.array(active)
+        self._prev_dist = np.where(keep, dist, self._prev_dist)
+        self._prev_heading_err = np.where(keep, heading_err, self._prev_heading_err)
+        self.reached |= np.array(new_reached)
+        self.collided |= np.array(new_collided)
+        events = [(i, "collision") for i, c in enumerate(new_collided) if c]
+        events += [(i, "goal") for i, r in enumerate(new_reached) if r]
         if not self.team_success and self.reached.all():
             self.team_success = True
-            terms["team"] = np.full(len(active), w.team)
+            terms["team"] = [w.team] * n
             events.append((-1, "success"))
-        truncated = bool(self.steps >= self.max_steps and not self.done.all())
+        done = self.done
+        truncated = bool(self.steps >= self.max_steps and not done.all())
         if truncated:
-            events += [(int(i), "timeout") for i in np.flatnonzero(~self.done)]
-        reward = zeros.copy()
+            events += [(int(i), "timeout") for i in np.flatnonzero(~done)]
+        reward = [0.0] * n
         for name in REWARD_TERMS:
-            reward = reward + terms[name]
+            reward = [r + t for r, t in zip(reward, terms[name], strict=True)]
         return JudgeStep(
-            reward=reward,
-            terms=terms,
+            reward=np.array(reward),
+            terms={name: np.array(values, dtype=np.float64) for name, values in terms.items()},
             reached=self.reached.copy(),
             collided=self.collided.copy(),
-            done=self.done,
-            active=active,
+            done=done,
+            active=keep,
             truncated=truncated,
             team_success=self.team_success,
             events=events,
         )
+
+
+def _least(a: float, b: float) -> float:
+    """np.minimum of two floats: NaN where either is NaN (Python's min keeps its first argument then)."""
+    return a if a < b or a != a else b
 
 
 def _closeness(gap: np.ndarray, within_m: float) -> np.ndarray:

@@ -3,7 +3,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.core.judge import REWARD_TERMS, EpisodeJudge, RewardWeights
+from pipeline.core import judge as judge_module
+from pipeline.core import scenario as scenario_module
+from pipeline.core.judge import REWARD_TERMS, EpisodeJudge, JudgeStep, RewardWeights
 from pipeline.core.scenario import load_scenario
 
 WEIGHTS = RewardWeights(progress_per_m=1.5, goal=1.0, team=10.0, collision=-1.0, step=-0.01)
@@ -156,3 +158,148 @@ def test_the_clearance_to_every_box_at_once_is_each_box_s_distance_bit_for_bit(n
         gap = np.minimum(gap, dist.min(axis=1))
         pose = np.column_stack([xy, rng.uniform(-3, 3, n)])
         assert np.array_equal(judge.clearance(pose), gap)
+
+
+class ArrayJudge(EpisodeJudge):
+    """The judge as it reads on arrays (numpy on every robot at once): the reference the judge's float reading must
+    equal to the bit."""
+
+    def clearance(self, pose: np.ndarray) -> np.ndarray:  # the arrays' reading
+        """(n_robots,) free distance (m) between each robot's body and the nearest wall, box or robot."""
+        xy = np.asarray(pose)[:, :2]
+        room = self.scenario.room
+        walls = np.minimum(
+            np.minimum(xy[:, 0] - room.x_min_m, room.x_max_m - xy[:, 0]),
+            np.minimum(xy[:, 1] - room.y_min_m, room.y_max_m - xy[:, 1]),
+        )
+        gap = walls - self.radius_m
+        if len(self._boxes):
+            gap = np.minimum(gap, scenario_module.boxes_clearance(self._boxes, xy).min(axis=1) - self.radius_m)
+        if len(xy) > 1:
+            diff = xy[:, None, :] - xy[None, :, :]
+            dist = np.hypot(diff[..., 0], diff[..., 1]) - (self.radius_m[:, None] + self.radius_m[None, :])
+            np.fill_diagonal(dist, np.inf)
+            gap = np.minimum(gap, dist.min(axis=1))
+        return np.asarray(gap)
+
+    def step(
+        self, odom_pose: np.ndarray, truth_pose: np.ndarray | None = None, ranges: np.ndarray | None = None
+    ) -> JudgeStep:
+        """Judge the step that just ended.
+
+        odom_pose, truth_pose: (n_robots, 3) x, y (m), yaw (rad); ranges: (n_robots, n_beams) m,
+        used for collisions only when no truth pose is given.
+        """
+        active = ~self.done
+        pose = truth_pose if truth_pose is not None else odom_pose
+        self.steps += 1
+        if truth_pose is not None:
+            gap = self.clearance(truth_pose)
+        elif ranges is not None:
+            gap = np.asarray(ranges).min(axis=1) - self.radius_m
+        else:
+            gap = np.full(len(active), np.inf)
+        hit = gap < self.margin_m
+        arrived = self.in_goal(pose)
+        new_collided = active & hit
+        new_reached = active & arrived & ~hit
+        if self.capture_m is not None and new_reached.any():  # one robot's capture is the whole team's
+            new_reached = active & ~hit
+        dist = self.goal_distance(pose)
+        w = self.weights
+        zeros = np.zeros(len(active))
+        heading_err = self.heading_error(pose) if w.heading_per_rad else zeros
+        terms = {
+            "progress": np.where(active, w.progress_per_m * (self._prev_dist - dist), 0.0),
+            "heading": np.where(active, w.heading_per_rad * (self._prev_heading_err - heading_err), 0.0),
+            "goal": np.where(new_reached, w.goal, 0.0),
+            "team": zeros.copy(),
+            "collision": np.where(new_collided, w.collision, 0.0),
+            "step": np.where(active, w.step, 0.0),
+            "proximity": np.where(active, w.proximity * judge_module._closeness(gap, w.proximity_m), 0.0)
+            if w.proximity
+            else zeros.copy(),
+        }
+        self._prev_dist = np.where(active, dist, self._prev_dist)
+        self._prev_heading_err = np.where(active, heading_err, self._prev_heading_err)
+        self.reached |= new_reached
+        self.collided |= new_collided
+        events = [(int(i), "collision") for i in np.flatnonzero(new_collided)]
+        events += [(int(i), "goal") for i in np.flatnonzero(new_reached)]
+        if not self.team_success and self.reached.all():
+            self.team_success = True
+            terms["team"] = np.full(len(active), w.team)
+            events.append((-1, "success"))
+        truncated = bool(self.steps >= self.max_steps and not self.done.all())
+        if truncated:
+            events += [(int(i), "timeout") for i in np.flatnonzero(~self.done)]
+        reward = zeros.copy()
+        for name in REWARD_TERMS:
+            reward = reward + terms[name]
+        return judge_module.JudgeStep(
+            reward=reward,
+            terms=terms,
+            reached=self.reached.copy(),
+            collided=self.collided.copy(),
+            done=self.done,
+            active=active,
+            truncated=truncated,
+            team_success=self.team_success,
+            events=events,
+        )
+
+
+def _same(a, b) -> bool:
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize(
+    ("name", "distance", "weights", "truth"),
+    [
+        ("obstacles", "geodesic", RewardWeights(), True),
+        ("obstacles", "euclidean", RewardWeights(heading_per_rad=0.5, proximity=-1.0, step=-0.01), True),
+        ("obstacles", "geodesic", RewardWeights(heading_per_rad=0.3, proximity=-0.5, path_clearance_m=0.1), False),
+        ("ten", "geodesic", RewardWeights(proximity=-1.0), True),
+        ("pursuit", "geodesic", RewardWeights(proximity=-1.0), True),
+        ("empty", "euclidean", WEIGHTS, True),
+    ],
+)
+def test_the_judges_float_reading_is_the_arrays_reading_to_the_bit(name, distance, weights, truth):
+    """Two judges in step over 60 random episodes (random walks, jumps into goals, walls, boxes and other robots,
+    scans with gaps): every reward, term, flag and event of the judge is the arrays' reading's to the last bit."""
+    scenario = load_scenario(name)
+    rng = np.random.default_rng(7)
+    judges = [cls(scenario, weights, max_steps=25, distance=distance) for cls in (EpisodeJudge, ArrayJudge)]
+    seen: set[str] = set()
+    room, n = scenario.room, scenario.n_robots
+    for _ in range(60):
+        pose = scenario.starts.astype(np.float64).copy()
+        for judge in judges:
+            judge.reset(pose)
+        if scenario.pursuit:
+            target = rng.uniform([room.x_min_m, room.y_min_m], [room.x_max_m, room.y_max_m])
+            for judge in judges:
+                judge.track(target)
+        for _ in range(25):
+            pose = pose + np.column_stack([rng.normal(0, 0.08, (n, 2)), rng.normal(0, 0.3, n)])
+            jump = rng.random(n)
+            pose[jump < 0.04, :2] = scenario.goals[jump < 0.04] + rng.uniform(
+                -0.25, 0.25, (int((jump < 0.04).sum()), 2)
+            )
+            pose[jump > 0.97, 0] = room.x_max_m - rng.uniform(0, 0.3)
+            ranges = rng.uniform(0.1, 4.0, (n, 12))
+            ranges[rng.random(n) < 0.2] = np.nan
+            got, want = (
+                j.step(pose, truth_pose=pose if truth else None, ranges=None if truth else ranges) for j in judges
+            )
+            assert _same(got.reward, want.reward)
+            assert got.terms.keys() == want.terms.keys()
+            assert all(_same(got.terms[k], want.terms[k]) for k in want.terms)
+            for field in ("reached", "collided", "done", "active"):
+                assert _same(getattr(got, field), getattr(want, field)), field
+            assert (got.truncated, got.team_success, got.events) == (want.truncated, want.team_success, want.events)
+            seen |= {kind for _, kind in got.events}
+            if got.done.all() or got.truncated:
+                break
+    assert _same(judges[0].clearance(pose), judges[1].clearance(pose))
+    assert {"collision", "goal"} <= seen  # the sequences reach the judgements that branch
