@@ -356,6 +356,7 @@ def test_a_refused_run_leaves_no_folder_behind(tiny_policy, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.alone  # its second episode must keep its clock: the stall it makes must be the only one
 def test_episodes_in_which_the_twin_fell_behind_its_clock_are_marked_not_taken_for_the_policy_s(
     tiny_policy, tmp_path, capsys
 ):

@@ -28,6 +28,7 @@ def deploy(policy: Path, out: Path, *extra: str) -> subprocess.Popen[str]:
     )  # fmt: skip
 
 
+@pytest.mark.alone  # two twins and two runners at 1x: a second worker's test beside them takes the host they keep
 def test_two_deployments_on_the_bundled_twin_fleet_at_once_record_clean_sessions(tiny_policy, tmp_path):
     runs = [deploy(tiny_policy, tmp_path / f"user_{k}", "--fleet", "twin") for k in (1, 2)]
     outputs = [run.communicate(timeout=300) for run in runs]
