@@ -25,9 +25,9 @@ import gymnasium
 import numpy as np
 
 from pipeline.bench.trials import base_mapping, expand, read_settings_file, scoped_keys, with_settings
+from pipeline.learn.common.modes import StreamMap
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.learners import build_learner
-from pipeline.learn.modes import StreamMap
-from pipeline.learn.worlds import VecWorlds
 from pipeline.params import load_params
 from pipeline.sim import make_world
 

@@ -37,8 +37,8 @@ import numpy as np
 
 from pipeline.bench.trials import action_kind, read_settings_file
 from pipeline.learn import learners
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.trainer import train
-from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, to_mapping
 from pipeline.params import TrainConfig, load_params, world_config
 from pipeline.sim import make_world

@@ -308,7 +308,7 @@ class SacConfig:
     """Target entropy is -scale * action dimensions (SAC's default is scale 1)."""
     update: Literal["batched", "library"] = setting("batched", optional=True)
     """How gradient steps run: `batched` steps every learner's networks in one batched pass
-    (pipeline/learn/batched_sac.py), `library` calls stable-baselines3's SAC.train per learner."""
+    (pipeline/learn/sac/batched.py), `library` calls stable-baselines3's SAC.train per learner."""
 
 
 @dataclass(frozen=True)

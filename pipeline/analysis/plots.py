@@ -25,7 +25,7 @@ from pipeline.core.stats import Z_95, wilson_interval
 
 ROBOT_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
 CURVE_COLUMNS = ("episode", "world_steps", "robot_success", "team_success")
-"""Columns a training-curve CSV must have (pipeline.learn.progress.LearningCurve writes them)."""
+"""Columns a training-curve CSV must have (pipeline.learn.common.progress.LearningCurve writes them)."""
 DPI = 110
 
 

@@ -21,8 +21,8 @@ import onnxruntime
 import torch as th
 
 from pipeline.learn.checkpoint import META_FILE, TrainRecord, load_checkpoint
-from pipeline.learn.modes import deterministic_actions
-from pipeline.learn.scaling import BoundsScaling, space_of
+from pipeline.learn.common.modes import deterministic_actions
+from pipeline.learn.common.scaling import BoundsScaling, space_of
 from pipeline.mappings import from_mapping, to_mapping
 from pipeline.params import WorldConfig
 from pipeline.policy.errors import PolicyError
@@ -74,7 +74,7 @@ def _torch_policy(
     else:
         from stable_baselines3.dqn.policies import DQNPolicy
 
-        from pipeline.learn.dqn import DuelingDQNPolicy
+        from pipeline.learn.dqn.model import DuelingDQNPolicy
 
         cls = DuelingDQNPolicy if kind == "dqn_dueling" else DQNPolicy
         policy = cls(obs_space, action_space, lr, net_arch=net_arch)  # type: ignore[arg-type]

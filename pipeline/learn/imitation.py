@@ -39,8 +39,8 @@ from stable_baselines3 import PPO
 from torch.nn import functional as F
 from tqdm import tqdm
 
-from pipeline.learn.modes import StreamMap
-from pipeline.learn.worlds import VecWorlds
+from pipeline.learn.common.modes import StreamMap
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.params import Teacher, TrainConfig
 from pipeline.policy.scripted import GoToGoalController, PathFollowingController
 

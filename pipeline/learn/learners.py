@@ -19,12 +19,12 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import obs_as_tensor
 
-from pipeline.learn.batched_sac import BatchedSAC
-from pipeline.learn.modes import StreamBatch
-from pipeline.learn.nstep import NStepReturns
-from pipeline.learn.per import PrioritizedReplayBuffer
+from pipeline.learn.common.modes import StreamBatch
+from pipeline.learn.common.nstep import NStepReturns
+from pipeline.learn.common.scaling import BoundsScaling
+from pipeline.learn.dqn.prioritized import PrioritizedReplayBuffer
+from pipeline.learn.sac.batched import BatchedSAC
 from pipeline.learn.sb3 import LoopDQN, LoopPPO, LoopSAC, SpacesVecEnv
-from pipeline.learn.scaling import BoundsScaling
 from pipeline.params import TrainConfig
 
 

@@ -4,8 +4,8 @@ SB3's ``learn()`` steps one VecEnv per model; the multi-robot loop owns its worl
 through SB3's own steps, exposed here as public methods: begin a run (``_setup_learn``), store one transition and
 advance the per-step bookkeeping (``_on_step``), drive the schedules from the loop's progress
 (``_current_progress_remaining``), consume a rollout. :func:`progress_remaining` reads the schedules' progress for a
-learner that computes its own learning rate (the batched SAC step). :class:`pipeline.learn.dqn.PerDQN` is a subclass
-of SB3's DQN that overrides its ``train()`` and ``_setup_model()``, as SB3's own algorithms do, and uses the
+learner that computes its own learning rate (the batched SAC step). :class:`pipeline.learn.dqn.model.PerDQN` is a
+subclass of SB3's DQN that overrides its ``train()`` and ``_setup_model()``, as SB3's own algorithms do, and uses the
 members they use.
 """
 
@@ -22,7 +22,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn
 
-from pipeline.learn.dqn import PerDQN
+from pipeline.learn.dqn.model import PerDQN
 
 
 class SpacesVecEnv(VecEnv):

@@ -22,7 +22,7 @@ import torch as th
 
 from pipeline.core.episode import summarize
 from pipeline.core.scenario import Scenario
-from pipeline.learn.modes import deterministic_actions
+from pipeline.learn.common.modes import deterministic_actions
 from pipeline.params import SelectionConfig, WorldConfig
 from pipeline.rollout.sim import evaluate
 from pipeline.sim.env import MultiRobotSim

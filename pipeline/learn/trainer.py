@@ -23,13 +23,13 @@ from pipeline.learn.checkpoint import (
     TrainVersions,
     save_checkpoint,
 )
+from pipeline.learn.common.modes import StreamMap
+from pipeline.learn.common.progress import ConvergenceTracker, LearningCurve
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.errors import TrainingInterrupted
 from pipeline.learn.imitation import ImitationResult, warm_start
 from pipeline.learn.learners import build_learners
-from pipeline.learn.modes import StreamMap
-from pipeline.learn.progress import ConvergenceTracker, LearningCurve
 from pipeline.learn.selection import Selector, greedy_policy
-from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import to_mapping
 from pipeline.params import TrainConfig, WorldConfig
 from pipeline.policy.networks import PolicyKind

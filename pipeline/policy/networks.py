@@ -6,7 +6,7 @@ A trained learner's weights are a mapping of tensor names to arrays (stable-base
 - ``sac_actor``: ReLU MLP ``actor.latent_pi`` -> ``actor.mu`` -> tanh (actions in [-1, 1]);
 - ``ppo_actor``: tanh MLP ``mlp_extractor.policy_net`` -> ``action_net`` -> clip to [-1, 1]
   (continuous) or argmax of the logits (discrete); an input scaling (``features_extractor.center`` and
-  ``half_range``, :mod:`pipeline.learn.scaling`) is folded into the first layer;
+  ``half_range``, :mod:`pipeline.learn.common.scaling`) is folded into the first layer;
 - ``dqn``: ReLU MLP ``q_net.q_net`` whose last layer gives Q values -> argmax;
 - ``dqn_dueling``: ReLU MLP ``q_net.shared`` -> ``q_net.value_head`` (1) and
   ``q_net.advantage_head`` (n_actions); Q = V + A - mean(A) per sample -> argmax.

@@ -10,12 +10,12 @@ import torch as th
 
 from pipeline.errors import ConfigError
 from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.common.modes import StreamMap
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.export import export_policy
 from pipeline.learn.imitation import demonstrate, discounted_returns, imitate
 from pipeline.learn.learners import build_learners
-from pipeline.learn.modes import StreamMap
 from pipeline.learn.trainer import train
-from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, read_yaml, to_mapping
 from pipeline.params import Params, TrainConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime

@@ -12,10 +12,10 @@ import pytest
 from pipeline.core.judge import goal_fields
 from pipeline.core.layouts import draw_layout
 from pipeline.errors import ConfigError
+from pipeline.learn.common.modes import StreamMap
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.imitation import demonstrate
-from pipeline.learn.modes import StreamMap
 from pipeline.learn.trainer import train
-from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, read_yaml
 from pipeline.params import NetworkRanges, Params, load_params, world_config
 from pipeline.policy.scripted import GoToGoalController, PathFollowingController

@@ -14,9 +14,9 @@ import torch as th
 
 from pipeline.core.layouts import draw_layout
 from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.common.worlds import TRAIN_SEED_MIN
 from pipeline.learn.export import export_policy, golden_observations
 from pipeline.learn.trainer import train
-from pipeline.learn.worlds import TRAIN_SEED_MIN
 from pipeline.mappings import from_mapping, merge, to_mapping
 from pipeline.params import TrainConfig, world_config
 from pipeline.policy.runtime import PolicyRuntime

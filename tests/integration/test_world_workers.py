@@ -10,9 +10,9 @@ import pytest
 import torch as th
 
 from pipeline.learn.checkpoint import load_checkpoint
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.errors import WorldWorkerError
 from pipeline.learn.trainer import train
-from pipeline.learn.worlds import VecWorlds
 from pipeline.params import world_config
 from pipeline.sim import make_world
 

@@ -11,8 +11,8 @@ import pytest
 import torch as th
 from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
 
-from pipeline.learn.batched_sac import BatchedSAC
 from pipeline.learn.learners import BatchedSACMember, OffPolicyLearner, build_learners
+from pipeline.learn.sac.batched import BatchedSAC
 from pipeline.params import TrainConfig
 
 OBS, ACT = 6, 2
@@ -152,7 +152,7 @@ def test_updates_wait_for_every_learner_and_follow_the_update_ratio():
     cfg = _config(learning_starts=10, batch_size=8, updates_per_transition=0.5, train_every_steps=1)
     members = _group(2, cfg)
     group = members[0].group
-    from pipeline.learn.modes import StreamBatch
+    from pipeline.learn.common.modes import StreamBatch
 
     def batch(active: list[bool]) -> StreamBatch:
         n = len(active)

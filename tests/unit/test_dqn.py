@@ -16,9 +16,9 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv
 from stable_baselines3.dqn.policies import DQNPolicy, QNetwork
 
-from pipeline.learn.dqn import DuelingDQNPolicy, DuelingQNetwork, PerDQN
+from pipeline.learn.dqn.model import DuelingDQNPolicy, DuelingQNetwork, PerDQN
+from pipeline.learn.dqn.prioritized import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 from pipeline.learn.errors import PrioritizedReplayError
-from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 
 
 @pytest.fixture(autouse=True)

@@ -14,7 +14,7 @@ from pipeline.core.judge import goal_fields
 from pipeline.core.layouts import draw_layout
 from pipeline.core.scenario import box_clearance, box_corners, load_scenario
 from pipeline.errors import ConfigError
-from pipeline.learn.worlds import TRAIN_SEED_MIN, VecWorlds
+from pipeline.learn.common.worlds import TRAIN_SEED_MIN, VecWorlds
 from pipeline.mappings import read_yaml
 from pipeline.params import world_config
 from pipeline.sim import make_world

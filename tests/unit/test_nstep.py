@@ -11,9 +11,9 @@ import pytest
 import torch as th
 
 from pipeline.errors import ConfigError
+from pipeline.learn.common.modes import StreamBatch
+from pipeline.learn.common.nstep import NStepReturns
 from pipeline.learn.learners import BatchedSACMember, OffPolicyLearner, build_learners
-from pipeline.learn.modes import StreamBatch
-from pipeline.learn.nstep import NStepReturns
 from pipeline.mappings import from_mapping
 from pipeline.params import TrainConfig
 

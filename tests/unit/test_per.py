@@ -11,8 +11,8 @@ from gymnasium import spaces
 from scipy import stats
 
 from pipeline.errors import MrlError
+from pipeline.learn.dqn.prioritized import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples, SumTree
 from pipeline.learn.errors import PrioritizedReplayError
-from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples, SumTree
 
 OBS_SPACE = spaces.Box(-10.0, 10.0, shape=(2,), dtype=np.float32)
 ACTION_SPACE = spaces.Discrete(3)

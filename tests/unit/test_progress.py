@@ -6,8 +6,8 @@ import csv
 
 import numpy as np
 
-from pipeline.learn.progress import ConvergenceTracker, LearningCurve
-from pipeline.learn.worlds import EpisodeRecord
+from pipeline.learn.common.progress import ConvergenceTracker, LearningCurve
+from pipeline.learn.common.worlds import EpisodeRecord
 
 
 def feed(tracker: ConvergenceTracker, rows: list[list[int]]) -> list[bool]:

@@ -10,10 +10,10 @@ import pytest
 import torch as th
 
 from pipeline.errors import ConfigError
-from pipeline.learn.batched_sac import BatchedSAC
+from pipeline.learn.common.worlds import VecWorlds
 from pipeline.learn.learners import BatchedSACMember, OffPolicyLearner
+from pipeline.learn.sac.batched import BatchedSAC
 from pipeline.learn.trainer import _TrainingRun
-from pipeline.learn.worlds import VecWorlds
 from pipeline.mappings import from_mapping, merge, to_mapping
 from pipeline.params import TrainConfig, world_config
 from pipeline.sim import make_world

@@ -22,8 +22,8 @@ from stable_baselines3.dqn.policies import DQNPolicy, QNetwork
 from torch import nn
 from torch.nn import functional as F
 
+from pipeline.learn.dqn.prioritized import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 from pipeline.learn.errors import PrioritizedReplayError
-from pipeline.learn.per import PrioritizedReplayBuffer, PrioritizedReplayBufferSamples
 
 
 class DuelingQNetwork(QNetwork):

@@ -9,7 +9,7 @@ from typing import TextIO
 
 import numpy as np
 
-from pipeline.learn.worlds import EpisodeRecord
+from pipeline.learn.common.worlds import EpisodeRecord
 
 
 class ConvergenceTracker:

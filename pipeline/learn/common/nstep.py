@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.learn.modes import StreamBatch
+from pipeline.learn.common.modes import StreamBatch
 
 
 @dataclass

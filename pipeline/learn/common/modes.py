@@ -18,7 +18,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from pipeline.learn.worlds import VecWorlds, WorldsStep
+from pipeline.learn.common.worlds import VecWorlds, WorldsStep
 from pipeline.params import Mode
 
 

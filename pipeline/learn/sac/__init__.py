@@ -1,0 +1,1 @@
+"""SAC: the robots' learners stepped as one batched network (:mod:`pipeline.learn.sac.batched`)."""
