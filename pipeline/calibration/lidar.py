@@ -1209,34 +1209,10 @@ def estimate_lidar(
     """Noise (sigma m and growth m/m), dropout probability, bias (m), mounting (yaw rad, x and y m), blocked
     sectors and the room's true walls and boxes from stationary `spans`; the noise again from scans while driving
     (`moving`, one scan each, at its pose), compared with the still spans' or, without still spans, alone."""
-    min_s = settings.stationary_min_s
     spans = [s for s in spans if s.ranges.shape[0] > 0]
     moving_rng = np.random.default_rng([settings.seed, 59])  # the still estimates' draws stay as they were
     if not spans:
-        reason = (
-            f"robots never stood still for >= {min_s:g} s while scanning: the bias, mounting and map are read from "
-            "still spans only"
-        )
-        fit = _unidentifiable(reason)
-        if not moving:
-            return fit
-        alone, used = _moving_noise(
-            geometry, moving, 0.0, (0.0, 0.0), blocked_beams(moving), settings, moving_rng, 0.0, None
-        )
-        note = (
-            f"no still span: the noise comes from {used} scans while driving against the map only (a beam against "
-            "its neighbours; at the nominal mounting; the range step is read from still scans, so not taken out)"
-        )
-        return dataclasses.replace(
-            fit,
-            noise_sigma_m=alone.sigma,
-            noise_per_m=alone.per_m,
-            noise_at_range=alone.at_range,
-            noise_correlation=alone.correlation,
-            noise_curve=alone.curve,
-            noise_driving=alone,
-            notes=(*fit.notes, note, *alone.notes),
-        )
+        return _without_still_spans(geometry, moving, settings, moving_rng)
     stationary_s = float(sum(s.duration_s for s in spans))
     blocked = blocked_beams(spans)
     sectors: tuple[tuple[float, float], ...] = ()
@@ -1307,49 +1283,11 @@ def estimate_lidar(
         both = valid[1:] & valid[:-1]
         changes.append(np.diff(np.where(valid, r, 0.0), axis=0)[both])
         unblocked = ~blocked[span.ranges.shape[1]]
-        seen = r[:, unblocked]
-        missing["inf"] += int(np.isposinf(seen).sum())
-        missing["nan"] += int(np.isnan(seen).sum())
-        missing["zero"] += int((seen == 0.0).sum())
-        missing["max"] += int((seen == np.float32(span.range_max_m)).sum())
-        # depth edges of the fitted room: a beam that meets another surface than the previous beam, nearer or farther
-        # by more than DEPTH_EDGE_M, both clear of robots and of the mast
-        here, before = fitted[0], np.roll(fitted[0], 1)
-        both_cast = np.isfinite(here) & np.isfinite(before)
-        gap = np.abs(np.where(both_cast, here, 0.0) - np.where(both_cast, before, 0.0))
-        other = fitted_surface[0] != np.roll(fitted_surface[0], 1)  # a smooth surface seen at a slant is no edge
-        jump = both_cast & other & (gap > DEPTH_EDGE_M) & unblocked
-        jump &= np.roll(unblocked, 1)
-        clear = free & np.roll(free, 1, axis=1) & jump[None, :] & valid
-        cols = np.flatnonzero(clear.sum(axis=0) >= 3)
-        if len(cols):
-            seen_at = np.where(clear[:, cols], r[:, cols], np.nan)
-            # the beam's own surface: of the two cast surfaces the one nearer its median return (a beam a little off
-            # its stated angle sees the other one throughout), refined by its returns near it (a box a few
-            # centimetres off its mapped place, unidentified, moves it)
-            lo_m, hi_m = np.minimum(here, before)[cols], np.maximum(here, before)[cols]
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # a beam with no return near: its cast stays
-                median = np.nanmedian(seen_at, axis=0)
-                side = np.where(np.abs(median - lo_m) <= np.abs(median - hi_m), lo_m, hi_m)
-                near_own = np.abs(seen_at - side[None, :]) < EDGE_OWN_M
-                refined = np.nanmedian(np.where(near_own, seen_at, np.nan), axis=0)
-            centre = np.where(np.isfinite(refined), refined, side)
-            # a beam that mostly returns from neither surface sees something the fitted map lacks (a robot standing
-            # where the others' poses do not place it, an object): its steady returns are no mixed pixels
-            on_map = (np.abs(seen_at - lo_m[None, :]) < EDGE_OWN_M) | (np.abs(seen_at - hi_m[None, :]) < EDGE_OWN_M)
-            mapped = on_map.sum(axis=0) >= MAPPED_EDGE_SHARE * np.isfinite(seen_at).sum(axis=0)
-            unmapped_edges += int((~mapped).sum())
-            keep = np.isfinite(seen_at) & mapped[None, :]
-            edges.append(
-                (
-                    seen_at[keep],
-                    np.broadcast_to(centre[None, :], seen_at.shape)[keep],
-                    np.broadcast_to(lo_m[None, :], seen_at.shape)[keep],
-                    np.broadcast_to(hi_m[None, :], seen_at.shape)[keep],
-                    np.broadcast_to((k * 100_000 + cols)[None, :], seen_at.shape)[keep],  # the beam in its span
-                )
-            )
+        _count_missing(r[:, unblocked], span.range_max_m, missing)
+        found, unmapped = _depth_edges(fitted[0], fitted_surface[0], free, valid, r, unblocked, k)
+        unmapped_edges += unmapped
+        if found is not None:
+            edges.append(found)
     n_trials = int(trials.sum())
     yaw_est = _with_beam_angle_errors(yaw_est, masks)
     notes = [
@@ -1432,6 +1370,97 @@ def estimate_lidar(
         no_return=no_return,
         noise_driving=driving,
     )
+
+
+def _without_still_spans(
+    geometry: MapGeometry, moving: Sequence[ScanSpan], settings: CalibrationSettings, rng: np.random.Generator
+) -> LidarFit:
+    """:func:`estimate_lidar` with no still span: the geometry unidentified, the noise from the scans while driving
+    (`moving`) against the map alone where there are any."""
+    reason = (
+        f"robots never stood still for >= {settings.stationary_min_s:g} s while scanning: the bias, mounting and map "
+        "are read from still spans only"
+    )
+    fit = _unidentifiable(reason)
+    if not moving:
+        return fit
+    alone, used = _moving_noise(geometry, moving, 0.0, (0.0, 0.0), blocked_beams(moving), settings, rng, 0.0, None)
+    note = (
+        f"no still span: the noise comes from {used} scans while driving against the map only (a beam against "
+        "its neighbours; at the nominal mounting; the range step is read from still scans, so not taken out)"
+    )
+    return dataclasses.replace(
+        fit,
+        noise_sigma_m=alone.sigma,
+        noise_per_m=alone.per_m,
+        noise_at_range=alone.at_range,
+        noise_correlation=alone.correlation,
+        noise_curve=alone.curve,
+        noise_driving=alone,
+        notes=(*fit.notes, note, *alone.notes),
+    )
+
+
+def _count_missing(seen: np.ndarray, range_max_m: float, missing: dict[str, int]) -> None:
+    """Add the returns of `seen` (a span's unblocked beams) that each driver convention reads as no return."""
+    missing["inf"] += int(np.isposinf(seen).sum())
+    missing["nan"] += int(np.isnan(seen).sum())
+    missing["zero"] += int((seen == 0.0).sum())
+    missing["max"] += int((seen == np.float32(range_max_m)).sum())
+
+
+def _depth_edges(
+    here: np.ndarray,
+    surface: np.ndarray,
+    free: np.ndarray,
+    valid: np.ndarray,
+    r: np.ndarray,
+    unblocked: np.ndarray,
+    k: int,
+) -> tuple[tuple[np.ndarray, ...] | None, int]:
+    """The returns of span `k` at the fitted room's depth edges, for the mixed pixels: (returns, the beam's own
+    surface, the near and the far surface, the beam's number in its span), or None where the span has none; and how
+    many edge beams returned mostly from neither surface (something the map lacks, left out).
+
+    `here`, `surface`: each beam's cast range and surface in the fitted room; `free`, `valid`: (scans, beams) beams
+    clear of other robots and valid returns; `r`: the span's ranges; `unblocked`: beams the robot itself does not
+    block. An edge beam meets another surface than the previous beam, nearer or farther by more than DEPTH_EDGE_M,
+    both clear of robots and of the mast."""
+    before = np.roll(here, 1)
+    both_cast = np.isfinite(here) & np.isfinite(before)
+    gap = np.abs(np.where(both_cast, here, 0.0) - np.where(both_cast, before, 0.0))
+    other = surface != np.roll(surface, 1)  # a smooth surface seen at a slant is no edge
+    jump = both_cast & other & (gap > DEPTH_EDGE_M) & unblocked
+    jump &= np.roll(unblocked, 1)
+    clear = free & np.roll(free, 1, axis=1) & jump[None, :] & valid
+    cols = np.flatnonzero(clear.sum(axis=0) >= 3)
+    if not len(cols):
+        return None, 0
+    seen_at = np.where(clear[:, cols], r[:, cols], np.nan)
+    # the beam's own surface: of the two cast surfaces the one nearer its median return (a beam a little off its
+    # stated angle sees the other one throughout), refined by its returns near it (a box a few centimetres off its
+    # mapped place, unidentified, moves it)
+    lo_m, hi_m = np.minimum(here, before)[cols], np.maximum(here, before)[cols]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a beam with no return near: its cast stays
+        median = np.nanmedian(seen_at, axis=0)
+        side = np.where(np.abs(median - lo_m) <= np.abs(median - hi_m), lo_m, hi_m)
+        near_own = np.abs(seen_at - side[None, :]) < EDGE_OWN_M
+        refined = np.nanmedian(np.where(near_own, seen_at, np.nan), axis=0)
+    centre = np.where(np.isfinite(refined), refined, side)
+    # a beam that mostly returns from neither surface sees something the fitted map lacks (a robot standing where
+    # the others' poses do not place it, an object): its steady returns are no mixed pixels
+    on_map = (np.abs(seen_at - lo_m[None, :]) < EDGE_OWN_M) | (np.abs(seen_at - hi_m[None, :]) < EDGE_OWN_M)
+    mapped = on_map.sum(axis=0) >= MAPPED_EDGE_SHARE * np.isfinite(seen_at).sum(axis=0)
+    keep = np.isfinite(seen_at) & mapped[None, :]
+    found = (
+        seen_at[keep],
+        np.broadcast_to(centre[None, :], seen_at.shape)[keep],
+        np.broadcast_to(lo_m[None, :], seen_at.shape)[keep],
+        np.broadcast_to(hi_m[None, :], seen_at.shape)[keep],
+        np.broadcast_to((k * 100_000 + cols)[None, :], seen_at.shape)[keep],  # the beam in its span
+    )
+    return found, int((~mapped).sum())
 
 
 def _with_beam_angle_errors(yaw: Estimate, masks: Sequence[np.ndarray]) -> Estimate:
