@@ -356,6 +356,133 @@ def _channel_problems(tracks: Sequence[VelocityTrack], settings: CalibrationSett
     return out
 
 
+@dataclass(frozen=True)
+class _LocalGrid:
+    """The fine grid of delays and lags around the coarse fit, with each cluster's least-squares sums at every point
+    (for the bootstrap): `cluster_sums` (delays, taus, clusters, 2 channels, 3), `yy` each channel's sum of squares."""
+
+    delays: np.ndarray
+    taus: np.ndarray
+    log_step: float
+    cluster_sums: np.ndarray
+    yy: np.ndarray
+
+    @staticmethod
+    def around(
+        fine: _Problem,
+        d0: float,
+        tau0: float,
+        knees: Sequence[float],
+        max_delay: float,
+        cluster_of: np.ndarray,
+        n_clusters: int,
+    ) -> _LocalGrid:
+        yy = np.array([np.sum(fine.y[:, c] ** 2) for c in range(2)])
+        local_d = d0 + FINE_STEP_S * np.arange(-LOCAL_DELAY_STEPS, LOCAL_DELAY_STEPS + 1)
+        local_d = local_d[(local_d >= -1e-12) & (local_d <= max_delay + 1e-9)]
+        local_tau = tau0 * np.exp(np.linspace(-LOCAL_LOG_TAU, LOCAL_LOG_TAU, 21))
+        local_tau = local_tau[(local_tau >= TAU_MIN_S) & (local_tau <= TAU_MAX_S)]
+        log_step = float(np.log(local_tau[1] / local_tau[0])) if len(local_tau) > 1 else 0.0
+        cluster_sums = np.zeros((len(local_d), len(local_tau), n_clusters, 2, 3))
+        for i, d in enumerate(local_d):
+            u = fine.commands(float(d), knees)
+            for j, tau in enumerate(local_tau):
+                cluster_sums[i, j] = _sums(fine, fine.response(u, float(tau)), cluster_of, n_clusters)
+        return _LocalGrid(local_d, local_tau, log_step, cluster_sums, yy)
+
+    def solve(self, weights: np.ndarray, channels: list[int]) -> np.ndarray:
+        """(delay, tau, linear gain, angular gain) of the clusters weighted by `weights` (n_clusters,)."""
+        sums = np.tensordot(weights, self.cluster_sums, axes=([0], [2]))  # (n_delays, n_taus, 2, 3)
+        cost = np.array(
+            [[_cost(sums[i, j], self.yy, channels) for j in range(len(self.taus))] for i in range(len(self.delays))]
+        )
+        if not np.isfinite(cost).any():
+            return np.full(4, np.nan)
+        i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        di, dj = _quadratic_min(cost, int(i), int(j))
+        gains = [sums[i, j, c, 0] / sums[i, j, c, 1] if sums[i, j, c, 1] > 0 else np.nan for c in range(2)]
+        return np.array(
+            [self.delays[i] + di * FINE_STEP_S, self.taus[j] * math.exp(dj * self.log_step), gains[0], gains[1]]
+        )
+
+
+def _ambiguities(
+    fine: _Problem,
+    samples: np.ndarray,
+    gains: np.ndarray,
+    limits: list[SpeedLimit | None],
+    problems: list[str],
+    channels: list[int],
+    commanded: np.ndarray,
+    delay: float,
+    tau: float,
+    n_clusters: int,
+) -> tuple[list[Ambiguity], float | None]:
+    """What the drive's data leave open: a channel commanded at one speed whose gain short of 1 may be a speed limit
+    instead (its limit and problem set in `limits` and `problems`), and a delay and lag that trade off; and the
+    delay's and lag's bootstrap correlation (None with one cluster)."""
+    ambiguities: list[Ambiguity] = []
+    for c in channels:
+        level = _one_level(commanded[c])
+        limit = limits[c]
+        if level is None or limit is None or limit.saturated or not gains[c] < 1.0 - MIN_GAIN_SHORTFALL:
+            continue
+        g_se, g_interval = spread(samples[:, 2 + c])
+        ambiguity, limits[c] = _gain_or_limit(c, float(gains[c]), g_se, g_interval, level, limit, len(fine.y))
+        ambiguities.append(ambiguity)
+        problems[c] = f"{ambiguity.readings[0]} or {ambiguity.readings[1]} (one commanded speed): {ambiguity.separate}"
+    correlation = _correlation(samples[:, 0], samples[:, 1]) if n_clusters >= 2 else None
+    if correlation is not None and correlation <= TRADE_OFF_CORRELATION:
+        ambiguities.append(
+            Ambiguity(
+                ("actuation.delay_s", "actuation.time_constant_s"),
+                (
+                    f"a delay of {delay:.3g} s before a lag of {tau:.3g} s",
+                    "a longer delay before a shorter lag, or a shorter delay before a longer one "
+                    f"(their bootstrap draws correlate {correlation:+.2f})",
+                ),
+                "the least-squares pair, with intervals that span the trade-off",
+                "commands that reverse sharply, in steps of several sizes, with the base at rest between them",
+            )
+        )
+    return ambiguities, correlation
+
+
+def _drive_estimates(
+    samples: np.ndarray,
+    values: tuple[float, float, float, float],
+    problems: list[str],
+    reach: _Reach,
+    method: str,
+    n: int,
+) -> tuple[dict[str, Estimate], dict[str, float | None], Estimate]:
+    """The delay, lag and gains as estimates (unidentifiable where a channel has a problem or the velocity does not
+    settle), their bootstrap standard errors, and the response (delay + lag), each interval widened for the misfit
+    (`reach`)."""
+    delay, tau = values[0], values[1]
+    out: dict[str, Estimate] = {}
+    bootstrap_se: dict[str, float | None] = {}
+    for k, (name, unit) in enumerate(UNITS.items()):
+        se, interval = spread(samples[:, k])
+        known_se = None if math.isnan(se) else se
+        known_interval = None if math.isnan(interval[0]) else interval
+        if k >= 2 and problems[k - 2]:
+            out[name] = Estimate.unidentifiable(problems[k - 2], unit)
+        elif name == "time_constant_s" and tau >= TAU_MAX_S * 0.95:
+            out[name] = Estimate.unidentifiable(f"the velocity does not settle within {TAU_MAX_S:g} s", unit)
+        else:
+            bootstrap_se[name] = known_se
+            se_k, interval_k = reach.widen(k, values[k], known_se, known_interval)
+            out[name] = Estimate.of(values[k], se_k, interval_k, unit, method + reach.words, n)
+    response = Estimate.unidentifiable(out["delay_s"].reason or out["time_constant_s"].reason, "s")
+    if out["delay_s"].ok and out["time_constant_s"].ok:
+        se, interval = spread(samples[:, 0] + samples[:, 1])
+        known = not math.isnan(se)
+        se_r, interval_r = reach.widen(4, delay + tau, se if known else None, interval if known else None)
+        response = Estimate.of(delay + tau, se_r, interval_r, "s", method + reach.words, n)
+    return out, bootstrap_se, response
+
+
 def estimate_actuation(
     tracks: Sequence[VelocityTrack], settings: CalibrationSettings, rng: np.random.Generator
 ) -> ActuationFit:
@@ -388,29 +515,11 @@ def estimate_actuation(
     if any(math.isfinite(k) for k in knees):
         d0, tau0 = _coarse_fit(coarse, channels, max_delay, knees)
 
-    # local grid on the fine step, with per-cluster sums for the bootstrap
-    yy = np.array([np.sum(fine.y[:, c] ** 2) for c in range(2)])
-    local_d = d0 + FINE_STEP_S * np.arange(-LOCAL_DELAY_STEPS, LOCAL_DELAY_STEPS + 1)
-    local_d = local_d[(local_d >= -1e-12) & (local_d <= max_delay + 1e-9)]
-    local_tau = tau0 * np.exp(np.linspace(-LOCAL_LOG_TAU, LOCAL_LOG_TAU, 21))
-    local_tau = local_tau[(local_tau >= TAU_MIN_S) & (local_tau <= TAU_MAX_S)]
-    log_step = float(np.log(local_tau[1] / local_tau[0])) if len(local_tau) > 1 else 0.0
-    cluster_sums = np.zeros((len(local_d), len(local_tau), n_clusters, 2, 3))
-    for i, d in enumerate(local_d):
-        u = fine.commands(float(d), knees)
-        for j, tau in enumerate(local_tau):
-            cluster_sums[i, j] = _sums(fine, fine.response(u, float(tau)), cluster_of, n_clusters)
+    grid = _LocalGrid.around(fine, d0, tau0, knees, max_delay, cluster_of, n_clusters)
+    yy, cluster_sums, local_d, local_tau = grid.yy, grid.cluster_sums, grid.delays, grid.taus
 
     def solve(weights: np.ndarray) -> np.ndarray:
-        """(delay, tau, linear gain, angular gain) of the clusters weighted by `weights` (n_clusters,)."""
-        sums = np.tensordot(weights, cluster_sums, axes=([0], [2]))  # (n_delays, n_taus, 2, 3)
-        cost = np.array([[_cost(sums[i, j], yy, channels) for j in range(len(local_tau))] for i in range(len(local_d))])
-        if not np.isfinite(cost).any():
-            return np.full(4, np.nan)
-        i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
-        di, dj = _quadratic_min(cost, int(i), int(j))
-        gains = [sums[i, j, c, 0] / sums[i, j, c, 1] if sums[i, j, c, 1] > 0 else np.nan for c in range(2)]
-        return np.array([local_d[i] + di * FINE_STEP_S, local_tau[j] * math.exp(dj * log_step), gains[0], gains[1]])
+        return grid.solve(weights, channels)
 
     best = solve(np.ones(n_clusters))
     delay, tau = max(float(best[0]), 0.0), float(best[1])
@@ -441,50 +550,10 @@ def estimate_actuation(
     reach = _misfit_reach(fine, fitted, cluster_sums.sum(axis=2), yy, channels, local_d, local_tau)
     commanded = np.abs(fine.commands(delay)[:, fine.row, fine.idx])
     limits = list(saturation.limits)
-    ambiguities: list[Ambiguity] = []
-    for c in channels:
-        level = _one_level(commanded[c])
-        limit = limits[c]
-        if level is None or limit is None or limit.saturated or not gains[c] < 1.0 - MIN_GAIN_SHORTFALL:
-            continue
-        g_se, g_interval = spread(samples[:, 2 + c])
-        ambiguity, limits[c] = _gain_or_limit(c, float(gains[c]), g_se, g_interval, level, limit, len(fine.y))
-        ambiguities.append(ambiguity)
-        problems[c] = f"{ambiguity.readings[0]} or {ambiguity.readings[1]} (one commanded speed): {ambiguity.separate}"
-    correlation = _correlation(samples[:, 0], samples[:, 1]) if n_clusters >= 2 else None
-    if correlation is not None and correlation <= TRADE_OFF_CORRELATION:
-        ambiguities.append(
-            Ambiguity(
-                ("actuation.delay_s", "actuation.time_constant_s"),
-                (
-                    f"a delay of {delay:.3g} s before a lag of {tau:.3g} s",
-                    "a longer delay before a shorter lag, or a shorter delay before a longer one "
-                    f"(their bootstrap draws correlate {correlation:+.2f})",
-                ),
-                "the least-squares pair, with intervals that span the trade-off",
-                "commands that reverse sharply, in steps of several sizes, with the base at rest between them",
-            )
-        )
-    out: dict[str, Estimate] = {}
-    bootstrap_se: dict[str, float | None] = {}
-    for k, (name, unit) in enumerate(UNITS.items()):
-        se, interval = spread(samples[:, k])
-        known_se = None if math.isnan(se) else se
-        known_interval = None if math.isnan(interval[0]) else interval
-        if k >= 2 and problems[k - 2]:
-            out[name] = Estimate.unidentifiable(problems[k - 2], unit)
-        elif name == "time_constant_s" and tau >= TAU_MAX_S * 0.95:
-            out[name] = Estimate.unidentifiable(f"the velocity does not settle within {TAU_MAX_S:g} s", unit)
-        else:
-            bootstrap_se[name] = known_se
-            se_k, interval_k = reach.widen(k, values[k], known_se, known_interval)
-            out[name] = Estimate.of(values[k], se_k, interval_k, unit, method + reach.words, len(fine.y))
-    response = Estimate.unidentifiable(out["delay_s"].reason or out["time_constant_s"].reason, "s")
-    if out["delay_s"].ok and out["time_constant_s"].ok:
-        se, interval = spread(samples[:, 0] + samples[:, 1])
-        known = not math.isnan(se)
-        se_r, interval_r = reach.widen(4, delay + tau, se if known else None, interval if known else None)
-        response = Estimate.of(delay + tau, se_r, interval_r, "s", method + reach.words, len(fine.y))
+    ambiguities, correlation = _ambiguities(
+        fine, samples, gains, limits, problems, channels, commanded, delay, tau, n_clusters
+    )
+    out, bootstrap_se, response = _drive_estimates(samples, values, problems, reach, method, len(fine.y))
     notes: tuple[str, ...] = (
         f"{counted(len(tracks), 'contact-free track')}, {duration:.1f} s, from {counted(n_clusters, 'robot-episode')}",
     )

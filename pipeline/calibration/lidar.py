@@ -867,31 +867,18 @@ def _noise_fit(
     ranges `R` (m), owned by `n_owners` spans or scans (`owner`) that `clusters_of` (their used mask) groups for the
     bootstrap; the beams' spread where `beam` names each deviation's beam and its n / (n - 1) (the mean of its span's
     n returns taken out and the deviation scaled back up); the determined noise at `at_m` (default: the median range
-    seen)."""
+    seen).
+
+    In steps: the clipped moments per range bin and owner (:func:`_binned_sums`), the line by maximum likelihood,
+    its intervals by a bootstrap over the owners' clusters or the profile likelihood (:func:`_noise_intervals`), the
+    beams' spread (:func:`_beam_spread_estimate`), then each estimate in its domain and the notes."""
     bins = np.floor(R / RANGE_BIN_M).astype(np.int64)
-    labels = np.unique(bins)
-    rows = []  # (bin, centre, half-width of the clip)
-    for b in labels:
-        sel = bins == b
-        if sel.sum() < MIN_BIN_SAMPLES:
-            continue
-        _, _, half = clipped_moments(d[sel])
-        rows.append((b, float(R[sel].mean()), half))
-    if len(rows) < 1:
+    binned = _binned_sums(d, R, bins, owner, n_owners)
+    if binned is None:
         reason = f"fewer than {MIN_BIN_SAMPLES} repeated returns in any {RANGE_BIN_M:g} m range bin"
         return NoiseFit(Estimate.unidentifiable(reason, "m"), Estimate.unidentifiable(reason, "m/m"))
+    sums, loose = binned
     correction = truncation_correction(CLIP_SIGMAS)
-    n_spans = n_owners
-    # per span and bin: count, sum and sum of squares of the clipped deviations, and the sum of ranges
-    sums = np.zeros((n_spans, len(rows), 4))
-    loose = np.zeros(len(d), dtype=bool)  # gross outliers out, a noisy beam's tails in: the beams' spread
-    for i, (b, _, half) in enumerate(rows):
-        sel = (bins == b) & (np.abs(d) <= half)
-        loose |= (bins == b) & (np.abs(d) <= 3 * half)
-        np.add.at(sums[:, i, 0], owner[sel], 1.0)
-        np.add.at(sums[:, i, 1], owner[sel], d[sel])
-        np.add.at(sums[:, i, 2], owner[sel], d[sel] ** 2)
-        np.add.at(sums[:, i, 3], owner[sel], R[sel])
     total = sums.sum(axis=0)
     every = NoiseBins.of(total, correction)
     if not np.any(every.var > 1e-18):  # below a nanometre: rounding of the mean, not noise
@@ -907,8 +894,76 @@ def _noise_fit(
     curve = (every.range_m, np.sqrt(every.var))
     n_dev = int(total[:, 0].sum())
     clusters = clusters_of(sums[:, :, 0].sum(axis=1) > 0)
-    notes: list[str] = []
     values = [float(full[0]), float(full[1]), float(full[0]) + (float(full[1]) if slope else 0.0) * at_m]
+    intervals, ses, widen, corr, method = _noise_intervals(
+        every, full, values, step_m, phi, at_m, slope, clusters, sums, correction, settings, rng
+    )
+    spread_est, rel_sd = _beam_spread_estimate(beam, loose, d, R, full, slope, step_m, rel_sd)
+    ests = []
+    for k, unit in ((0, "m"), (1, "m/m"), (2, "m")):
+        value = values[k]
+        if not math.isfinite(value):
+            reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
+            ests.append(Estimate.unidentifiable(reason, unit, n_dev))
+            continue
+        lo, hi = intervals[k]
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            ests.append(Estimate.unidentifiable("too few stationary spans to tell its uncertainty", unit, n_dev))
+            continue
+        lo, hi = log_add(value, log_widen(value, (lo, hi), widen), rel_sd)
+        bound = NOISE_BOUNDS["noise_per_m" if k == 1 else "noise_sigma_m"][1] + (k == 2) * at_m * 0.2
+        hi = min(hi, bound)
+        se = max(float(ses[k]) * widen, (hi - lo) / (2 * Z_95)) if math.isfinite(ses[k]) else (hi - lo) / (2 * Z_95)
+        ests.append(Estimate.of(value, se, (lo, hi), unit, method, n_dev))
+    at_range = (at_m, ests[2]) if ests[2].ok else None
+    notes = _noise_notes(every, ests, step_m, slope, corr, at_m, at_range is not None)
+    return NoiseFit(ests[0], ests[1], curve, at_range, corr, phi, spread_est, tuple(notes))
+
+
+def _binned_sums(
+    d: np.ndarray, R: np.ndarray, bins: np.ndarray, owner: np.ndarray, n_owners: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per owner and range bin (of at least MIN_BIN_SAMPLES returns): the count, sum and sum of squares of the
+    deviations within the bin's clip, and the sum of their ranges (n_owners, bins, 4); and the deviations within
+    three clips (gross outliers out, a noisy beam's tails in: for the beams' spread). None without such a bin."""
+    rows = []  # (bin, half-width of the clip)
+    for b in np.unique(bins):
+        sel = bins == b
+        if sel.sum() < MIN_BIN_SAMPLES:
+            continue
+        _, _, half = clipped_moments(d[sel])
+        rows.append((b, half))
+    if not rows:
+        return None
+    sums = np.zeros((n_owners, len(rows), 4))
+    loose = np.zeros(len(d), dtype=bool)
+    for i, (b, half) in enumerate(rows):
+        sel = (bins == b) & (np.abs(d) <= half)
+        loose |= (bins == b) & (np.abs(d) <= 3 * half)
+        np.add.at(sums[:, i, 0], owner[sel], 1.0)
+        np.add.at(sums[:, i, 1], owner[sel], d[sel])
+        np.add.at(sums[:, i, 2], owner[sel], d[sel] ** 2)
+        np.add.at(sums[:, i, 3], owner[sel], R[sel])
+    return sums, loose
+
+
+def _noise_intervals(
+    every: NoiseBins,
+    full: np.ndarray,
+    values: list[float],
+    step_m: float,
+    phi: float,
+    at_m: float,
+    slope: bool,
+    clusters: _Clusters,
+    sums: np.ndarray,
+    correction: float,
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+) -> tuple[list[tuple[float, float]], list[float], float, float, str]:
+    """The 95 % intervals and standard errors of (noise_sigma_m, noise_per_m, the noise at `at_m`), the widening
+    still to apply, the first two's correlation and the method's words: a bootstrap over the owners' clusters where
+    there are enough (each interval kept in its domain, >= 0), else the profile likelihood."""
     widen = math.sqrt(phi)
     if clusters.count >= MIN_SPANS_FOR_BOOTSTRAP:
         cluster_sums = clusters.sum(sums)
@@ -942,7 +997,22 @@ def _noise_fit(
         )
     if phi > 1.05:
         method += f"; widened for the bins' dispersion about the fit ({phi:.2f} x sampling)"
-    # the noise differs per beam: the beams seen carry a mean square of their factors that the profile's is not
+    return intervals, ses, widen, corr, method
+
+
+def _beam_spread_estimate(
+    beam: tuple[np.ndarray, np.ndarray] | None,
+    loose: np.ndarray,
+    d: np.ndarray,
+    R: np.ndarray,
+    full: np.ndarray,
+    slope: bool,
+    step_m: float,
+    rel_sd: float,
+) -> tuple[Estimate, float]:
+    """The beams' spread about the fitted noise line (where `beam` names each deviation's beam), and the relative
+    error (1 sigma) the noise's intervals then take: `rel_sd`, or the spread's own where that is larger (the beams
+    seen carry a mean square of their factors that the profile's is not)."""
     per_beam = (
         beam_spread(
             [(beam[0][loose], d[loose], R[loose], beam[1][loose])],
@@ -966,22 +1036,22 @@ def _noise_fit(
     )
     if math.isfinite(per_beam[0]) and per_beam[3] > 0:
         rel_sd = max(rel_sd, unit_spread(per_beam[2][1], per_beam[3]))
-    ests = []
-    for k, unit in ((0, "m"), (1, "m/m"), (2, "m")):
-        value = values[k]
-        if not math.isfinite(value):
-            reason = f"the stationary spans' returns cover less than {RANGE_BIN_M:g} m of range"
-            ests.append(Estimate.unidentifiable(reason, unit, n_dev))
-            continue
-        lo, hi = intervals[k]
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            ests.append(Estimate.unidentifiable("too few stationary spans to tell its uncertainty", unit, n_dev))
-            continue
-        lo, hi = log_add(value, log_widen(value, (lo, hi), widen), rel_sd)
-        bound = NOISE_BOUNDS["noise_per_m" if k == 1 else "noise_sigma_m"][1] + (k == 2) * at_m * 0.2
-        hi = min(hi, bound)
-        se = max(float(ses[k]) * widen, (hi - lo) / (2 * Z_95)) if math.isfinite(ses[k]) else (hi - lo) / (2 * Z_95)
-        ests.append(Estimate.of(value, se, (lo, hi), unit, method, n_dev))
+    return spread_est, rel_sd
+
+
+def _noise_notes(
+    every: NoiseBins,
+    ests: list[Estimate],
+    step_m: float,
+    slope: bool,
+    corr: float,
+    at_m: float,
+    determined_at_range: bool,
+) -> list[str]:
+    """What the noise fit says in words: the range step taken out (or the noise below it), and the trade-off of the
+    intercept against the growth with the noise the data determine, or that the ranges span too little for a
+    growth."""
+    notes: list[str] = []
     step_var = step_m**2 / 12
     if step_m > 0:
         pooled = float(np.sum(every.n * every.var) / np.sum(every.n))
@@ -995,8 +1065,7 @@ def _noise_fit(
             notes.append(
                 f"ranges in steps of {step_m * 1e3:.3g} mm: the rounding's step^2 / 12 taken out of the variance"
             )
-    at_range = (at_m, ests[2]) if ests[2].ok else None
-    if slope and math.isfinite(corr) and ests[0].ok and ests[1].ok and at_range is not None:
+    if slope and math.isfinite(corr) and ests[0].ok and ests[1].ok and determined_at_range:
         lo, hi = ests[2].interval or (math.nan, math.nan)
         notes.append(
             f"noise_sigma_m and noise_per_m trade off (correlation {corr:+.2f}); what the data determine is the noise "
@@ -1008,7 +1077,7 @@ def _noise_fit(
             f"the still returns' ranges span less than {RANGE_BIN_M:g} m: the noise is one value, its growth with "
             "range is not determined"
         )
-    return NoiseFit(ests[0], ests[1], curve, at_range, corr, phi, spread_est, tuple(notes))
+    return notes
 
 
 MOVING_MIN_COS = 0.95

@@ -335,10 +335,32 @@ def isolated_loss(isolated: int, expected: int) -> Estimate:
     return Estimate.of(p, se, (invert(low), invert(high)), "probability", method, expected)
 
 
+@dataclass
+class _Runs:
+    """The loss runs counted so far, one entry per topic-episode (the bootstrap's clusters): each run's length of lost
+    messages, the messages expected, the runs that ended inside the episode; and all messages expected."""
+
+    runs: list[np.ndarray] = field(default_factory=list)
+    expected_per_run: list[int] = field(default_factory=list)
+    ended: list[int] = field(default_factory=list)
+    expected: int = 0
+
+    def add(self, run: np.ndarray, expected: int, ended: int) -> None:
+        self.runs.append(run)
+        self.expected_per_run.append(expected)
+        self.ended.append(ended)
+        self.expected += expected
+
+
 def estimate_network(
     streams: Sequence[StampStream], settings: CalibrationSettings, rng: np.random.Generator
 ) -> NetworkFit:
-    """Loss probability and jitter (s) of sensor `streams`, from the messages received inside their windows."""
+    """Loss probability and jitter (s) of sensor `streams`, from the messages received inside their windows.
+
+    Topics that share their ticks (a twin's scans and odometry stamped together) are read together: a tick lost is
+    one no topic of the group received in its episode, and the jitter is the spread of two topics' delay
+    differences (:func:`_shared_ticks`); a topic of its own is read from the gaps in its stamps and its own delays
+    (:func:`_own_ticks`)."""
     kept: list[StampStream] = []
     received: list[np.ndarray] = []
     for stream in streams:
@@ -352,72 +374,102 @@ def estimate_network(
     if not kept:
         reason = f"fewer than {MIN_MESSAGES} sensor messages per topic inside episodes"
         return NetworkFit(Estimate.unidentifiable(reason, "probability"), Estimate.unidentifiable(reason, "s"))
-    runs: list[np.ndarray] = []
-    expected_per_run: list[int] = []
-    ended: list[int] = []
-    expected = 0
+    counted_runs = _Runs()
     pair_jitter: list[float] = []
     pair_shape: list[np.ndarray] = []
     own_jitter: list[float] = []
     for group in _shared_groups([k.stamp_ns for k in kept]):
         if len(group) > 1:
-            # each tick belongs to the episode its first reception falls in; a topic lost it only if it never
-            # received it (a message delayed past an episode's end by its jitter is no loss), and the runs are
-            # counted per topic-episode, the bootstrap's clusters
-            ticks, first = np.unique(np.concatenate([kept[i].stamp_ns for i in group]), return_index=True)
-            episode = _episode_of(np.concatenate([kept[i].log_ns for i in group])[first], kept[group[0]].windows)
-            for w in np.unique(episode):
-                in_episode = ticks[episode == w]
-                for i in group:
-                    runs.append(_tick_runs(received[i], in_episode))
-                    expected_per_run.append(len(in_episode))
-                    # a run still going at the episode's last tick is cut short: its messages count, its end does not
-                    ended.append(len(runs[-1]) - int(not np.isin(in_episode[-1], received[i])))
-                    expected += len(in_episode)
-            for a_i, a in enumerate(group):
-                for b in group[a_i + 1 :]:
-                    sa, sb = kept[a], kept[b]
-                    common, ia, ib = np.intersect1d(sa.stamp_ns, sb.stamp_ns, return_indices=True)
-                    if len(common) < MIN_MESSAGES:
-                        continue
-                    diff = ((sa.log_ns[ia] - sa.stamp_ns[ia]) - (sb.log_ns[ib] - sb.stamp_ns[ib])) / NS_PER_S
-                    pair_jitter.append(pair_rule(diff))
-                    pair_shape.append(_quantile_readings(diff))
-            continue
-        stream = kept[group[0]]
-        # gaps over the whole stream (a burst across an episode's start is still counted), each told to the
-        # episode its first message after the gap falls in
-        missing = _gap_missing(stream.stamp_ns, settings.network_max_gap_s)
-        if stream.windows:
-            # a gap across the pause before an episode's start is the reset's (the sensor restarts with the
-            # episode), no loss; episodes that follow each other without a pause keep theirs
-            ordered = sorted(stream.windows)
-            paused = [b for (_, end), (b, _) in itertools.pairwise(ordered) if b - end > RESET_PAUSE_NS]
-            starts = np.array(paused, dtype=np.int64)
-            before, after = stream.log_ns[:-1], stream.log_ns[1:]
-            across = np.searchsorted(starts, before, side="right") < np.searchsorted(starts, after, side="right")
-            missing = np.where(across, 0, missing)
-        for a, b in stream.windows or [(int(stream.log_ns.min()), int(stream.log_ns.max()))]:
-            sel = (stream.log_ns >= a) & (stream.log_ns <= b)
-            if sel.sum() >= 3:
-                r = missing[sel[1:]]
-                r = r[r > 0]
-                runs.append(r)
-                expected_per_run.append(int(sel.sum() + r.sum()))
-                ended.append(len(r))
-                expected += int(sel.sum() + r.sum())
-        delay = (stream.log_ns - stream.stamp_ns) / NS_PER_S
-        q25, q75 = np.percentile(delay, [25, 75])
-        own_jitter.append(2.0 * float(q75 - q25))
+            _shared_ticks([kept[i] for i in group], [received[i] for i in group], counted_runs, pair_jitter, pair_shape)
+        else:
+            own_jitter.append(_own_ticks(kept[group[0]], settings, counted_runs))
+    runs, expected = counted_runs.runs, counted_runs.expected
     all_runs = np.concatenate(runs) if runs else np.zeros(0, dtype=np.int64)
     isolated = int(np.sum(all_runs == 1))
     lost = int(all_runs.sum())
     # every message the receiver never got counts (dropped on the wire, in a burst, or by a stalled receiver's
     # full queue: the policy misses it all the same); with too few topic-episodes to resample, the
     # isolated-loss estimate of independent losses
-    loss, burst = _burst_loss(runs, ended, expected_per_run, settings, rng)
+    loss, burst = _burst_loss(runs, counted_runs.ended, counted_runs.expected_per_run, settings, rng)
     if loss is None:
         loss = isolated_loss(isolated, max(expected, 1))
+    jitter_est, shape_note = _jitter_estimate(pair_jitter, pair_shape, own_jitter, settings, rng)
+    bursts = int(np.sum(all_runs >= 2))
+    notes = (
+        f"{len(kept)} sensor topics, {expected} messages expected, {lost} missing "
+        f"({lost / max(expected, 1):.3f}; {isolated} isolated, {bursts} bursts of 2 or more)",
+        *shape_note,
+    )
+    return NetworkFit(loss, jitter_est, notes, burst)
+
+
+def _shared_ticks(
+    group: Sequence[StampStream],
+    received: Sequence[np.ndarray],
+    counted: _Runs,
+    pair_jitter: list[float],
+    pair_shape: list[np.ndarray],
+) -> None:
+    """A group of topics sharing their ticks: its loss runs per topic-episode into `counted`, and each pair's jitter
+    rule and quantile readings of their delay differences into `pair_jitter` and `pair_shape`.
+
+    Each tick belongs to the episode its first reception falls in; a topic lost it only if it never received it (a
+    message delayed past an episode's end by its jitter is no loss)."""
+    ticks, first = np.unique(np.concatenate([k.stamp_ns for k in group]), return_index=True)
+    episode = _episode_of(np.concatenate([k.log_ns for k in group])[first], group[0].windows)
+    for w in np.unique(episode):
+        in_episode = ticks[episode == w]
+        for got in received:
+            run = _tick_runs(got, in_episode)
+            # a run still going at the episode's last tick is cut short: its messages count, its end does not
+            counted.add(run, len(in_episode), len(run) - int(not np.isin(in_episode[-1], got)))
+    for a_i, sa in enumerate(group):
+        for sb in group[a_i + 1 :]:
+            common, ia, ib = np.intersect1d(sa.stamp_ns, sb.stamp_ns, return_indices=True)
+            if len(common) < MIN_MESSAGES:
+                continue
+            diff = ((sa.log_ns[ia] - sa.stamp_ns[ia]) - (sb.log_ns[ib] - sb.stamp_ns[ib])) / NS_PER_S
+            pair_jitter.append(pair_rule(diff))
+            pair_shape.append(_quantile_readings(diff))
+
+
+def _own_ticks(stream: StampStream, settings: CalibrationSettings, counted: _Runs) -> float:
+    """A topic with ticks of its own: its loss runs per episode into `counted` from the gaps in its stamps, and its
+    own jitter (2 x the interquartile range of its delays) returned.
+
+    Gaps are read over the whole stream (a burst across an episode's start is still counted), each told to the
+    episode its first message after the gap falls in."""
+    missing = _gap_missing(stream.stamp_ns, settings.network_max_gap_s)
+    if stream.windows:
+        # a gap across the pause before an episode's start is the reset's (the sensor restarts with the episode),
+        # no loss; episodes that follow each other without a pause keep theirs
+        ordered = sorted(stream.windows)
+        paused = [b for (_, end), (b, _) in itertools.pairwise(ordered) if b - end > RESET_PAUSE_NS]
+        starts = np.array(paused, dtype=np.int64)
+        before, after = stream.log_ns[:-1], stream.log_ns[1:]
+        across = np.searchsorted(starts, before, side="right") < np.searchsorted(starts, after, side="right")
+        missing = np.where(across, 0, missing)
+    for a, b in stream.windows or [(int(stream.log_ns.min()), int(stream.log_ns.max()))]:
+        sel = (stream.log_ns >= a) & (stream.log_ns <= b)
+        if sel.sum() >= 3:
+            r = missing[sel[1:]]
+            r = r[r > 0]
+            counted.add(r, int(sel.sum() + r.sum()), len(r))
+    delay = (stream.log_ns - stream.stamp_ns) / NS_PER_S
+    q25, q75 = np.percentile(delay, [25, 75])
+    return 2.0 * float(q75 - q25)
+
+
+def _jitter_estimate(
+    pair_jitter: list[float],
+    pair_shape: list[np.ndarray],
+    own_jitter: list[float],
+    settings: CalibrationSettings,
+    rng: np.random.Generator,
+) -> tuple[Estimate, tuple[str, ...]]:
+    """The jitter (s): the median of the topic pairs' readings where topics share ticks, else of each topic's own;
+    its interval by a bootstrap over them, widened to hold the pairs' quantile readings where those disagree (with
+    the note that says so)."""
     if pair_jitter:
         values = np.asarray(pair_jitter)
         method = f"interquartile range of delay differences between {len(values)} topic pairs sharing ticks, median"
@@ -426,37 +478,29 @@ def estimate_network(
         method = "2 x interquartile range of each topic's delays (receiver stalls included), median over topics"
     jitter = float(np.median(values))
     shape_note: tuple[str, ...] = ()
-    if len(values) >= 2:
-        samples = bootstrap(lambda c: np.array([np.median(np.repeat(values, c))]), len(values), settings.bootstrap, rng)
-        se, interval = spread(samples[:, 0])
-        method += "; bootstrap over them"
-        if pair_shape and interval is not None:
-            readings = np.median(np.asarray(pair_shape), axis=0)
-            low, high = float(readings.min()), float(readings.max())
-            if low < interval[0] or high > interval[1]:
-                shape_note = (
-                    "the delay differences are not the triangle of uniform delays: read at the "
-                    + ", ".join(f"{q:.2f}" for q in SHAPE_QUANTILES)
-                    + " quantiles of their size they give a jitter of "
-                    + ", ".join(f"{r * 1e3:.1f}" for r in readings)
-                    + f" ms (a receiver that stalls logs deliveries together, which shrinks the lower ones; late ones "
-                    f"stretch the tail): the value is their median, {float(np.median(readings)) * 1e3:.1f} ms, not "
-                    f"the interquartile rule's {jitter * 1e3:.1f} ms, and the interval holds them all",
-                )
-                jitter = float(np.median(readings))
-                interval = (min(interval[0], low), max(interval[1], high))
-                se = max(se or 0.0, (interval[1] - interval[0]) / (2 * Z_95))
-                method += "; the differences' quantiles disagree: their median reading, widened to hold them all"
-        jitter_est = Estimate.of(jitter, se, interval, "s", method, len(values))
-    else:
-        jitter_est = Estimate.of(jitter, None, None, "s", method, len(values))
-    bursts = int(np.sum(all_runs >= 2))
-    notes = (
-        f"{len(kept)} sensor topics, {expected} messages expected, {lost} missing "
-        f"({lost / max(expected, 1):.3f}; {isolated} isolated, {bursts} bursts of 2 or more)",
-        *shape_note,
-    )
-    return NetworkFit(loss, jitter_est, notes, burst)
+    if len(values) < 2:
+        return Estimate.of(jitter, None, None, "s", method, len(values)), shape_note
+    samples = bootstrap(lambda c: np.array([np.median(np.repeat(values, c))]), len(values), settings.bootstrap, rng)
+    se, interval = spread(samples[:, 0])
+    method += "; bootstrap over them"
+    if pair_shape and interval is not None:
+        readings = np.median(np.asarray(pair_shape), axis=0)
+        low, high = float(readings.min()), float(readings.max())
+        if low < interval[0] or high > interval[1]:
+            shape_note = (
+                "the delay differences are not the triangle of uniform delays: read at the "
+                + ", ".join(f"{q:.2f}" for q in SHAPE_QUANTILES)
+                + " quantiles of their size they give a jitter of "
+                + ", ".join(f"{r * 1e3:.1f}" for r in readings)
+                + f" ms (a receiver that stalls logs deliveries together, which shrinks the lower ones; late ones "
+                f"stretch the tail): the value is their median, {float(np.median(readings)) * 1e3:.1f} ms, not "
+                f"the interquartile rule's {jitter * 1e3:.1f} ms, and the interval holds them all",
+            )
+            jitter = float(np.median(readings))
+            interval = (min(interval[0], low), max(interval[1], high))
+            se = max(se or 0.0, (interval[1] - interval[0]) / (2 * Z_95))
+            method += "; the differences' quantiles disagree: their median reading, widened to hold them all"
+    return Estimate.of(jitter, se, interval, "s", method, len(values)), shape_note
 
 
 SHAPE_QUANTILES = (0.5, 0.75, 0.9)
