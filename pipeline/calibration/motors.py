@@ -490,6 +490,68 @@ def _unfitted(reason: str) -> MotorFit:
     )
 
 
+def _transient_deadband(
+    transient: Sequence[WheelEpisode],
+    deadband_value: float,
+    identified: bool,
+    flat: tuple[float, float],
+    gains: tuple[float, float],
+    odometry_period_s: float,
+    timeout: float,
+) -> tuple[np.ndarray, float, list[float]]:
+    """The deadband the transients are fitted with, and their coarse grid of costs at it: the steady fit's where it
+    is identified; else, since held commands that never came near the deadband leave a range of deadbands that fit
+    them alike (whose middle is arbitrary and, put into the transients, bends the limit), the candidate within that
+    range the transients fit best. Returns (coarse costs, the deadband, the candidates)."""
+    candidates = [deadband_value]
+    if not identified:
+        candidates = [d for d in TRANSIENT_DEADBANDS_RADPS if flat[0] <= d <= flat[1]] or [flat[0]]
+    coarse_by = []
+    for candidate in candidates:
+        args = (candidate, gains, odometry_period_s, timeout)
+        coarse_by.append(
+            np.sum(
+                [
+                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, shares=COARSE_MOTOR_SHARES)
+                    for e in transient
+                ],
+                axis=0,
+            )
+        )
+    chosen = int(np.argmin([float(c.min()) for c in coarse_by]))
+    return coarse_by[chosen], candidates[chosen], candidates
+
+
+def _fine_costs(
+    transient: Sequence[WheelEpisode], coarse: np.ndarray, args: tuple[float, tuple[float, float], float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The transients' costs on the fine grid of delays around the coarse grid's best (its largest limit among equal
+    costs), every limit, lag and share: (delays, costs (episodes, delays, lags, shares, limits))."""
+    i = int(np.unravel_index(int(np.argmin(coarse[..., ::-1])), coarse.shape)[0])
+    lo_d, hi_d = DELAYS_S[max(i - 1, 0)], DELAYS_S[min(i + 1, len(DELAYS_S) - 1)]
+    delays = np.round(np.arange(lo_d, hi_d + FINE_DELAY_STEP_S / 2, FINE_DELAY_STEP_S), 3)
+    costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in transient])
+    return _fine_window(transient, args, delays, costs)
+
+
+def _accel_estimate(
+    costs: np.ndarray, best: np.ndarray, accel_draws: np.ndarray, n_free: int, n_episodes: int
+) -> Estimate:
+    """The acceleration limit at the grid's best point, unidentifiable where the best limit lowers the residual by
+    less than MIN_LIMIT_GAIN against none (model mismatch, not a motor's limit)."""
+    full = costs.sum(axis=0)[int(best[0]), int(best[1]), int(best[2])]
+    followed = float(ACCELS_RADPS2[int(np.argmax(full <= full[-1]))])  # the least limit that never binds
+    totals = costs.sum(axis=0)
+    gain = 1.0 - float(totals.min()) / max(float(totals[..., -1].min()), 1e-300)
+    if gain < MIN_LIMIT_GAIN:
+        return Estimate.unidentifiable(
+            f"no limit binds clearly: the best limit lowers the wheel-speed residual by {gain:.1%} against none "
+            f"(needs {MIN_LIMIT_GAIN:.0%}), less than the simulator's single lag leaves unexplained",
+            "rad/s^2",
+        )
+    return _accel(int(best[3]), accel_draws[:, 3], n_free, n_episodes, followed)
+
+
 def estimate_motors(
     episodes: Sequence[WheelEpisode], odometry_period_s: float, settings: CalibrationSettings, rng: np.random.Generator
 ) -> MotorFit:
@@ -514,31 +576,12 @@ def estimate_motors(
     transient = used
     if len(used) > MAX_TRANSIENT_EPISODES:
         transient = [used[k] for k in np.linspace(0, len(used) - 1, MAX_TRANSIENT_EPISODES).round().astype(int)]
-    # held commands that never came near the deadband leave a range of deadbands that fit them alike; the middle
-    # of that range is arbitrary and, put into the transients, bends the limit: the transients choose within it
-    candidates = [deadband_value]
-    if not deadband.ok:
-        candidates = [d for d in TRANSIENT_DEADBANDS_RADPS if flat_lo <= d <= flat_hi] or [flat_lo]
-    coarse_by = []
-    for candidate in candidates:
-        args = (candidate, (g_lin, g_ang), odometry_period_s, timeout)
-        coarse_by.append(
-            np.sum(
-                [
-                    _transient_costs(e, *args, DELAYS_S, COARSE_ACCELS_RADPS2, shares=COARSE_MOTOR_SHARES)
-                    for e in transient
-                ],
-                axis=0,
-            )
-        )
-    chosen = int(np.argmin([float(c.min()) for c in coarse_by]))
-    coarse, transient_deadband = coarse_by[chosen], candidates[chosen]
-    args = (transient_deadband, (g_lin, g_ang), odometry_period_s, timeout)
-    i = int(np.unravel_index(int(np.argmin(coarse[..., ::-1])), coarse.shape)[0])
-    lo_d, hi_d = DELAYS_S[max(i - 1, 0)], DELAYS_S[min(i + 1, len(DELAYS_S) - 1)]
-    delays = np.round(np.arange(lo_d, hi_d + FINE_DELAY_STEP_S / 2, FINE_DELAY_STEP_S), 3)
-    costs = np.stack([_transient_costs(e, *args, delays, ACCELS_RADPS2) for e in transient])
-    delays, costs = _fine_window(transient, args, delays, costs)
+    gains = (g_lin, g_ang)
+    coarse, transient_deadband, candidates = _transient_deadband(
+        transient, deadband_value, deadband.ok, (flat_lo, flat_hi), gains, odometry_period_s, timeout
+    )
+    args = (transient_deadband, gains, odometry_period_s, timeout)
+    delays, costs = _fine_costs(transient, coarse, args)
     shape = costs.shape[1:]
 
     def solve(weights: np.ndarray) -> np.ndarray:
@@ -551,18 +594,7 @@ def estimate_motors(
     best = solve(np.ones(len(transient)))
     accel_draws = bootstrap(solve, len(transient), settings.bootstrap, rng)
     n_free = sum(int(e.free.sum()) for e in transient)
-    full = costs.sum(axis=0)[int(best[0]), int(best[1]), int(best[2])]
-    followed = float(ACCELS_RADPS2[int(np.argmax(full <= full[-1]))])  # the least limit that never binds
-    totals = costs.sum(axis=0)
-    gain = 1.0 - float(totals.min()) / max(float(totals[..., -1].min()), 1e-300)
-    if gain < MIN_LIMIT_GAIN:  # a limit that barely helps stands for model mismatch, not a motor's limit
-        accel = Estimate.unidentifiable(
-            f"no limit binds clearly: the best limit lowers the wheel-speed residual by {gain:.1%} against none "
-            f"(needs {MIN_LIMIT_GAIN:.0%}), less than the simulator's single lag leaves unexplained",
-            "rad/s^2",
-        )
-    else:
-        accel = _accel(int(best[3]), accel_draws[:, 3], n_free, len(transient), followed)
+    accel = _accel_estimate(costs, best, accel_draws, n_free, len(transient))
     d, lag, share = delays[int(best[0])], LAGS_S[int(best[1])], MOTOR_SHARES[int(best[2])]
     motor = _motor_lag(best, accel_draws, n_free, len(transient))
     delay, driver = _driver(best, accel_draws, delays, n_free, len(transient), motor)
