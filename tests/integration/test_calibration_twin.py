@@ -318,10 +318,13 @@ def test_the_lab_lidar_s_absent_artefacts_are_not_read_into_it(lab_calibration):
     a depth edge is no mixed pixel), and the beams' spread reads under 0.05 (a passing robot's returns no longer move
     a beam's mean, each deviation is scaled by the noise at its own range: it read 0.07-0.11 before). The spread is
     bounded rather than its interval asked to hold 0: a 95 % interval misses a true 0 in one recording of twenty by
-    construction."""
+    construction. So are the mixed pixels, and what the calibrated world takes of them is held: a reading whose
+    interval leaves out 0 is weak (it stays out of the world), as one recording beside a second worker read 0.0015
+    [0.00026, 0.011]."""
     _, result = lab_calibration
     mixed = result.values["lidar.mixed_pixel_prob"]
-    assert mixed.interval is not None and mixed.interval[0] == 0.0, mixed
+    assert mixed.interval is not None and (mixed.interval[0] == 0.0 or not mixed.ok), mixed
+    assert mixed.value is not None and mixed.value < 0.005, mixed
     spread = result.values["lidar.beam_noise_spread"]
     assert spread.value is not None and spread.value < 0.05, spread
 
